@@ -1,0 +1,85 @@
+"""Mitsuba / Dr.Jit start-up: a usable libLLVM and a validated variant.
+
+Dr.Jit 1.5's LLVM backend aborts the whole process with libLLVM 15 (Debian's default), so the
+library is located and checked *before* Dr.Jit is imported, and a missing one is a
+:class:`~framework.errors.EnvironmentSetupError` with the fix, never an abort.
+"""
+from __future__ import annotations
+
+import glob
+import os
+import re
+import sys
+
+from framework.errors import ConfigError, EnvironmentSetupError
+
+MIN_LLVM_MAJOR = 16
+_SYSTEM_GLOBS = ("/usr/lib/x86_64-linux-gnu/libLLVM*.so*", "/usr/lib/llvm-*/lib/libLLVM*.so*",
+                 "/usr/lib64/libLLVM*.so*", "/usr/local/lib/libLLVM*.so*")
+_FIX = ("install a libLLVM >= 16: run scripts/setup.sh (pip wheel karellen-llvm-core), "
+        "or 'apt-get install libllvm19', or set DRJIT_LIBLLVM_PATH to such a libLLVM.so")
+
+
+def llvm_major(path: str) -> int | None:
+    """Major LLVM version encoded in a library file name (``libLLVM-19.so``, ``libLLVM.so.23.1``)."""
+    m = re.search(r"libLLVM[-.](?:so\.)?(\d+)", os.path.basename(os.path.realpath(path)))
+    return int(m.group(1)) if m else None
+
+
+def find_libllvm() -> str | None:
+    """Newest libLLVM >= 16: the virtual environment's (karellen-llvm-core) first, then the system's."""
+    venv = sorted(glob.glob(os.path.join(sys.prefix, "lib", "libLLVM*.so*")))
+    candidates = venv + sorted(p for g in _SYSTEM_GLOBS for p in glob.glob(g))
+    usable = [p for p in candidates if (llvm_major(p) or 0) >= MIN_LLVM_MAJOR]
+    return max(usable, key=llvm_major) if usable else None
+
+
+def ensure_libllvm() -> str:
+    """Point Dr.Jit at a usable libLLVM (``DRJIT_LIBLLVM_PATH``) or raise with the fix."""
+    given = os.environ.get("DRJIT_LIBLLVM_PATH")
+    if given:
+        if not os.path.isfile(given):
+            raise EnvironmentSetupError(f"DRJIT_LIBLLVM_PATH={given} does not exist: {_FIX}")
+        major = llvm_major(given)
+        if major is not None and major < MIN_LLVM_MAJOR:
+            raise EnvironmentSetupError(
+                f"DRJIT_LIBLLVM_PATH={given} is LLVM {major}, Dr.Jit 1.5 aborts with it: {_FIX}")
+        return given
+    found = find_libllvm()
+    if found is None:
+        raise EnvironmentSetupError(f"no libLLVM >= {MIN_LLVM_MAJOR} found: {_FIX}")
+    os.environ["DRJIT_LIBLLVM_PATH"] = found
+    return found
+
+
+def known_variants() -> list[str]:
+    import mitsuba as mi
+    return list(mi.variants())
+
+
+def set_variant(variant: str, *, channels: tuple[str, ...] | None = None) -> str:
+    """Select a Mitsuba variant; ``auto`` picks ``llvm_ad_rgb`` or ``llvm_ad_mono`` from ``channels``.
+
+    Raises :class:`ConfigError` for an unknown variant or one whose colour mode does not match
+    the scene's channels (an ``rgb`` scene needs an ``*_rgb`` variant, a ``mono`` scene ``*_mono``).
+    """
+    if variant == "auto":
+        variant = "llvm_ad_mono" if channels == ("Y",) else "llvm_ad_rgb"
+    if variant.startswith("llvm") or variant.startswith("scalar"):
+        ensure_libllvm()
+    import mitsuba as mi
+    if variant not in mi.variants():
+        raise ConfigError(f"variant={variant} is not a Mitsuba variant of this build; "
+                          f"choose one of: {', '.join(mi.variants())}")
+    if channels is not None:
+        mono = variant.endswith("_mono")
+        if mono != (channels == ("Y",)) or not (mono or variant.endswith("_rgb")):
+            want = "*_mono" if channels == ("Y",) else "*_rgb"
+            raise ConfigError(f"variant={variant} does not match the scene's channels "
+                              f"{''.join(channels)}: use a {want} variant (or variant=auto)")
+    try:
+        mi.set_variant(variant)
+    except Exception as exc:  # e.g. cuda_* without a GPU
+        raise ConfigError(f"variant={variant} cannot start on this machine ({exc}); "
+                          "use an llvm_ad_* variant") from None
+    return variant
