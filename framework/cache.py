@@ -1,0 +1,75 @@
+"""A content-addressed on-disk cache with atomic writes.
+
+Entries are ``.npz`` files named by the SHA-256 of a JSON key (everything that affects the
+content). Writes go to a temporary file in the same folder and are renamed into place, so an
+interrupted run never leaves a half-written entry; an entry that fails to load or lacks its
+checksum is treated as missing and rebuilt, never trusted.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+
+def key_digest(key: dict) -> str:
+    """Stable hex digest of a JSON-able key (sorted keys)."""
+    return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[:24]
+
+
+def _checksum(arrays: dict[str, np.ndarray]) -> str:
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(name.encode() + str(a.dtype).encode() + str(a.shape).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically (temporary file in the same folder, then rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+class Cache:
+    """``Cache(dir).load(kind, key)`` / ``.store(kind, key, arrays)``; ``dir=None`` disables it."""
+
+    def __init__(self, directory: str | os.PathLike | None):
+        self.dir = Path(directory).expanduser().resolve() if directory else None
+
+    def path(self, kind: str, key: dict) -> Path | None:
+        return None if self.dir is None else self.dir / kind / f"{key_digest(key)}.npz"
+
+    def load(self, kind: str, key: dict) -> dict[str, np.ndarray] | None:
+        path = self.path(kind, key)
+        if path is None or not path.is_file():
+            return None
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                arrays = {k: z[k] for k in z.files}
+            stored = str(arrays.pop("__checksum__"))
+        except Exception:
+            return None  # corrupt: rebuilt by the caller
+        return arrays if stored == _checksum(arrays) else None
+
+    def store(self, kind: str, key: dict, arrays: dict[str, np.ndarray]) -> None:
+        path = self.path(kind, key)
+        if path is None:
+            return
+        import io
+        buf = io.BytesIO()
+        np.savez(buf, __checksum__=np.array(_checksum(arrays)), **arrays)
+        atomic_write_bytes(path, buf.getvalue())

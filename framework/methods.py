@@ -1,0 +1,111 @@
+"""The method interface and registry.
+
+A method is one folder ``methods/<name>/`` whose ``__init__.py`` defines a :class:`Method`
+subclass decorated with :func:`register`, plus one YAML ``framework/conf/method/<name>.yaml``
+(its ``name`` key is the registry key; the other keys reach the method as ``self.cfg``).
+"""
+from __future__ import annotations
+
+import importlib
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from framework.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One unknown of the inversion: the weight of ``kernel`` on segment ``segment`` (per channel)."""
+
+    index: int          # position in the parameter vector ρ
+    segment: int        # index into Scene.segments
+    segment_name: str
+    kernel: str
+
+
+@dataclass
+class Problem:
+    """Everything a method needs: the scene, the views to fit, their observed images, the settings.
+
+    ``settings`` is the run's full configuration (``render.spp``, ``render.max_bounces``,
+    ``seed``, ``variant``, ``budget.renders``, ``cache.dir``, ``executor``...).
+    """
+
+    scene: Any                       # framework.scene.Scene
+    cameras: list                    # framework.scene.Camera, the selected views
+    observed: dict[str, np.ndarray]  # camera name -> (H, W, C) float32 linear radiance
+    parameters: list[Parameter]
+    settings: Any                    # omegaconf.DictConfig
+    seed: int = 0
+
+    @property
+    def n_channels(self) -> int:
+        return len(self.scene.channels)
+
+
+@dataclass
+class MethodResult:
+    """What a method returns; the framework turns it into results.json and the report."""
+
+    estimate: np.ndarray                       # (P, C); NaN where a parameter is unobservable
+    renders: int                               # full ray-tracing passes over the views
+    timings_s: dict[str, float] = field(default_factory=dict)   # at least render, solve
+    cost_history: list[float] = field(default_factory=list)     # cost at each evaluation
+    cost_times_s: list[float] = field(default_factory=list)     # wall time of each evaluation
+    reconstructions: dict[str, np.ndarray] = field(default_factory=dict)  # view -> (H, W, C)
+    std: np.ndarray | None = None              # (P, C) standard errors, where known
+    observable: np.ndarray | None = None       # (P,) bool, where known
+    extras: dict[str, Any] = field(default_factory=dict)        # method-specific, JSON-able
+    parameters: list[Parameter] | None = None  # the unknowns estimated; None: problem.parameters
+
+
+class Method(ABC):
+    """Base class: ``Method(cfg).run(problem) -> MethodResult``.
+
+    ``cfg`` is the method's own config group (``framework/conf/method/<name>.yaml``).
+    """
+
+    name: ClassVar[str]
+
+    def __init__(self, cfg):
+        self.cfg = cfg
+
+    @abstractmethod
+    def run(self, problem: Problem) -> MethodResult:
+        ...
+
+
+REGISTRY: dict[str, type[Method]] = {}
+
+
+def register(name: str):
+    """Class decorator: make a :class:`Method` subclass available as ``method=<name>``."""
+    def deco(cls: type[Method]) -> type[Method]:
+        cls.name = name
+        REGISTRY[name] = cls
+        return cls
+    return deco
+
+
+def get_method(name: str) -> type[Method]:
+    """The registered method ``name``, importing ``methods.<name>`` on first use."""
+    if name not in REGISTRY:
+        try:
+            importlib.import_module(f"methods.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name not in (f"methods.{name}", "methods"):
+                raise
+    if name not in REGISTRY:
+        raise ConfigError(f"method={name} is not a registered method; choose one of: "
+                          f"{', '.join(available_methods())}")
+    return REGISTRY[name]
+
+
+def available_methods() -> list[str]:
+    """Names of the methods that have a config in ``framework/conf/method``."""
+    from pathlib import Path
+    conf = Path(__file__).parent / "conf" / "method"
+    return sorted(p.stem for p in conf.glob("*.yaml"))

@@ -1,0 +1,154 @@
+"""From the scene model to a Mitsuba scene, keeping segment identity.
+
+Mitsuba merges meshes whose BSDFs are equal (PITFALLS), so the scene is loaded with
+``optimize=False`` and every mesh stays its own shape with a known segment. Cameras become
+``perspective`` sensors with a box filter (pixel-exact comparison); BSDFs are the exact kernel
+sums of :func:`framework.kernels.forward_bsdf`, whose weights :meth:`MitsubaScene.set_weights`
+writes in place through ``mi.traverse`` (no reload).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from framework import kernels as K
+from framework.envmap import TO_WORLD
+from framework.scene import Camera, Scene
+
+#: Mitsuba renders the scene's N_max reflections with ``max_depth = N_max + 1`` (PITFALLS).
+def max_depth_for(max_bounces: int) -> int:
+    return -1 if max_bounces < 0 else max_bounces + 1
+
+
+def sensor_dict(camera: Camera, *, spp: int, channels: tuple[str, ...]) -> dict:
+    """A Mitsuba ``perspective`` sensor equivalent to a COLMAP pinhole camera (box filter).
+
+    Conversion verified in PITFALLS: ``to_world = inv([R|t]) @ diag(-1, -1, 1, 1)``,
+    ``fov = 2 atan(w / 2f)`` along x, principal point offsets ``(w/2 - cx)/w``, ``(h/2 - cy)/h``.
+    """
+    import mitsuba as mi
+    T = np.eye(4)
+    T[:3] = camera.cam_from_world
+    to_world = np.linalg.inv(T) @ np.diag([-1.0, -1.0, 1.0, 1.0])
+    w, h = camera.width, camera.height
+    return {
+        "type": "perspective",
+        "to_world": mi.ScalarTransform4f(to_world.tolist()),
+        "fov": float(np.degrees(2 * np.arctan(w / (2 * camera.f)))),
+        "fov_axis": "x",
+        "principal_point_offset_x": (w / 2 - camera.cx) / w,
+        "principal_point_offset_y": (h / 2 - camera.cy) / h,
+        "near_clip": 1e-3,
+        "sampler": {"type": "independent", "sample_count": int(spp)},
+        "film": {"type": "hdrfilm", "width": w, "height": h, "rfilter": {"type": "box"},
+                 "pixel_format": "luminance" if channels == ("Y",) else "rgb"},
+    }
+
+
+def emitter_dict(e, channels: tuple[str, ...]) -> dict | None:
+    """Mitsuba dict of a non-area emitter (area emitters ride on their meshes)."""
+    import mitsuba as mi
+    if e.type == "constant":
+        return {"type": "constant", "radiance": K.spectrum(e.radiance, channels)}
+    if e.type == "directional":
+        return {"type": "directional", "direction": [float(x) for x in e.direction],
+                "irradiance": K.spectrum(e.irradiance, channels)}
+    if e.type == "envmap":
+        return {"type": "envmap", "bitmap": mi.Bitmap(np.ascontiguousarray(e.image, np.float32)),
+                "scale": float(e.scale), "to_world": mi.ScalarTransform4f(TO_WORLD.tolist())}
+    return None
+
+
+def _mesh_shape(scene: Scene, i: int):
+    """A ``mi.Mesh`` from numpy arrays, with its segment's BSDF and its area emitter, if any."""
+    import drjit as dr
+    import mitsuba as mi
+    m = scene.meshes[i]
+    props = mi.Properties()
+    if m.segment is None:
+        bsdf = {"type": "diffuse", "reflectance": 0.0}          # emits only: absorbs what it gets
+    else:
+        bsdf = K.forward_bsdf(list(scene.segments[m.segment].kernels), scene.channels)
+    props["bsdf"] = mi.load_dict(bsdf)
+    if m.radiance is not None:
+        props["emitter"] = mi.load_dict({"type": "area", "radiance": K.spectrum(m.radiance, scene.channels)})
+    mesh = mi.Mesh(f"mesh_{i}", len(m.vertices), len(m.faces), props=props, has_vertex_normals=False)
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = dr.ravel(mi.Point3f(m.vertices.T.astype(np.float32)))
+    params["faces"] = dr.ravel(mi.Vector3u(m.faces.T.astype(np.uint32)))
+    params.update()
+    return mesh
+
+
+class MitsubaScene:
+    """A loaded Mitsuba scene of some views of a :class:`Scene`, with segment bookkeeping.
+
+    Parameters
+    ----------
+    scene : Scene
+    cameras : list of Camera
+        The views; sensor ``i`` of the Mitsuba scene is ``cameras[i]``.
+    spp : int
+        Samples per pixel of each sensor's sampler.
+    integrator : dict, optional
+        Mitsuba integrator dict (default ``path`` with ``max_depth=-1``).
+    """
+
+    def __init__(self, scene: Scene, cameras: list[Camera], *, spp: int, integrator: dict | None = None):
+        import mitsuba as mi
+        self.model = scene
+        self.cameras = list(cameras)
+        d = {"type": "scene", "integrator": integrator or {"type": "path", "max_depth": -1}}
+        for i, cam in enumerate(self.cameras):
+            d[f"sensor_{i}"] = sensor_dict(cam, spp=spp, channels=scene.channels)
+        for j, e in enumerate(scene.emitters):
+            ed = emitter_dict(e, scene.channels)
+            if ed is not None:
+                d[f"emitter_{j}"] = ed
+        for i in range(len(scene.meshes)):
+            d[f"mesh_{i}"] = _mesh_shape(scene, i)
+        self.scene = mi.load_dict(d, optimize=False)
+        self.params = mi.traverse(self.scene)
+        by_id = {s.id(): s for s in self.scene.shapes()}
+        #: (mi.Shape, segment index or -1) for every mesh, in scene.meshes order
+        self.shape_segments = [(by_id[f"mesh_{i}"], -1 if m.segment is None else m.segment)
+                               for i, m in enumerate(scene.meshes)]
+
+    def set_weights(self, rho: np.ndarray, parameters) -> None:
+        """Write ρ (P, C) of ``parameters`` into every mesh's BSDF; kernels not listed get 0."""
+        import mitsuba as mi
+        rho = np.asarray(rho, dtype=float)
+        value = {(p.segment, p.kernel): rho[p.index] for p in parameters}
+        for i, m in enumerate(self.model.meshes):
+            if m.segment is None:
+                continue
+            kernels = self.model.segments[m.segment].kernels
+            weights = np.array([value.get((m.segment, k), np.zeros(rho.shape[1])) for k in kernels])
+            for key, v in K.weight_values(list(kernels), weights):
+                full = f"mesh_{i}.bsdf.{key}"
+                cur = self.params[full]
+                self.params[full] = type(cur)(*[float(x) for x in v]) if len(v) > 1 else type(cur)(float(v[0]))
+        self.params.update()
+
+    def render(self, view: int = 0, *, spp: int, seed: int, integrator=None) -> np.ndarray:
+        """Render sensor ``view``; returns (H, W, C) float32 numpy."""
+        import mitsuba as mi
+        img = mi.render(self.scene, sensor=view, spp=spp, seed=seed, integrator=integrator)
+        out = np.array(img, dtype=np.float32)
+        return out.reshape(out.shape[0], out.shape[1], -1)[..., : len(self.model.channels)]
+
+    def segment_map(self, view: int = 0) -> np.ndarray:
+        """(H, W) int32 segment index seen through each pixel centre (-1: sky or emitter only)."""
+        import drjit as dr
+        import mitsuba as mi
+        cam = self.cameras[view]
+        sensor = self.scene.sensors()[view]
+        y, x = np.mgrid[0:cam.height, 0:cam.width]
+        pos = mi.Point2f(((x.ravel() + 0.5) / cam.width).astype(np.float32),
+                         ((y.ravel() + 0.5) / cam.height).astype(np.float32))
+        ray, _ = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
+        si = self.scene.ray_intersect(ray)
+        ids = np.array(dr.reinterpret_array(mi.UInt32, si.shape))
+        table = {int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(s))[0]): seg for s, seg in self.shape_segments}
+        uniq, inverse = np.unique(ids, return_inverse=True)
+        seg = np.array([table.get(int(u), -1) for u in uniq], dtype=np.int32)[inverse]
+        return seg.reshape(cam.height, cam.width)

@@ -1,0 +1,84 @@
+"""Observed images: the scene's own EXRs, or synthesised from its references (paper section 5.1).
+
+Synthetic observations are rendered with Mitsuba's ``path`` integrator at the reference
+weights (``observe.max_depth``: -1, unbounded, as real light is), optionally with seeded
+Gaussian sensor noise, and cached by everything that affects them, so a sweep renders them once.
+
+Seeds: observations use odd seeds and the inversions' own renders even ones
+(:func:`observation_seed`, :func:`inversion_seed`), so the two noises are never correlated
+(PITFALLS; the paper, section 5.1).
+"""
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+
+from framework.cache import Cache
+from framework.scene import Camera, Scene
+
+log = logging.getLogger(__name__)
+_SEED_SPACE = 2**31 - 1
+
+
+def observation_seed(seed: int) -> int:
+    """Odd Mitsuba seed for the synthetic observation stream ``seed``."""
+    return (2 * int(seed) + 1) % _SEED_SPACE
+
+
+def inversion_seed(seed: int, counter: int = 0) -> int:
+    """Even Mitsuba seed for render ``counter`` of a run with seed ``seed``."""
+    return (2 * (int(seed) * 1_000_003 + int(counter))) % _SEED_SPACE
+
+
+def observed_images(scene: Scene, cameras: list[Camera], settings, *, cache: Cache
+                    ) -> tuple[dict[str, np.ndarray], float]:
+    """Observed (H, W, C) images of ``cameras`` and the seconds spent rendering them (0 if cached).
+
+    ``settings.observe`` holds ``spp``, ``max_depth``, ``noise`` (std of additive Gaussian
+    noise relative to the image mean) and ``seed``.
+    """
+    if scene.images is not None:
+        return {c.name: scene.images[c.name] for c in cameras}, 0.0
+    obs = settings.observe
+    out, todo = {}, []
+    for c in cameras:
+        key = _key(scene, c, obs, settings.variant_resolved)
+        hit = cache.load("observed", key)
+        if hit is not None:
+            out[c.name] = hit["image"]
+        else:
+            todo.append(c)
+    t0 = time.perf_counter()
+    if todo:
+        log.info("rendering %d observed view(s) at %d spp", len(todo), obs.spp)
+        for c, img in zip(todo, render_references(scene, todo, spp=obs.spp, max_depth=obs.max_depth,
+                                                    seed=obs.seed, noise=obs.noise)):
+            cache.store("observed", _key(scene, c, obs, settings.variant_resolved), {"image": img})
+            out[c.name] = img
+    return out, time.perf_counter() - t0
+
+
+def render_references(scene: Scene, cameras: list[Camera], *, spp: int, max_depth: int, seed: int,
+                      noise: float = 0.0) -> list[np.ndarray]:
+    """Path-traced images of ``cameras`` at the scene's reference weights."""
+    from framework.mitsuba_scene import MitsubaScene
+    from tqdm import tqdm
+    ms = MitsubaScene(scene, cameras, spp=spp, integrator={"type": "path", "max_depth": int(max_depth)})
+    params = scene.parameters()
+    ms.set_weights(np.nan_to_num(scene.reference(params)), params)
+    rng = np.random.default_rng(observation_seed(seed))
+    images = []
+    for i, _ in enumerate(tqdm(cameras, desc="observe", unit="view", leave=False)):
+        img = ms.render(i, spp=spp, seed=observation_seed(seed * 7919 + i))
+        if noise > 0:
+            img = np.maximum(img + rng.normal(0.0, noise * img.mean(), img.shape), 0.0)
+        images.append(img.astype(np.float32))
+    return images
+
+
+def _key(scene: Scene, cam: Camera, obs, variant: str) -> dict:
+    return {"scene": scene.content_hash, "view": cam.name, "spp": int(obs.spp),
+            "max_depth": int(obs.max_depth), "noise": float(obs.noise), "seed": int(obs.seed),
+            "variant": variant, "version": 1}

@@ -1,0 +1,143 @@
+"""Reading and checking run folders for the reports (CONTRACT section 3)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+from framework.errors import UserError
+
+RESULTS_NAME = "results.json"
+REQUIRED_KEYS = ("method", "scene", "channels", "parameters")
+KERNEL_SYMBOLS = {"diffuse": ("ρ_d", "ρ<sub>d</sub>"), "specular": ("ρ_s", "ρ<sub>s</sub>")}
+
+
+class ReportError(UserError):
+    """A run or sweep folder the report cannot read; the message names the path and the fix."""
+
+
+def load_results(run_dir: str | os.PathLike) -> dict:
+    """Load and check ``<run_dir>/results.json``.
+
+    Parameters
+    ----------
+    run_dir : str or path-like
+        A run folder.
+
+    Returns
+    -------
+    dict
+        The parsed results.
+
+    Raises
+    ------
+    ReportError
+        If the file is missing, is not JSON, or lacks a required key.
+    """
+    path = Path(run_dir) / RESULTS_NAME
+    if not path.is_file():
+        raise ReportError(f"{path}: not found; pass a run folder that holds {RESULTS_NAME} "
+                          "(a finished run) or a sweep folder containing such runs")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ReportError(f"{path}: unreadable JSON ({exc}); re-run the method to rewrite it "
+                          "or remove the broken run folder") from exc
+    _check_results(path, data)
+    return data
+
+
+def _check_results(path: Path, data) -> None:
+    """Raise ReportError unless ``data`` has the CONTRACT section 3 shape the report needs."""
+    if not isinstance(data, dict):
+        raise ReportError(f"{path}: expected a JSON object, got {type(data).__name__}; "
+                          "re-run the method to rewrite it")
+    missing = [k for k in REQUIRED_KEYS if k not in data]
+    if missing:
+        raise ReportError(f"{path}: missing key(s) {', '.join(missing)}; results.json must "
+                          "follow CONTRACT section 3 (re-run the method to rewrite it)")
+    if not isinstance(data["parameters"], list) or not isinstance(data["channels"], list):
+        raise ReportError(f"{path}: 'parameters' and 'channels' must be lists (CONTRACT section 3)")
+    for i, par in enumerate(data["parameters"]):
+        if not isinstance(par, dict) or "segment" not in par or "kernel" not in par:
+            raise ReportError(f"{path}: parameters[{i}] needs 'segment' and 'kernel' "
+                              "(CONTRACT section 3)")
+
+
+def find_run_dirs(dirs) -> list[Path]:
+    """Run folders named by ``dirs``: each is a run folder or searched recursively.
+
+    Parameters
+    ----------
+    dirs : sequence of str or path-like
+        Run folders or sweep folders.
+
+    Returns
+    -------
+    list of pathlib.Path
+        Sorted, without duplicates.
+
+    Raises
+    ------
+    ReportError
+        If a path does not exist or holds no ``results.json``.
+    """
+    if not dirs:
+        raise ReportError("no folder given; pass run folders or sweep folders containing "
+                          f"{RESULTS_NAME}")
+    found: set[Path] = set()
+    for d in map(Path, dirs):
+        if not d.is_dir():
+            raise ReportError(f"{d}: no such folder; pass an existing run or sweep folder")
+        hits = [d] if (d / RESULTS_NAME).is_file() else [p.parent for p in d.rglob(RESULTS_NAME)]
+        if not hits:
+            raise ReportError(f"{d}: no {RESULTS_NAME} found in it or below; pass a finished "
+                              "run folder or a sweep folder containing finished runs")
+        found.update(h.resolve() for h in hits)
+    return sorted(found)
+
+
+def as_list(value, n: int) -> list:
+    """A per-channel list of length ``n`` from a number, a list or None."""
+    if value is None:
+        return [None] * n
+    if isinstance(value, (int, float)):
+        return [float(value)] * n
+    vals = list(value)
+    return vals if len(vals) == n else (vals + [None] * n)[:n]
+
+
+def fmt_num(value, *, digits: int = 4) -> str:
+    """Format a number for a table: fixed decimals, scientific when tiny, '—' when missing."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "—"
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return str(value)
+    if math.isinf(value):
+        return "∞" if value > 0 else "-∞"
+    if value != 0 and abs(value) < 10 ** -(digits - 1):
+        return f"{value:.2e}"
+    return f"{value:.{digits}f}"
+
+
+def fmt_pm(mean, std, *, digits: int = 4) -> str:
+    """Format ``mean ± std`` (std omitted when None)."""
+    if std is None or (isinstance(std, float) and math.isnan(std)):
+        return fmt_num(mean, digits=digits)
+    return f"{fmt_num(mean, digits=digits)} ± {fmt_num(std, digits=digits)}"
+
+
+def kernel_label(kernel: str, *, html: bool = False) -> str:
+    """The paper's symbol for a kernel (ρ_d, ρ_s), or the kernel's name."""
+    pair = KERNEL_SYMBOLS.get(kernel)
+    if pair is None:
+        return kernel
+    return pair[1] if html else pair[0]
+
+
+def seed_of(results: dict):
+    """The run's seed from ``settings.seed`` (or a top-level ``seed``), else None."""
+    settings = results.get("settings") or {}
+    return settings.get("seed", results.get("seed")) if isinstance(settings, dict) else None

@@ -1,0 +1,289 @@
+"""The report of one run: ``report.md`` and ``report.html`` beside ``results.json``."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import time
+from pathlib import Path
+
+import numpy as np
+
+from framework import images
+from framework.report_data import as_list, fmt_num, kernel_label, load_results, seed_of
+from framework.report_doc import Doc
+
+FILES_DIR = "report_files"
+KEY_SETTINGS = ("seed", "spp", "max_bounces", "variant", "views", "budget_renders", "executor")
+
+
+def _safe(name: str) -> str:
+    """A file-name-safe version of ``name``."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", str(name)).strip("_") or "item"
+
+
+def _short(value, limit: int = 120) -> str:
+    """A setting value as short text."""
+    text = value if isinstance(value, str) else json.dumps(value, default=str)
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+class _RunContext:
+    """Paths and notes shared by the sections of one run report."""
+
+    def __init__(self, run_dir: Path, results: dict):
+        self.run_dir = run_dir
+        self.results = results
+        self.files = run_dir / FILES_DIR
+        self.files.mkdir(exist_ok=True)
+        self.metrics: list[tuple[str, dict]] = []
+
+    def out(self, name: str) -> tuple[Path, str]:
+        """Absolute path and report-relative src of a generated file."""
+        return self.files / name, f"{FILES_DIR}/{name}"
+
+    def load_image(self, rel, doc: Doc, what: str):
+        """Read an EXR named in results.json; add a note to ``doc`` and return None on failure."""
+        if not rel:
+            return None
+        try:
+            return images.read_exr(self.run_dir / rel)
+        except Exception as exc:  # noqa: BLE001 - any unreadable image becomes a note
+            doc.para(f"{what}: cannot read {rel} ({type(exc).__name__}: {exc})", note=True)
+            return None
+
+
+def _section_overview(doc: Doc, res: dict) -> None:
+    """Scene, method and key settings."""
+    settings = res.get("settings") if isinstance(res.get("settings"), dict) else {}
+    rows = [("Scene", str(res["scene"])), ("Method", str(res["method"])),
+            ("Channels", ", ".join(map(str, res["channels"]))),
+            ("Renders (full ray-tracing passes)", fmt_num(res.get("renders"), digits=0)),
+            ("Image RMSE", fmt_num(res.get("image_rmse"), digits=5))]
+    rows += [(k, _short(settings[k])) for k in KEY_SETTINGS if k in settings]
+    doc.heading("Overview")
+    doc.table(["Item", "Value"], rows, left=2)
+    others = [(k, _short(v)) for k, v in settings.items() if k not in KEY_SETTINGS]
+    if others:
+        doc.heading("All settings", level=3)
+        doc.table(["Setting", "Value"], others, left=2)
+
+
+def parameter_rows(res: dict) -> tuple[list, list, list | None]:
+    """Columns, rows and column groups of the parameter table in the paper's form.
+
+    Returns
+    -------
+    tuple
+        ``(columns, rows, groups)``; groups is None for one channel. Each channel has
+        Ref., Estim., Error (and Std where any parameter has one).
+    """
+    channels, params = list(res["channels"]), res["parameters"]
+    nc = len(channels)
+    has_std = any(p.get("std") is not None for p in params)
+    has_obs = any("observable" in p for p in params)
+    per_ch = ["Ref.", "Estim.", "Error"] + (["Std"] if has_std else [])
+    lead = ["Object", "Param."] + (["Observable"] if has_obs else [])
+    columns = lead + per_ch * nc
+    groups = None if nc == 1 else [("", len(lead))] + [(c, len(per_ch)) for c in channels]
+    rows, previous = [], None
+    for p in params:
+        obj = str(p["segment"])
+        row = [obj if obj != previous else "",
+               (kernel_label(p["kernel"]), kernel_label(p["kernel"], html=True))]
+        previous = obj
+        if has_obs:
+            row.append("no" if p.get("observable") is False else "yes")
+        cols = [as_list(p.get(k), nc) for k in ("reference", "estimate", "error", "std")]
+        for c in range(nc):
+            row += [fmt_num(cols[0][c]), fmt_num(cols[1][c]), fmt_num(cols[2][c])]
+            row += [fmt_num(cols[3][c])] if has_std else []
+        rows.append(row)
+    return columns, rows, groups
+
+
+def mean_abs_error(res: dict) -> float | None:
+    """Mean absolute error over every known parameter error and channel, or None."""
+    errs = [abs(e) for p in res["parameters"] for e in as_list(p.get("error"), len(res["channels"]))
+            if isinstance(e, (int, float))]
+    return float(np.mean(errs)) if errs else None
+
+
+def _section_parameters(doc: Doc, res: dict) -> None:
+    """The parameter table (the paper's Tables 1 and 2)."""
+    doc.heading("Parameters")
+    if not res["parameters"]:
+        doc.para("No parameters were estimated.", note=True)
+        return
+    columns, rows, groups = parameter_rows(res)
+    doc.table(columns, rows, groups=groups, left=3 if "Observable" in columns else 2,
+              caption=f"Estimates of {res['method']} on {res['scene']}; error = estimate − reference.")
+    mae = mean_abs_error(res)
+    if mae is not None:
+        doc.para(f"Mean absolute error over all known parameters and channels: {fmt_num(mae)}")
+
+
+def _section_timings(doc: Doc, res: dict) -> None:
+    """Render, solve and total times and the render count."""
+    timings = res.get("timings_s") if isinstance(res.get("timings_s"), dict) else {}
+    order = ["render", "solve", "total"] + [k for k in timings if k not in ("render", "solve", "total")]
+    rows = [(f"{k} (s)", fmt_num(timings.get(k), digits=3)) for k in order if k in timings]
+    rows.append(("renders", fmt_num(res.get("renders"), digits=0)))
+    rows.append(("cost evaluations", str(len(res.get("cost_history") or []))))
+    doc.heading("Timings")
+    doc.table(["Quantity", "Value"], rows)
+
+
+def _section_convergence(doc: Doc, ctx: _RunContext) -> None:
+    """Cost against evaluation index and wall time (log y)."""
+    costs = [c for c in (ctx.results.get("cost_history") or []) if isinstance(c, (int, float))]
+    doc.heading("Convergence")
+    if not costs:
+        doc.para("No cost history recorded.", note=True)
+        return
+    from framework.report_plots import plot_convergence
+    path, src = ctx.out("convergence.png")
+    plot_convergence(path, costs, times=ctx.results.get("cost_times_s"))
+    doc.figures([(src, "cost per evaluation (log scale)")])
+
+
+def _view_panel(doc: Doc, ctx: _RunContext, view: dict, index: int) -> None:
+    """Observed, reconstruction, signed difference and segment map of one view."""
+    from framework.report_plots import plot_difference, plot_segments
+    name = str(view.get("name", f"view {index}"))
+    stem = f"view{index:02d}_{_safe(name)}"
+    doc.heading(f"View {name}", level=3)
+    obs = ctx.load_image(view.get("observed"), doc, "observed")
+    rec = ctx.load_image(view.get("reconstruction"), doc, "reconstruction")
+    items, exposure = [], images.auto_exposure(obs) if obs is not None else None
+    for img, label in ((obs, "observed"), (rec, "reconstruction")):
+        if img is not None:
+            path, src = ctx.out(f"{stem}_{label}.png")
+            images.write_png(path, images.tonemap(img, exposure=exposure))
+            items.append((src, label))
+    if obs is not None and rec is not None and obs.shape == rec.shape:
+        path, src = ctx.out(f"{stem}_difference.png")
+        plot_difference(path, (rec - obs).mean(axis=-1), title="reconstruction − observed")
+        items.append((src, "signed difference (mean over channels)"))
+        ctx.metrics.append((name, images.image_metrics(obs, rec)))
+    elif obs is not None and rec is not None:
+        doc.para(f"shapes differ: observed {obs.shape}, reconstruction {rec.shape}", note=True)
+    seg = _load_segments(doc, ctx, view.get("segments"))
+    if seg is not None:
+        path, src = ctx.out(f"{stem}_segments.png")
+        plot_segments(path, seg, ctx.results.get("segments") or [])
+        items.append((src, "segment map"))
+    if items:
+        doc.figures(items)
+
+
+def _load_segments(doc: Doc, ctx: _RunContext, rel):
+    """Read a segment index map (.npy); a note and None on failure."""
+    if not rel:
+        return None
+    try:
+        seg = np.load(ctx.run_dir / rel, allow_pickle=False)
+        if seg.ndim != 2 or not np.issubdtype(seg.dtype, np.integer) or seg.min() < -1:
+            raise ValueError(f"expected a 2-D int map with values >= -1, got {seg.dtype} {seg.shape}")
+        return seg
+    except Exception as exc:  # noqa: BLE001 - shown in the report
+        doc.para(f"segments: cannot read {rel} ({type(exc).__name__}: {exc})", note=True)
+        return None
+
+
+def _section_views(doc: Doc, ctx: _RunContext) -> None:
+    """One image panel per view, then the image metrics table."""
+    views = [v for v in (ctx.results.get("views") or []) if isinstance(v, dict)]
+    doc.heading("Views")
+    if not views:
+        doc.para("No views recorded.", note=True)
+        return
+    for i, view in enumerate(views):
+        _view_panel(doc, ctx, view, i)
+    if ctx.metrics:
+        doc.heading("Image metrics", level=3)
+        rows = [(n, fmt_num(m["rmse"], digits=5), fmt_num(m["psnr"], digits=2),
+                 fmt_num(m["ssim"], digits=4)) for n, m in ctx.metrics]
+        doc.table(["View", "RMSE", "PSNR (dB)", "SSIM"], rows,
+                  caption="Reconstruction against observed; data range = observed max − min.")
+
+
+def _section_correlation(doc: Doc, ctx: _RunContext) -> None:
+    """Parameter correlation heat map, when results.json has one."""
+    corr = ctx.results.get("correlation")
+    if not isinstance(corr, dict) or not corr.get("matrix"):
+        return
+    from framework.report_plots import plot_correlation
+    doc.heading("Parameter correlation")
+    matrix = np.asarray(corr["matrix"], dtype=float)
+    labels = list(corr.get("labels") or [str(i) for i in range(matrix.shape[0])])
+    if matrix.ndim != 2 or matrix.shape[0] != matrix.shape[1] or len(labels) != matrix.shape[0]:
+        doc.para(f"correlation matrix of shape {matrix.shape} does not match its labels", note=True)
+        return
+    path, src = ctx.out("correlation.png")
+    plot_correlation(path, labels, matrix)
+    doc.figures([(src, "parameter correlation")])
+
+
+def _section_relit(doc: Doc, ctx: _RunContext) -> None:
+    """Relit / reflectance images, when results.json lists some."""
+    relit = [r for r in (ctx.results.get("relit") or []) if isinstance(r, dict)]
+    if not relit:
+        return
+    doc.heading("Relit images")
+    items = []
+    for i, item in enumerate(relit):
+        name = str(item.get("name", f"relit {i}"))
+        img = ctx.load_image(item.get("image"), doc, name)
+        if img is not None:
+            path, src = ctx.out(f"relit{i:02d}_{_safe(name)}.png")
+            images.write_png(path, images.tonemap(img))
+            items.append((src, name))
+    if items:
+        doc.figures(items)
+
+
+def write_run_report(run_dir) -> tuple[Path, Path]:
+    """Write ``report.md`` and ``report.html`` for one run.
+
+    Parameters
+    ----------
+    run_dir : str or path-like
+        A run folder holding ``results.json`` (CONTRACT section 3) and its images.
+
+    Returns
+    -------
+    tuple of pathlib.Path
+        ``(md_path, html_path)``. Images go to ``<run_dir>/report_files/``.
+
+    Raises
+    ------
+    ReportError
+        If ``results.json`` is missing, unreadable or lacks a required key.
+    """
+    start = time.perf_counter()
+    run_dir = Path(run_dir)
+    res = load_results(run_dir)
+    ctx = _RunContext(run_dir, res)
+    seed = seed_of(res)
+    title = f"{res['method']} on {res['scene']}" + (f" (seed {seed})" if seed is not None else "")
+    doc = Doc(title)
+    _section_overview(doc, res)
+    _section_parameters(doc, res)
+    _section_timings(doc, res)
+    _section_convergence(doc, ctx)
+    _section_views(doc, ctx)
+    _section_correlation(doc, ctx)
+    _section_relit(doc, ctx)
+    elapsed = time.perf_counter() - start
+    doc.para(f"Report generated in {elapsed:.2f} s.", note=True)
+    md_path, html_path = run_dir / "report.md", run_dir / "report.html"
+    md_path.write_text(doc.render_md(), encoding="utf-8")
+    html_path.write_text(doc.render_html(), encoding="utf-8")
+    return md_path, html_path
+
+
+def finite_or_none(value):
+    """``value`` as float when finite, else None."""
+    return float(value) if isinstance(value, (int, float)) and math.isfinite(value) else None
