@@ -3,11 +3,11 @@
 A kernel is registered by name. It knows
 
 * its *unit-weight* BSDF (ρ = 1), which the polynomial integrator evaluates and samples, and
-* its Mitsuba BSDF at weight ρ, so that a segment's kernel BRDF Σ_i ρ_i f_i becomes one exact
-  Mitsuba BSDF for forward rendering (:func:`forward_bsdf`).
+* its one-sided Mitsuba BSDF at weight ρ (``weighted_bsdf``); a segment's kernel BRDF
+  Σ_i ρ_i f_i is one exact, two-sided Mitsuba BSDF for forward rendering (:func:`forward_bsdf`).
 
-Every BSDF is wrapped in ``twosided``: scanned meshes have inconsistently wound faces and a
-one-sided BSDF is black from behind.
+Every BSDF is two-sided: scanned meshes have inconsistently wound faces and a one-sided BSDF
+is black from behind.
 
 Registered kernels
 ------------------
@@ -45,14 +45,11 @@ class Kernel:
         True for Dirac lobes (no next-event estimation through them).
     weighted_bsdf : callable
         ``weighted_bsdf(rho_spectrum) -> dict``: the one-sided Mitsuba BSDF dict of ρ·f.
-    parameter : str
-        The Mitsuba parameter of ``weighted_bsdf`` that carries ρ (for ``mi.traverse`` updates).
     """
 
     name: str
     delta: bool
     weighted_bsdf: Callable[[object], dict]
-    parameter: str
 
     def unit_bsdf(self) -> dict:
         """Two-sided BSDF dict of the kernel at unit weight (ρ = 1)."""
@@ -67,9 +64,9 @@ def register(kernel: Kernel) -> Kernel:
     return kernel
 
 
-register(Kernel("diffuse", delta=False, parameter="reflectance.value",
+register(Kernel("diffuse", delta=False,
                 weighted_bsdf=lambda rho: {"type": "diffuse", "reflectance": rho}))
-register(Kernel("specular", delta=True, parameter="specular_reflectance.value",
+register(Kernel("specular", delta=True,
                 weighted_bsdf=lambda rho: {"type": "conductor", "material": "none",
                                            "specular_reflectance": rho}))
 
@@ -82,37 +79,19 @@ def get(name: str) -> Kernel:
         raise SceneError(f"unknown kernel '{name}': use one of {', '.join(sorted(KERNELS))}") from None
 
 
-def forward_bsdf(kernels: list[str], channels: tuple[str, ...]) -> dict:
-    """Mitsuba BSDF dict whose parameters :func:`weight_values` sets to Σ_i ρ_i f_i, exactly.
-
-    Mitsuba's ``blendbsdf`` computes (1-w)·f_a + w·f_b, so K kernels are blended with equal
-    shares and each component's ρ is scaled by K: component i then contributes exactly ρ_i f_i,
-    channel by channel. Mitsuba refuses RGB reflectances above 1 at load time but not through
-    ``mi.traverse``, so the dict holds placeholders (0.5) and the weights are written after
-    loading (see :func:`framework.mitsuba_scene.set_weights`).
-    """
-    parts = [get(k).weighted_bsdf(spectrum(0.5, channels)) for k in kernels]
-    return {"type": "twosided", "bsdf": _blend(parts)}
-
-
-def _blend(parts: list[dict]) -> dict:
-    if len(parts) == 1:
-        return parts[0]
-    n = len(parts)
-    # (1 - w)·f_0 + w·rest, with w = (n-1)/n: f_0 keeps share 1/n, each of the rest 1/n too.
-    return {"type": "blendbsdf", "weight": (n - 1) / n, "bsdf_0": parts[0], "bsdf_1": _blend(parts[1:])}
+def forward_bsdf(kernels: list[str], channels: tuple[str, ...] | None = None) -> dict:
+    """Mitsuba dict of the exact kernel BRDF Σ_i ρ_i f_i of one segment (``kernel_sum`` plugin,
+    :mod:`framework.kernel_bsdf`); the weights start at 0 and are set by :func:`weight_values`
+    keys through ``mi.traverse``."""
+    from framework.kernel_bsdf import ensure_registered
+    ensure_registered()
+    return {"type": "kernel_sum", "kernels": ",".join(kernels)}
 
 
 def weight_values(kernels: list[str], rho: np.ndarray) -> list[tuple[str, np.ndarray]]:
-    """(traverse key relative to the shape's ``bsdf``, value) per kernel: the value is K·ρ_i.
+    """(traverse key relative to the shape's ``bsdf``, value ρ_i) for each kernel of a segment.
 
-    ``rho`` has shape (len(kernels), n_channels); keys look like
-    ``brdf_0.bsdf_1.bsdf_0.reflectance.value``.
+    ``rho`` has shape (len(kernels), n_channels).
     """
-    K = len(kernels)
-    rho = np.asarray(rho, dtype=float).reshape(K, -1)
-    out = []
-    for i, k in enumerate(kernels):
-        path = "brdf_0." + "bsdf_1." * i + ("bsdf_0." if K > 1 and i < K - 1 else "")
-        out.append((path + get(k).parameter, K * rho[i]))
-    return out
+    rho = np.asarray(rho, dtype=float).reshape(len(kernels), -1)
+    return [(f"rho_{i}", rho[i]) for i in range(len(kernels))]

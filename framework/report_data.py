@@ -117,7 +117,7 @@ def fmt_num(value, *, digits: int = 4) -> str:
         return str(value)
     if math.isinf(value):
         return "∞" if value > 0 else "-∞"
-    if value != 0 and abs(value) < 10 ** -(digits - 1):
+    if value != 0 and abs(value) < 0.5 * 10.0 ** -digits:
         return f"{value:.2e}"
     return f"{value:.{digits}f}"
 

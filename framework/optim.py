@@ -1,0 +1,178 @@
+"""A small, safe wrapper around nlopt for bound- and sum-constrained least squares.
+
+Every method that solves ``min f(x)`` subject to ``lower <= x <= upper`` and, per group of
+indices ``g``, ``Σ_{i in g} x_i <= 1`` (a segment's kernel weights in one channel) goes
+through :func:`minimize`. It works around nlopt's pitfalls (``/work/shared/PITFALLS.md``):
+
+* errors are SWIG exceptions with empty messages: they become :class:`OptimizationError`
+  (or :class:`~framework.errors.ConfigError` for a bad algorithm name / option) with a message;
+* roundoff-limited stops raise after the fact: the best ``x`` seen inside the objective is
+  kept and returned, whatever ``optimize`` does;
+* ``LD_LBFGS`` (and other unconstrained algorithms) refuse inequality constraints: this is
+  checked up front and reported as a :class:`ConfigError`;
+* the gradient is written in place (``grad[:] = ...``).
+
+An objective may raise :class:`StopOptimization` (for example when a render budget is spent):
+the run stops cleanly and the best point seen so far is returned.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+from framework.errors import ConfigError
+
+#: Local gradient-based nlopt algorithms that accept nonlinear inequality constraints.
+CONSTRAINED_ALGORITHMS = ("LD_SLSQP", "LD_MMA", "LD_CCSAQ")
+#: Local gradient-based nlopt algorithms that take bounds only.
+BOUND_ONLY_ALGORITHMS = ("LD_LBFGS", "LD_TNEWTON_PRECOND_RESTART", "LD_VAR2")
+ALGORITHMS = CONSTRAINED_ALGORITHMS + BOUND_ONLY_ALGORITHMS
+
+
+class OptimizationError(RuntimeError):
+    """nlopt failed for a reason other than a normal stop; the message says which."""
+
+
+class StopOptimization(Exception):
+    """Raise inside the objective to stop now and keep the best point seen (e.g. budget spent)."""
+
+
+@dataclass
+class OptimResult:
+    """Outcome of :func:`minimize`.
+
+    ``history`` holds the cost of every objective evaluation, in order; ``status`` is nlopt's
+    result name (``SUCCESS``, ``XTOL_REACHED``, ``MAXEVAL_REACHED``, ``FORCED_STOP``,
+    ``ROUNDOFF_LIMITED``...).
+    """
+
+    x: np.ndarray
+    f: float
+    history: list[float] = field(default_factory=list)
+    status: str = ""
+    n_eval: int = 0
+
+
+def check_algorithm(algorithm: str, *, constrained: bool, key: str = "algorithm") -> None:
+    """Raise :class:`ConfigError` unless ``algorithm`` is usable (with constraints if needed)."""
+    if algorithm not in ALGORITHMS:
+        raise ConfigError(f"{key}={algorithm} is not supported: use one of {', '.join(ALGORITHMS)}")
+    if constrained and algorithm not in CONSTRAINED_ALGORITHMS:
+        raise ConfigError(f"{key}={algorithm} refuses the Σρ <= 1 constraints of segments with several "
+                          f"kernels: use one of {', '.join(CONSTRAINED_ALGORITHMS)}")
+
+
+def minimize(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndarray | None]],
+             x0: np.ndarray, *, lower: float | np.ndarray = 0.0, upper: float | np.ndarray = 1.0,
+             inequality_groups: Sequence[Sequence[int]] = (), algorithm: str = "LD_SLSQP",
+             max_eval: int = 0, xtol_rel: float = 1e-6, ftol_rel: float = 1e-10,
+             constraint_tol: float = 1e-10) -> OptimResult:
+    """Minimise ``f`` from ``x0`` under bounds and ``Σ x[g] <= 1`` for each group ``g``.
+
+    Parameters
+    ----------
+    fun_and_grad : callable
+        ``fun_and_grad(x, need_grad) -> (f, grad)``; ``grad`` (same shape as ``x``) is only
+        read when ``need_grad`` is true. May raise :class:`StopOptimization`.
+    x0 : ndarray
+        Start point; clipped into the bounds (nlopt raises on an outside x0).
+    lower, upper : float or ndarray
+        Bounds, scalar or per coordinate.
+    inequality_groups : sequence of index sequences
+        Each group ``g`` adds the linear constraint ``Σ x[g] - 1 <= 0`` (groups of one index
+        are implied by ``upper <= 1`` and skipped).
+    algorithm : str
+        nlopt algorithm name, one of :data:`ALGORITHMS` (``LD_SLSQP`` by default).
+    max_eval : int
+        Most objective evaluations (0: no limit).
+    xtol_rel, ftol_rel : float
+        nlopt's relative stopping tolerances on ``x`` and ``f``.
+    constraint_tol : float
+        Tolerance of each inequality constraint.
+
+    Returns
+    -------
+    OptimResult
+        The best feasible point seen (not necessarily nlopt's last), its cost, the history.
+    """
+    import nlopt
+    x0 = np.asarray(x0, dtype=float).ravel()
+    n = x0.size
+    lo = np.broadcast_to(np.asarray(lower, dtype=float), (n,)).copy()
+    hi = np.broadcast_to(np.asarray(upper, dtype=float), (n,)).copy()
+    groups = [np.asarray(g, dtype=int) for g in inequality_groups if len(g) > 1]
+    check_algorithm(algorithm, constrained=bool(groups))
+
+    best = OptimResult(x=np.clip(x0, lo, hi), f=np.inf)
+
+    def objective(x, grad):
+        need = grad.size > 0
+        try:
+            f, g = fun_and_grad(np.array(x), need)
+        except StopOptimization:
+            raise nlopt.ForcedStop() from None
+        f = float(f)
+        best.history.append(f)
+        best.n_eval += 1
+        if need:
+            grad[:] = np.asarray(g, dtype=float).ravel()
+        if f < best.f and _feasible(x, lo, hi, groups, 1e-9):
+            best.x, best.f = np.array(x), f
+        return f
+
+    opt = nlopt.opt(getattr(nlopt, algorithm), n)
+    opt.set_lower_bounds(lo)
+    opt.set_upper_bounds(hi)
+    for g in groups:
+        opt.add_inequality_constraint(_sum_constraint(g), constraint_tol)
+    opt.set_min_objective(objective)
+    opt.set_xtol_rel(float(xtol_rel))
+    opt.set_ftol_rel(float(ftol_rel))
+    if max_eval > 0:
+        opt.set_maxeval(int(max_eval))
+    best.status = _run(opt, best.x.copy())
+    if not np.isfinite(best.f):
+        raise OptimizationError(f"nlopt {algorithm} stopped ({best.status}) before any feasible evaluation")
+    return best
+
+
+_STATUS = {1: "SUCCESS", 2: "STOPVAL_REACHED", 3: "FTOL_REACHED", 4: "XTOL_REACHED", 5: "MAXEVAL_REACHED",
+           6: "MAXTIME_REACHED", -1: "FAILURE", -2: "INVALID_ARGS", -3: "OUT_OF_MEMORY",
+           -4: "ROUNDOFF_LIMITED", -5: "FORCED_STOP"}
+
+
+def _run(opt, x0: np.ndarray) -> str:
+    """``opt.optimize(x0)``, turning nlopt's message-less exceptions into a status or an error."""
+    import nlopt
+    try:
+        opt.optimize(x0)
+    except nlopt.ForcedStop:
+        return "FORCED_STOP"
+    except nlopt.RoundoffLimited:
+        return "ROUNDOFF_LIMITED"
+    except MemoryError as exc:
+        raise OptimizationError(f"nlopt ran out of memory ({exc!r})") from None
+    except ValueError as exc:  # nlopt.invalid_argument is a ValueError subclass
+        raise OptimizationError(f"nlopt rejected its arguments ({type(exc).__name__}: {exc!s} ; "
+                                "check bounds, x0 and the algorithm)") from None
+    except RuntimeError:  # generic nlopt failure (empty message): keep the best point seen
+        return "FAILURE"
+    return _STATUS.get(opt.last_optimize_result(), str(opt.last_optimize_result()))
+
+
+def _sum_constraint(g: np.ndarray):
+    def c(x, grad):
+        if grad.size > 0:
+            grad[:] = 0.0
+            grad[g] = 1.0
+        return float(np.sum(x[g]) - 1.0)
+    return c
+
+
+def _feasible(x, lo, hi, groups, tol: float) -> bool:
+    x = np.asarray(x)
+    if np.any(x < lo - tol) or np.any(x > hi + tol):
+        return False
+    return all(np.sum(x[g]) <= 1.0 + tol for g in groups)

@@ -1,0 +1,228 @@
+"""Comparison of finished runs across methods and seeds: ``comparison.md`` / ``.html``."""
+
+from __future__ import annotations
+
+import os
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from framework.report_data import (as_list, find_run_dirs, fmt_num, fmt_pm, kernel_label,
+                                   load_results, seed_of)
+from framework.report_doc import Doc, link_cell
+from framework.report_run import _safe, finite_or_none, mean_abs_error, write_run_report
+
+FILES_DIR = "comparison_files"
+BASELINE = "symbolic"
+
+
+def _mean_std(values) -> tuple[float | None, float | None]:
+    """Mean and sample std (ddof=1; None for fewer than 2 values) of the finite values."""
+    vals = np.asarray([v for v in values if finite_or_none(v) is not None], dtype=float)
+    if not vals.size:
+        return None, None
+    return float(vals.mean()), float(vals.std(ddof=1)) if vals.size > 1 else None
+
+
+def _method_order(methods) -> list[str]:
+    """The baseline method first, then the others alphabetically."""
+    return sorted(set(methods), key=lambda m: (m != BASELINE, m))
+
+
+def _param_keys(runs) -> list[tuple[str, str, int, str]]:
+    """(segment, kernel, channel index, channel name) of every parameter, in first-seen order."""
+    keys: dict = {}
+    for _, res in runs:
+        for p in res["parameters"]:
+            for c, ch in enumerate(res["channels"]):
+                keys.setdefault((str(p["segment"]), str(p["kernel"]), c, str(ch)), None)
+    return list(keys)
+
+
+def _values(runs, key, field: str) -> list:
+    """The per-run values of one parameter field for one channel (None where absent)."""
+    seg, kernel, c, _ = key
+    out = []
+    for _, res in runs:
+        match = next((p for p in res["parameters"]
+                      if str(p["segment"]) == seg and str(p["kernel"]) == kernel), None)
+        vals = as_list(match.get(field) if match else None, len(res["channels"]))
+        out.append(vals[c] if c < len(vals) else None)
+    return out
+
+
+def _param_label(key, mono: bool, *, html: bool = False) -> str:
+    """'wall ρ_d R' style label of a parameter channel."""
+    seg, kernel, _, ch = key
+    return f"{seg} {kernel_label(kernel, html=html)}" + ("" if mono else f" {ch}")
+
+
+class _Scene:
+    """The runs of one scene, grouped by method."""
+
+    def __init__(self, name: str, runs):
+        self.name = name
+        self.by_method = defaultdict(list)
+        for run_dir, res in runs:
+            self.by_method[str(res["method"])].append((run_dir, res))
+        self.methods = _method_order(self.by_method)
+        for m in self.methods:
+            self.by_method[m].sort(key=lambda r: (str(seed_of(r[1])), str(r[0])))
+        self.keys = _param_keys(runs)
+        self.mono = all(len(res["channels"]) == 1 for _, res in runs)
+
+    def stat(self, method: str, getter) -> tuple[float | None, float | None]:
+        """Mean and std over a method's runs of ``getter(results)``."""
+        return _mean_std([getter(res) for _, res in self.by_method[method]])
+
+
+def _total_time(res) -> float | None:
+    """Total wall time of a run (seconds)."""
+    t = res.get("timings_s")
+    return finite_or_none(t.get("total")) if isinstance(t, dict) else None
+
+
+def _renders(res) -> float | None:
+    """Render count of a run."""
+    return finite_or_none(res.get("renders"))
+
+
+def _ratio(value, base) -> str:
+    """``value / base`` as '×r', or '—'."""
+    if value is None or not base:
+        return "—"
+    return f"×{value / base:.3g}"
+
+
+def _section_summary(doc: Doc, scene: _Scene) -> None:
+    """Per method: runs, seeds, mean |error|, time and renders with ratios to the baseline."""
+    base_t = scene.stat(BASELINE, _total_time)[0] if BASELINE in scene.methods else None
+    base_r = scene.stat(BASELINE, _renders)[0] if BASELINE in scene.methods else None
+    rows = []
+    for m in scene.methods:
+        runs = scene.by_method[m]
+        seeds = ", ".join(str(seed_of(r)) for _, r in runs)
+        t, r, e = scene.stat(m, _total_time), scene.stat(m, _renders), scene.stat(m, mean_abs_error)
+        rows.append([m, str(len(runs)), seeds, fmt_pm(*e), fmt_pm(*t, digits=3),
+                     fmt_pm(*r, digits=1), _ratio(t[0], base_t), _ratio(r[0], base_r)])
+    doc.table(["Method", "Runs", "Seeds", "Mean |error|", "Total time (s)", "Renders",
+               f"Time / {BASELINE}", f"Renders / {BASELINE}"], rows, left=3,
+              caption="Mean ± sample std over runs (seeds).")
+
+
+def _section_errors(doc: Doc, scene: _Scene) -> None:
+    """Per parameter (and channel): reference and each method's error, mean ± std over seeds."""
+    rows, previous = [], None
+    all_runs = [r for m in scene.methods for r in scene.by_method[m]]
+    for key in scene.keys:
+        ref = next((v for v in _values(all_runs, key, "reference") if v is not None), None)
+        row = [key[0] if key[0] != previous else "",
+               (kernel_label(key[1]), kernel_label(key[1], html=True))]
+        previous = key[0]
+        row += [] if scene.mono else [key[3]]
+        row.append(fmt_num(ref))
+        row += [fmt_pm(*_mean_std(_values(scene.by_method[m], key, "error")))
+                for m in scene.methods]
+        rows.append(row)
+    lead = ["Object", "Param."] + ([] if scene.mono else ["Ch."])
+    doc.table(lead + ["Ref."] + scene.methods, rows, left=len(lead),
+              groups=[("", len(lead) + 1), ("Error (mean ± std over seeds)", len(scene.methods))],
+              caption="error = estimate − reference.")
+
+
+def _section_plots(doc: Doc, scene: _Scene, files: Path, rel: str) -> None:
+    """Spread of estimates across seeds; runtime and render-count bars."""
+    from framework.report_plots import plot_bars, plot_spread
+    stem = _safe(scene.name)
+    all_runs = [r for m in scene.methods for r in scene.by_method[m]]
+    labels = [_param_label(k, scene.mono) for k in scene.keys]
+    refs = [next((v for v in _values(all_runs, k, "reference") if v is not None), None)
+            for k in scene.keys]
+    est = {m: [_values(scene.by_method[m], k, "estimate") for k in scene.keys] for m in scene.methods}
+    items = []
+    if scene.keys:
+        plot_spread(files / f"{stem}_spread.png", labels, est, references=refs,
+                    title=f"{scene.name}: estimates across seeds")
+        items.append((f"{rel}/{stem}_spread.png", "spread of the estimates across seeds"))
+    for name, getter, ylabel in (("time", _total_time, "total time (s)"),
+                                 ("renders", _renders, "renders")):
+        stats = [scene.stat(m, getter) for m in scene.methods]
+        plot_bars(files / f"{stem}_{name}.png", scene.methods, [s[0] for s in stats],
+                  [s[1] for s in stats], ylabel=ylabel, title=f"{scene.name}: {ylabel}")
+        items.append((f"{rel}/{stem}_{name}.png", ylabel))
+    doc.figures(items[:1])
+    doc.figures(items[1:])
+
+
+def _section_runs(doc: Doc, scene: _Scene, out: Path) -> None:
+    """One row per run with a link to its report."""
+    rows = []
+    for m in scene.methods:
+        for run_dir, res in scene.by_method[m]:
+            href = Path(os.path.relpath(run_dir / "report.html", out)).as_posix()
+            rows.append([m, str(seed_of(res)), fmt_num(_total_time(res), digits=3),
+                         fmt_num(_renders(res), digits=0), fmt_num(mean_abs_error(res)),
+                         link_cell(run_dir.name, href)])
+    doc.table(["Method", "Seed", "Total time (s)", "Renders", "Mean |error|", "Report"], rows,
+              left=2)
+
+
+def load_runs(dirs) -> list[tuple[Path, dict]]:
+    """Find and load every run under ``dirs``; raises ReportError before anything is written."""
+    return [(d, load_results(d)) for d in find_run_dirs(dirs)]
+
+
+def write_comparison(dirs, *, out=None) -> tuple[Path, Path]:
+    """Write ``comparison.md`` and ``comparison.html`` comparing the runs under ``dirs``.
+
+    Parameters
+    ----------
+    dirs : sequence of str or path-like
+        Run folders (holding results.json) or sweep folders (searched recursively).
+    out : str or path-like, optional
+        Output folder; default the common parent of ``dirs`` (``./report`` when that
+        is the file-system root).
+
+    Returns
+    -------
+    tuple of pathlib.Path
+        ``(md_path, html_path)``. Missing per-run reports are generated too.
+
+    Raises
+    ------
+    ReportError
+        On bad input (nothing is written then).
+    """
+    runs = load_runs(dirs)
+    out = Path(out) if out is not None else _default_out(dirs)
+    for run_dir, _ in runs:
+        if not (run_dir / "report.html").is_file():
+            write_run_report(run_dir)
+    files = out / FILES_DIR
+    files.mkdir(parents=True, exist_ok=True)
+    by_scene = defaultdict(list)
+    for run in runs:
+        by_scene[str(run[1]["scene"])].append(run)
+    doc = Doc("Comparison of runs")
+    doc.para(f"{len(runs)} runs, {len(by_scene)} scene(s); baseline for ratios: {BASELINE}.")
+    for name in sorted(by_scene):
+        scene = _Scene(name, by_scene[name])
+        doc.heading(f"Scene {name}")
+        _section_summary(doc, scene)
+        doc.heading("Parameter errors", level=3)
+        _section_errors(doc, scene)
+        doc.heading("Spread, time and renders", level=3)
+        _section_plots(doc, scene, files, FILES_DIR)
+        doc.heading("Runs", level=3)
+        _section_runs(doc, scene, out.resolve())
+    md_path, html_path = out / "comparison.md", out / "comparison.html"
+    md_path.write_text(doc.render_md(), encoding="utf-8")
+    html_path.write_text(doc.render_html(), encoding="utf-8")
+    return md_path, html_path
+
+
+def _default_out(dirs) -> Path:
+    """The common parent of ``dirs``, or ./report when it is the root."""
+    common = Path(os.path.commonpath([str(Path(d).resolve()) for d in dirs]))
+    return Path.cwd() / "report" if common == Path(common.anchor) else common

@@ -1,0 +1,66 @@
+"""MonomialBasis (paper eq. 7-8, section 4.3)."""
+from itertools import product
+from math import comb
+
+import numpy as np
+import pytest
+
+from methods.symbolic.basis import MonomialBasis
+
+
+@pytest.mark.parametrize("D,N", [(1, 1), (1, 4), (3, 2), (4, 3), (10, 3), (5, 0)])
+def test_size_is_multiset_coefficient(D, N):
+    """N_e = C(D+N, N) (paper 4.3; 286 for D=10, N=3); rows unique, degrees <= N, index 0 constant."""
+    b = MonomialBasis(D, N)
+    assert b.size == comb(D + N, N)
+    assert b.exponents.shape == (b.size, D)
+    assert len({tuple(e) for e in b.exponents}) == b.size
+    assert b.exponents.sum(1).max() == N and (b.exponents >= 0).all()
+    assert (b.exponents[0] == 0).all()
+    if N >= 1:
+        assert (b.exponents[1:D + 1] == np.eye(D, dtype=int)).all()
+
+
+def test_paper_example_286():
+    assert MonomialBasis(10, 3).size == 286
+
+
+@pytest.mark.parametrize("D,N", [(1, 3), (3, 3), (4, 2), (2, 4)])
+def test_key_table_maps_every_ordered_tuple(D, N):
+    """Every ordered tuple (p_0..p_{d-1}), d <= N, maps to the monomial with exponents = counts."""
+    b = MonomialBasis(D, N)
+    seen = set()
+    for d in range(N + 1):
+        for t in product(range(D), repeat=d):
+            key = sum((p + 1) * (D + 1) ** i for i, p in enumerate(t))
+            m = b.key_table[key]
+            assert m >= 0
+            assert (b.exponents[m] == np.bincount(np.array(t, int), minlength=D)).all()
+            seen.add(key)
+    assert len(b.key_table) == (D + 1) ** N
+    invalid = np.setdiff1d(np.arange(len(b.key_table)), np.fromiter(seen, int))
+    assert (b.key_table[invalid] == -1).all()
+
+
+def test_evaluate_jacobian_hessian_vs_finite_differences():
+    """Jacobian/Hessian vs central differences (h=1e-6 / 1e-4; tolerance 1e-6 / 1e-5 absolute)."""
+    rng = np.random.default_rng(3)
+    b = MonomialBasis(4, 3)
+    rho = rng.uniform(0.1, 0.9, 4)
+    v = b.evaluate(rho)
+    assert np.allclose(v, [np.prod(rho ** e) for e in b.exponents], rtol=1e-14)
+    J = b.jacobian(rho)
+    H = b.hessian(rho)
+    h = 1e-6
+    for k in range(4):
+        e = np.zeros(4); e[k] = h
+        fd = (b.evaluate(rho + e) - b.evaluate(rho - e)) / (2 * h)
+        assert np.allclose(J[:, k], fd, atol=1e-6)
+        h2 = 1e-4
+        e2 = np.zeros(4); e2[k] = h2
+        fdh = (b.jacobian(rho + e2) - b.jacobian(rho - e2)) / (2 * h2)
+        assert np.allclose(H[:, :, k], fdh, atol=1e-5)
+    # exact at zero: d(ρ0)/dρ0 = 1, d(ρ0²)/dρ0 = 0 at ρ = 0
+    J0 = b.jacobian(np.zeros(4))
+    assert J0[1, 0] == 1.0 and J0[b.index([0, 0]), 0] == 0.0
+    assert b.evaluate(np.zeros(4))[0] == 1.0

@@ -1,0 +1,51 @@
+"""GramSystem: normal equations of the p = 2 cost (paper eq. 6)."""
+import numpy as np
+
+from methods.symbolic.basis import MonomialBasis
+from methods.symbolic.gram import GramSystem
+
+
+def _data(seed=0, n=300, N_e=20, C=3, density=0.05):
+    rng = np.random.default_rng(seed)
+    X = rng.normal(size=(n, N_e, C)) * (rng.uniform(size=(n, N_e, C)) < density)
+    X[:, 0, :] = rng.uniform(size=(n, C))
+    y = rng.uniform(size=(n, C))
+    return X.astype(np.float32), y
+
+
+def test_tiles_equal_all_at_once():
+    """Accumulating two tiles (and adding systems) equals one accumulation, to 1e-12 relative."""
+    X, y = _data()
+    full = GramSystem.zeros(20, 3).accumulate(X, y)
+    tiled = GramSystem.zeros(20, 3).accumulate(X[:120], y[:120]).accumulate(X[120:], y[120:])
+    summed = GramSystem.zeros(20, 3).accumulate(X[:77], y[:77]) + \
+        GramSystem.zeros(20, 3).accumulate(X[77:], y[77:])
+    for s in (tiled, summed):
+        assert s.n_pixels == full.n_pixels == 300
+        np.testing.assert_allclose(s.G, full.G, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(s.b, full.b, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(s.yy, full.yy, rtol=1e-12)
+    # G is the dense product Xᵀ X (float64)
+    Xd = X.astype(np.float64)
+    np.testing.assert_allclose(full.G[1], Xd[:, :, 1].T @ Xd[:, :, 1], rtol=1e-12, atol=1e-12)
+
+
+def test_cost_equals_direct_sum_of_squares():
+    """cost(μ) = Σ_i (γ_i·μ - y_i)² computed directly per channel, to 1e-9 relative."""
+    X, y = _data(1, N_e=10)
+    b = MonomialBasis(3, 2)        # N_e = 10
+    s = GramSystem.zeros(10, 3).accumulate(X, y)
+    rng = np.random.default_rng(2)
+    rho = rng.uniform(size=(3, 3))
+    mu = np.stack([b.evaluate(rho[:, c]) for c in range(3)])
+    direct = np.array([((X[:, :, c].astype(np.float64) @ mu[c] - y[:, c]) ** 2).sum() for c in range(3)])
+    np.testing.assert_allclose(s.cost(mu), direct, rtol=1e-9)
+
+
+def test_mask():
+    X, y = _data(2)
+    m = np.arange(300) % 3 == 0
+    a = GramSystem.zeros(20, 3).accumulate(X, y, mask=m)
+    b = GramSystem.zeros(20, 3).accumulate(X[m], y[m])
+    np.testing.assert_allclose(a.G, b.G) and np.testing.assert_allclose(a.b, b.b)
+    assert a.n_pixels == 100

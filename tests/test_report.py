@@ -1,0 +1,112 @@
+"""framework.report: per-run report and comparison content, from fake run folders."""
+import json
+import re
+import time
+from pathlib import Path
+
+import pytest
+
+from framework.report import main, write_comparison, write_run_report
+from framework.report_data import fmt_num
+from test_report_fakes import (REPORT_REFS, REPORT_SEEDS, fake_sweep,  # noqa: F401 (fixture)
+                               make_fake_run, report_error_of)
+
+
+def _referenced_files(text: str, pattern: str) -> list[str]:
+    return re.findall(pattern, text)
+
+
+def test_run_report_parameter_table(tmp_path):
+    run = make_fake_run(tmp_path / "run", method="symbolic", seed=1)
+    md_path, html_path = write_run_report(run)
+    md = md_path.read_text()
+    ref = REPORT_REFS[("wall", "diffuse")]
+    cells = []
+    for c in range(3):
+        err = report_error_of("symbolic", 1, c)
+        cells += [fmt_num(ref[c]), fmt_num(ref[c] + err), fmt_num(err), fmt_num(0.001)]
+    assert "| wall | ρ_d | " + " | ".join(cells) + " |" in md
+    assert "| wall | ρ_d | 0.7200 | 0.7400 | 0.0200 | 0.0010 | 0.7000 | 0.7400 | 0.0400 |" in md
+    assert "|  | ρ_s | 0.0800 | 0.1000 | 0.0200 |" in md          # paper form: object once
+    assert "| Object | Param. | R Ref. | R Estim. | R Error | R Std | G Ref." in md
+    html = html_path.read_text()
+    assert '<th colspan="4">R</th>' in html and "ρ<sub>d</sub>" in html
+
+
+def test_run_report_sections_and_images_exist(tmp_path):
+    run = make_fake_run(tmp_path / "run")
+    md_path, html_path = write_run_report(run)
+    md = md_path.read_text()
+    for heading in ("## Overview", "## Parameters", "## Timings", "## Convergence", "## Views",
+                    "### Image metrics", "## Parameter correlation", "## Relit images"):
+        assert heading in md
+    assert "| render (s) | 1.800 |" in md and "| total (s) | 2.000 |" in md
+    assert "| renders | 1 |" in md
+    assert "| v0.png | 0.05000 |" in md                 # RMSE of the constant offset
+    srcs = _referenced_files(html_path.read_text(), r'<img src="([^"]+)"')
+    assert len(srcs) == 7                              # convergence, 4 panels, correlation, relit
+    for src in srcs:
+        assert (run / src).stat().st_size > 100, src
+    assert "http://" not in html_path.read_text() and "https://" not in html_path.read_text()
+
+
+def test_mono_run_has_one_number_per_field(tmp_path):
+    run = make_fake_run(tmp_path / "mono", channels=("Y",), correlation=False)
+    md = write_run_report(run)[0].read_text()
+    assert "| Object | Param. | Ref. | Estim. | Error | Std |" in md
+    assert "| asphalt | ρ_d | 0.2000 | 0.2100 | 0.0100 | 0.0010 |" in md
+    assert "## Parameter correlation" not in md
+
+
+def test_unobservable_parameter_and_missing_image(tmp_path):
+    run = make_fake_run(tmp_path / "run", correlation=False)
+    res = json.loads((run / "results.json").read_text())
+    res["parameters"][1].update(estimate=None, error=None, std=None, observable=False)
+    res["views"][0]["reconstruction"] = "images/gone.exr"
+    (run / "results.json").write_text(json.dumps(res))
+    md = write_run_report(run)[0].read_text()
+    assert "|  | ρ_s | no | 0.0800 | — | — | — |" in md
+    assert "reconstruction: cannot read images/gone.exr" in md
+
+
+def test_report_time_200px_single_view(tmp_path):
+    run = make_fake_run(tmp_path / "big", size=200)
+    write_run_report(make_fake_run(tmp_path / "warm"))   # imports and font cache, as in a run
+    start = time.perf_counter()
+    write_run_report(run)
+    elapsed = time.perf_counter() - start
+    print(f"report generation, 200x200 single view: {elapsed:.2f} s")
+    assert elapsed < 2.0
+
+
+def test_comparison_numbers(fake_sweep, capsys):
+    assert main([str(fake_sweep)]) == 0
+    md = (fake_sweep / "comparison.md").read_text()
+    # symbolic wall rho_d R: errors 0.01, 0.02, 0.03 over seeds -> 0.0200 ± 0.0100
+    assert "| wall | ρ_d | R | 0.7200 | 0.0200 ± 0.0100 | -0.0400 ± 0.0200 |" in md
+    assert "|  | ρ_d | B | 0.6800 | 0.0600 ± 0.0300 | -0.1200 ± 0.0600 |" in md
+    # total time: symbolic 2,3,4 -> 3 ± 1; iterative 10,11,12 -> 11 ± 1; ratio 11/3
+    assert "| symbolic | 3 | 0, 1, 2 | 0.0400 ± 0.0200 | 3.000 ± 1.000 | 1.0 ± 0.0 | ×1 | ×1 |" in md
+    assert "| iterative | 3 | 0, 1, 2 | 0.0800 ± 0.0400 | 11.000 ± 1.000 | 50.0 ± 0.0 | ×3.67 | ×50 |" in md
+    for seed in REPORT_SEEDS:
+        assert f"(symbolic_seed{seed}/report.html)" in md
+        assert (fake_sweep / f"iterative_seed{seed}" / "report.html").is_file()
+    html = (fake_sweep / "comparison.html").read_text()
+    for src in _referenced_files(html, r'<img src="([^"]+)"'):
+        assert (fake_sweep / src).stat().st_size > 100
+    assert "comparison.md" in capsys.readouterr().out
+
+
+def test_comparison_of_run_dirs_with_out(fake_sweep, tmp_path):
+    runs = [fake_sweep / "symbolic_seed0", fake_sweep / "iterative_seed2"]
+    md_path, html_path = write_comparison(runs, out=tmp_path / "cmp")
+    md = md_path.read_text()
+    assert md_path.parent == tmp_path / "cmp" and html_path.is_file()
+    assert "| symbolic | 1 | 0 | 0.0200 | 2.000 | 1.0 | ×1 | ×1 |" in md
+    assert "(../sweep/symbolic_seed0/report.html)" in md
+
+
+def test_default_out_is_common_parent(fake_sweep):
+    runs = [str(fake_sweep / "symbolic_seed0"), str(fake_sweep / "symbolic_seed1")]
+    assert main(runs) == 0
+    assert (Path(fake_sweep) / "comparison.html").is_file()

@@ -1,0 +1,238 @@
+"""The bundled scenes: files re-read, generator is up to date, cameras, visibility, closed forms.
+
+Rendering uses :mod:`scenes.preview` (a hand-built Mitsuba scene: only framework.backend,
+framework.envmap and framework.kernels from the framework), at low resolution and spp.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from scenes import BUNDLED_DIR, bundled_names
+from scenes import build as scene_build
+from scenes import furnace, plane_sky, urban_canyon
+from scenes.io import read_colmap, read_exr, read_mesh, write_exr
+
+NAMES = ["urban_canyon", "urban_canyon_mono", "cornell_box", "plane_sky", "furnace"]
+CONF = Path(__file__).resolve().parents[1] / "framework" / "conf" / "scene"
+
+
+def _yaml(name: str) -> dict:
+    return yaml.safe_load((BUNDLED_DIR / name / "scene.yaml").read_text())
+
+
+def _segment_visibility(name: str) -> dict[str, set[str]]:
+    from scenes.preview import segment_ids
+
+    folder = BUNDLED_DIR / name
+    names = [s["name"] for s in _yaml(name)["segments"]]
+    out = {}
+    for cam in read_colmap(folder / "sparse"):
+        ids = segment_ids(folder, cam)
+        out[cam.name] = {names[k] for k in np.unique(ids) if k >= 0}
+    return out
+
+
+def test_bundled_names():
+    assert sorted(NAMES) == bundled_names()
+    assert sorted(NAMES) == sorted(scene_build.BUILDERS)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_folder_rereads(name):
+    import pycolmap
+
+    folder = BUNDLED_DIR / name
+    scene = _yaml(name)
+    assert scene["name"] == name and scene["channels"] in ("rgb", "mono")
+    rec = pycolmap.Reconstruction(str(folder / "sparse"))
+    assert rec.num_images() >= 1 and rec.num_cameras() == rec.num_images()
+    for cam in rec.cameras.values():
+        assert cam.model.name in ("PINHOLE", "SIMPLE_PINHOLE")
+        assert cam.focal_length_x == pytest.approx(cam.focal_length_y)
+    meshes = [m for s in scene["segments"] for m in s["meshes"]]
+    assert len(meshes) == len(set(meshes)), "a mesh belongs to two segments"
+    emitter_meshes = [m for e in scene["emitters"] if e["type"] == "area" for m in e["meshes"]]
+    assert {str(p.relative_to(folder)) for p in folder.glob("meshes/*.ply")} == set(meshes) | set(emitter_meshes)
+    for m in meshes:
+        v, f = read_mesh(folder / m)
+        assert len(f) > 0 and np.isfinite(v).all() and f.max() < len(v)
+    ch = "Y" if scene["channels"] == "mono" else "RGB"
+    for e in scene["emitters"]:
+        if e["type"] == "envmap":
+            sky = read_exr(folder / e["file"], ch)
+            assert sky.shape[2] == len(ch) and np.isfinite(sky).all() and sky.min() >= 0 and sky.max() > 0
+    size = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
+    assert size < 2_000_000
+    assert not (folder / "images").exists()
+
+
+@pytest.mark.parametrize("channels", ["RGB", "Y"])
+def test_exr_roundtrip(tmp_path, channels):
+    img = np.random.default_rng(0).random((5, 7, len(channels))).astype(np.float32)
+    write_exr(tmp_path / "a.exr", img[:, ::-1][:, ::-1], channels)     # non-contiguous input
+    np.testing.assert_array_equal(read_exr(tmp_path / "a.exr", channels), img)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_generator_reproduces_folder(tmp_path, name):
+    """The bundled folder is exactly what ``python -m scenes.build`` writes (preview aside)."""
+    out = scene_build.build(name, tmp_path, preview=False)
+    ours = {p.relative_to(BUNDLED_DIR / name): p.read_bytes()
+            for p in (BUNDLED_DIR / name).rglob("*") if p.is_file() and p.name != "preview.png"}
+    fresh = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert ours.keys() == fresh.keys()
+    assert [k for k in ours if ours[k] != fresh[k]] == []
+
+
+def test_hydra_scene_configs():
+    for name in NAMES:
+        conf = yaml.safe_load((CONF / f"{name}.yaml").read_text())
+        assert conf["name"] == name and conf["dir"] is None
+        images = {c.name for c in read_colmap(BUNDLED_DIR / name / "sparse")}
+        assert conf["views"] == "all" or set(conf["views"]) <= images
+
+
+def test_mono_is_table2_with_same_geometry():
+    rgb, mono = _yaml("urban_canyon"), _yaml("urban_canyon_mono")
+    table2 = {"roof": (0.2, 0), "wall": (0.72, 0.08), "balcony": (0.3, 0), "asphalt": (0.2, 0),
+              "awning": (0.05, 0), "window": (0.18, 0.72)}
+    assert {s["name"]: (s["reference"]["diffuse"], s["reference"]["specular"]) for s in mono["segments"]} == table2
+    assert mono["channels"] == "mono" and rgb["channels"] == "rgb"
+    for s in rgb["segments"]:
+        total = np.add(s["reference"]["diffuse"], s["reference"]["specular"])
+        assert (total <= 1).all()
+        for m in s["meshes"]:
+            assert (BUNDLED_DIR / "urban_canyon" / m).read_bytes() == (BUNDLED_DIR / "urban_canyon_mono" / m).read_bytes()
+
+
+def test_triangle_count():
+    scene = _yaml("urban_canyon")
+    n = sum(len(read_mesh(BUNDLED_DIR / "urban_canyon" / m)[1]) for s in scene["segments"] for m in s["meshes"])
+    assert 1000 < n < 10000
+
+
+def test_colmap_projection_matches_intent_and_mitsuba():
+    """Aim points project to the image centre; a facade corner lands where Mitsuba's ray goes."""
+    from scenes.preview import select_variant
+
+    folder = BUNDLED_DIR / "urban_canyon"
+    cams = {c.name: c for c in read_colmap(folder / "sparse")}
+    uv, depth = cams["street_000.png"].project(np.array([-8.0, 5.0, 4.5]))     # its aim point
+    np.testing.assert_allclose(uv[0], [100, 100], atol=1e-6)
+    assert depth[0] > 0
+    corner = np.array([-20.0, 5.0, 15.0])                   # top of the north facade, west end
+    uv, depth = cams["aerial_000.png"].project(corner)
+    assert depth[0] > 0 and (0 < uv[0]).all() and (uv[0] < 200).all()
+    assert uv[0, 0] < 100 and uv[0, 1] < 100, "west end should be left, the facade top in the upper half"
+    # the south facade lies to the right of a camera looking east (+x) at the north facade ...
+    uv, _ = cams["street_000.png"].project(np.array([-14.0 + 6.0, 5.0, 2.5]))
+    assert uv[0, 1] > 100                                   # ... and a point below the aim is lower
+    select_variant(folder)
+    import mitsuba as mi
+
+    from scenes.cameras import perspective_sensor
+    cam = cams["aerial_000.png"]
+    uv, depth = cam.project(corner)
+    sensor = mi.load_dict(perspective_sensor(cam))
+    ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(*(uv[0] / [cam.width, cam.height])), mi.Point2f(0.5))
+    o, d = np.array(ray.o).ravel(), np.array(ray.d).ravel()
+    to_p = corner - o
+    miss = np.linalg.norm(to_p - np.dot(to_p, d) * d)
+    assert miss < 1e-3 * np.linalg.norm(to_p)
+
+
+def test_urban_canyon_segment_visibility():
+    vis = _segment_visibility("urban_canyon")
+    segments = {s["name"] for s in _yaml("urban_canyon")["segments"]}
+    assert set().union(*vis.values()) == segments
+    assert [v for v, s in vis.items() if "roof" in s] == ["aerial_000.png"]
+    default = yaml.safe_load((CONF / "urban_canyon.yaml").read_text())["views"]
+    for view in default:
+        assert vis[view] == segments - {"roof"}
+
+
+def test_sun_matches_sky():
+    """The directional sun and the baked sky's bright horizon share an azimuth; ground is uniform."""
+    from framework.envmap import texel_directions
+
+    scene = _yaml("urban_canyon")
+    sun = next(e for e in scene["emitters"] if e["type"] == "directional")
+    to_sun = -np.asarray(sun["direction"])
+    np.testing.assert_allclose(to_sun, urban_canyon.sun_vector(45.0, 245.0), atol=1e-6)
+    assert np.degrees(np.arcsin(to_sun[2])) == pytest.approx(45.0)
+    sky = read_exr(BUNDLED_DIR / "urban_canyon" / "sky.exr", "RGB")
+    dirs = texel_directions(*sky.shape[:2])
+    upper = sky.shape[0] // 2
+    i, j = np.unravel_index(sky[:upper].sum(-1).argmax(), (upper, sky.shape[1]))
+    az = lambda v: np.degrees(np.arctan2(v[0], v[1]))
+    assert abs((az(dirs[i, j]) - az(to_sun) + 180) % 360 - 180) < 10
+    ground = sky[upper:]
+    np.testing.assert_allclose(ground, np.broadcast_to(ground[0, 0], ground.shape))
+    assert 0 < ground[0, 0].mean() < sky[:upper].mean()
+
+
+def test_urban_canyon_lit_and_shadowed_facades():
+    """North facade (lit by the sun) is brighter than the south one (in shadow)."""
+    from scenes.preview import render, resized, segment_ids
+
+    folder = BUNDLED_DIR / "urban_canyon"
+    cams = read_colmap(folder / "sparse")
+    wall = [s["name"] for s in _yaml("urban_canyon")["segments"]].index("wall")
+    means = []
+    for k in (2, 3):           # street_002 looks at the north facade, street_003 at the south one
+        img = render(folder, k, spp=8, size=48, seed=1)
+        assert np.isfinite(img).all() and 0.01 < img.mean() < 1.0
+        ids = segment_ids(folder, resized(cams[k], 48))
+        means.append(img[ids == wall].mean())
+    assert means[0] > 1.5 * means[1]
+
+
+def _mean_render(name: str, max_depth: int, spp: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-channel mean and its standard error over the pixels of a path render."""
+    from scenes.preview import render
+
+    img = render(BUNDLED_DIR / name, 0, spp=spp, seed=3, max_depth=max_depth).reshape(-1, 1 if name == "furnace" else 3)
+    return img.mean(0), img.std(0) / np.sqrt(len(img))
+
+
+@pytest.mark.parametrize("bounces", [1, 3])
+def test_plane_sky_closed_form(bounces):
+    mean, sem = _mean_render("plane_sky", bounces + 1, spp=32)
+    expected = plane_sky.expected_pixel(bounces)
+    assert np.all(np.abs(mean - expected) < 4 * sem + 1e-4), (mean, expected, sem)
+
+
+@pytest.mark.parametrize("bounces", [0, 1, 3])
+def test_furnace_closed_form(bounces):
+    mean, sem = _mean_render("furnace", bounces + 1, spp=32)
+    expected = furnace.expected_pixel(bounces)
+    assert np.all(np.abs(mean - expected) < 4 * sem + 1e-4), (mean, expected, sem)
+
+
+def test_cornell_box_matches_mitsuba_original():
+    """Our converted folder renders like Mitsuba's own ``cornell_box()`` dict (64 px, box filter)."""
+    from scenes.preview import render, select_variant
+
+    ours = render(BUNDLED_DIR / "cornell_box", 0, spp=64, seed=5, max_depth=8)
+    select_variant(BUNDLED_DIR / "cornell_box")
+    import mitsuba as mi
+
+    d = mi.cornell_box()
+    d["sensor"]["film"].update(width=64, height=64, rfilter={"type": "box"})
+    d["sensor"]["sampler"]["sample_count"] = 64
+    theirs = np.array(mi.render(mi.load_dict(d), seed=7))
+    np.testing.assert_allclose(ours.mean((0, 1)), theirs.mean((0, 1)), rtol=0.03)
+    # coarse spatial agreement: 8x8 block means
+    block = lambda x: x.reshape(8, 8, 8, 8, 3).mean((1, 3))
+    assert np.abs(block(ours) - block(theirs)).mean() < 0.05 * theirs.mean()
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_framework_loads_bundled_scene(name):
+    scene_mod = pytest.importorskip("framework.scene")
+    scene = scene_mod.load_scene(BUNDLED_DIR / name)
+    assert scene is not None
