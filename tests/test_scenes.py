@@ -138,7 +138,7 @@ def test_colmap_projection_matches_intent_and_mitsuba():
     cam = cams["aerial_000.png"]
     uv, depth = cam.project(corner)
     sensor = mi.load_dict(perspective_sensor(cam))
-    ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(*(uv[0] / [cam.width, cam.height])), mi.Point2f(0.5))
+    ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(*[float(x) for x in uv[0] / [cam.width, cam.height]]), mi.Point2f(0.5))
     o, d = np.array(ray.o).ravel(), np.array(ray.d).ravel()
     to_p = corner - o
     miss = np.linalg.norm(to_p - np.dot(to_p, d) * d)

@@ -1,0 +1,220 @@
+"""PolynomialPathIntegrator on analytic scenes and against Mitsuba's ``path`` (llvm_ad_rgb).
+
+Tolerances are statistical where the estimator is random: ``4σ`` with σ estimated from
+independent repetitions (per-pixel sample variance) of both estimators.
+"""
+import subprocess
+import sys
+import textwrap
+
+import framework.backend
+
+framework.backend.set_variant("llvm_ad_rgb")
+
+import drjit as dr  # noqa: E402
+import mitsuba as mi  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from framework import kernels as K  # noqa: E402
+from framework.errors import ConfigError  # noqa: E402
+from methods.symbolic.integrator import PolynomialPathIntegrator  # noqa: E402
+
+T = mi.ScalarTransform4f
+L_ENV = [1.0, 2.0, 3.0]
+
+
+def plane_scene(res=16):
+    """Rectangle scaled 1000 (z = 0, normal +z) under a constant emitter, camera 5 above looking down."""
+    return mi.load_dict({
+        "type": "scene",
+        "sensor": {"type": "perspective", "fov": 40,
+                   "to_world": T().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"}}},
+        "env": {"type": "constant", "radiance": {"type": "rgb", "value": L_ENV}},
+        "plane": {"type": "rectangle", "to_world": T().scale(1000)},
+    }, optimize=False)
+
+
+def test_plane_mirror_is_exact():
+    """Mirror-only segment: every pixel sees the constant sky in the mirror, so γ(ρ_s) = L exactly
+    (delta kernel, q = 1, no NEE) and every other monomial is 0."""
+    scene = plane_scene()
+    integ = PolynomialPathIntegrator.create([(scene.shapes()[0], 0)], [[("specular", 0)]], 1,
+                                            np.full((1, 3), 0.5), max_bounces=3)
+    c = integ.coefficients(scene, spp=4, seed=0)
+    assert c.shape == (256, 4, 3)
+    np.testing.assert_allclose(c[:, 1, :], np.broadcast_to(L_ENV, (256, 3)), rtol=1e-5)
+    assert np.abs(np.delete(c, 1, axis=1)).max() == 0.0
+
+
+def test_plane_diffuse_and_specular_kernels():
+    """Segment [diffuse, specular] under a constant sky L: E[γ(ρ_d)] = E[γ(ρ_s)] = L (reflected
+    radiance of a white Lambertian / perfect mirror under uniform sky), exactly 0 on the constant
+    and degree >= 2 monomials (an infinite plane never sees itself). The estimate is random only
+    through the kernel choice and NEE/BSDF MIS: pixel means are checked at 4σ (σ from the pixel
+    spread, all pixels being identically distributed)."""
+    scene = plane_scene()
+    integ = PolynomialPathIntegrator.create([(scene.shapes()[0], 0)],
+                                            [[("diffuse", 0), ("specular", 1)]], 2,
+                                            np.array([[0.6] * 3, [0.3] * 3]), max_bounces=3)
+    c = integ.coefficients(scene, spp=16, seed=1)
+    for m in (1, 2):
+        mean, se = c[:, m].mean(0), c[:, m].std(0) / np.sqrt(c.shape[0])
+        assert np.all(np.abs(mean - L_ENV) < 4 * se + 1e-6), (m, mean, se)
+    assert np.abs(c[:, [0] + list(range(3, c.shape[1]))]).max() == 0.0
+    # mirror: each sample is 0 or L/q_s exactly, so γ(ρ_s)/L is a multiple of 1/(q_s spp)
+    q_s = integ.selection_probs[0][1]
+    k = c[:, 2, 0] / L_ENV[0] * q_s * 16
+    np.testing.assert_allclose(k, np.round(k), atol=1e-4)
+
+
+def test_furnace_sphere():
+    """Camera inside a closed diffuse sphere (normals inward) emitting Le: the radiance of
+    bounce k is Le ρ^k (white furnace), so γ(ρ^k) = Le for k = 0..N_max; 4σ MC tolerance from the
+    pixel spread (all pixels identically distributed); ρ^0 is exact (Le seen directly)."""
+    Le = 0.7
+    scene = mi.load_dict({
+        "type": "scene",
+        "sensor": {"type": "perspective", "fov": 60,
+                   "to_world": T().look_at(origin=[0, 0, 0], target=[0, 0, 1], up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": 16, "height": 16, "rfilter": {"type": "box"}}},
+        "sphere": {"type": "sphere", "radius": 1.0, "flip_normals": True,
+                   "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [Le] * 3}}},
+    }, optimize=False)
+    N = 3
+    integ = PolynomialPathIntegrator.create([(scene.shapes()[0], 0)], [[("diffuse", 0)]], 1,
+                                            np.full((1, 3), 0.5), max_bounces=N)
+    c = integ.coefficients(scene, spp=32, seed=2)
+    assert c.shape[1] == N + 1
+    np.testing.assert_allclose(c[:, 0], Le, rtol=1e-6)
+    for k in range(1, N + 1):
+        m = integ.basis.index([0] * k)
+        mean, se = c[:, m].mean(0), c[:, m].std(0) / np.sqrt(c.shape[0])
+        assert np.all(np.abs(mean - Le) < 4 * se + 1e-6), (k, mean, se)
+        assert np.all(se < 0.05 * Le)     # the test has power
+
+
+SEGMENTS = [[("diffuse", 0), ("diffuse", 1)],   # 0 white: two kernels (exercises selection)
+            [("diffuse", 2)],                    # 1 red
+            [("diffuse", 3)],                    # 2 green
+            [("specular", 4)]]                   # 3 mirror: the large box
+
+
+def cornell(rho, res=32):
+    """mi.cornell_box() with forward kernel BSDFs (framework.kernels.forward_bsdf + weight_values),
+    box filter, black emit-only light (segment -1); the large box is a pure mirror segment."""
+    d = mi.cornell_box()
+    d["sensor"]["film"].update({"width": res, "height": res, "rfilter": {"type": "box"}})
+    d["light"]["bsdf"] = {"type": "diffuse", "reflectance": 0.0}
+    seg_of = {"white": 0, "red": 1, "green": 2}
+    shape_seg = {k: seg_of[d[k]["bsdf"]["id"]] for k in ("floor", "ceiling", "back", "green-wall",
+                                                         "red-wall", "small-box")}
+    shape_seg["large-box"] = 3
+    shape_seg["light"] = -1
+    d["white"] = K.forward_bsdf(["diffuse", "diffuse"], ("R", "G", "B"))
+    d["red"] = K.forward_bsdf(["diffuse"], ("R", "G", "B"))
+    d["green"] = K.forward_bsdf(["diffuse"], ("R", "G", "B"))
+    d["large-box"]["bsdf"] = K.forward_bsdf(["specular"], ("R", "G", "B"))
+    scene = mi.load_dict(d, optimize=False)
+    params = mi.traverse(scene)
+    for name, seg in (("white", 0), ("red", 1), ("green", 2), ("large-box.bsdf", 3)):
+        kl = SEGMENTS[seg]
+        for key, val in K.weight_values([k for k, _ in kl], rho[[p for _, p in kl]]):
+            params[f"{name}.{key}"] = mi.Color3f(*[float(v) for v in val])
+    params.update()
+    return scene, [(s, shape_seg[s.id()]) for s in scene.shapes()]
+
+
+def _z(a, b):
+    """(R, ...) repetitions of two estimators -> z score of the difference of their means."""
+    ma, mb = a.mean(0), b.mean(0)
+    va, vb = a.var(0, ddof=1) / a.shape[0], b.var(0, ddof=1) / b.shape[0]
+    return (ma - mb) / np.sqrt(va + vb)
+
+
+@pytest.mark.parametrize("guess", ["near", "far"])
+def test_cornell_matches_path(guess):
+    """Polynomial evaluated at random ρ vs mi.render(path, max_depth = N_max + 1) at independent
+    seeds. Each estimator is run R = 4 times (32x32, 32 spp); image means and 2x2-quadrant means per
+    channel must agree at |z| < 4 (σ from the repetition variance). 'far': guesses 0.9 while the
+    true white weights are ~0.1 (only the variance may change, not the expectation). Also checks
+    mi.render(polynomial integrator) (= polynomial at the guesses) against path at ρ = guesses."""
+    rng = np.random.default_rng(5 if guess == "near" else 6)
+    rho = rng.uniform(0.1, 0.45, (5, 3))
+    if guess == "far":
+        rho[:2] = 0.1
+    guesses = np.full((5, 3), 0.5) if guess == "near" else np.full((5, 3), 0.9) * [[1], [0.1], [1], [1], [1]]
+    N = 3
+    scene, shape_segments = cornell(rho)
+    integ = PolynomialPathIntegrator.create(shape_segments, SEGMENTS, 5, guesses, max_bounces=N)
+    path = mi.load_dict({"type": "path", "max_depth": N + 1, "rr_depth": 1000})
+    R, spp, res = 4, 32, 32
+    poly, ref = [], []
+    for r in range(R):
+        c = integ.coefficients(scene, spp=spp, seed=10 + r)
+        img = np.stack([c[:, :, ch] @ integ.basis.evaluate(rho[:, ch]) for ch in range(3)], -1)
+        poly.append(img.reshape(res, res, 3))
+        ref.append(np.asarray(mi.render(scene, integrator=path, spp=spp, seed=100 + r)))
+    poly, ref = np.array(poly), np.array(ref)
+    quads = lambda x: x.reshape(R, 2, res // 2, 2, res // 2, 3).mean((2, 4))
+    assert np.all(np.abs(_z(poly.mean((1, 2)), ref.mean((1, 2)))) < 4)
+    assert np.all(np.abs(_z(quads(poly), quads(ref))) < 4)
+    assert abs(poly.mean() / ref.mean() - 1) < 0.05   # and close in absolute terms
+
+    if guess == "near":
+        scene_g, _ = cornell(guesses)
+        ig = np.array([np.asarray(mi.render(scene, integrator=integ, spp=spp, seed=200 + r))
+                       for r in range(R)])
+        rg = np.array([np.asarray(mi.render(scene_g, integrator=path, spp=spp, seed=300 + r))
+                       for r in range(R)])
+        assert np.all(np.abs(_z(ig.mean((1, 2)), rg.mean((1, 2)))) < 4)
+
+
+def test_pixel_range_and_tiles():
+    """pixel_range / tile_pixels return the same pixels (first tile shares the seed, exact; later
+    tiles have their own seed, so only the shape and the deterministic constant monomial match)."""
+    scene, ss = cornell(np.full((5, 3), 0.3), res=16)
+    a = PolynomialPathIntegrator.create(ss, SEGMENTS, 5, np.full((5, 3), 0.3), max_bounces=2)
+    full = a.coefficients(scene, spp=4, seed=3)
+    part = a.coefficients(scene, spp=4, seed=3, pixel_range=(0, 100))
+    np.testing.assert_array_equal(part, full[:100])
+    b = PolynomialPathIntegrator.create(ss, SEGMENTS, 5, np.full((5, 3), 0.3), max_bounces=2,
+                                        tile_pixels=50)
+    tiled = b.coefficients(scene, spp=4, seed=3)
+    assert tiled.shape == full.shape == (256, 21, 3)
+    np.testing.assert_array_equal(tiled[:50], full[:50])
+
+
+def test_config_errors():
+    with pytest.raises(ConfigError, match=r"max_bounces=0.*\[1"):
+        PolynomialPathIntegrator.create([], [[("diffuse", 0)]], 1, np.ones((1, 3)), max_bounces=0)
+    with pytest.raises(ConfigError, match="parameter index 3"):
+        PolynomialPathIntegrator.create([], [[("diffuse", 3)]], 1, np.ones((1, 3)))
+    with pytest.raises(Exception, match="unknown kernel"):
+        PolynomialPathIntegrator.create([], [[("glossy", 0)]], 1, np.ones((1, 3)))
+
+
+def test_mono_variant_in_subprocess():
+    """llvm_ad_mono (C = 1): the exact mirror-plane case, in a fresh process (a Mitsuba class is
+    bound to the variant active when its module is imported)."""
+    code = textwrap.dedent("""
+        import framework.backend; framework.backend.set_variant('llvm_ad_mono')
+        import mitsuba as mi, numpy as np
+        from methods.symbolic.integrator import PolynomialPathIntegrator
+        T = mi.ScalarTransform4f
+        s = mi.load_dict({'type': 'scene', 'sensor': {'type': 'perspective', 'fov': 40,
+            'to_world': T().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0]),
+            'film': {'type': 'hdrfilm', 'width': 8, 'height': 8, 'rfilter': {'type': 'box'}}},
+            'env': {'type': 'constant', 'radiance': 2.5},
+            'plane': {'type': 'rectangle', 'to_world': T().scale(1000)}}, optimize=False)
+        i = PolynomialPathIntegrator.create([(s.shapes()[0], 0)], [[('specular', 0)]], 1, [[0.5]])
+        c = i.coefficients(s, spp=4, seed=0)
+        assert c.shape == (64, 4, 1), c.shape
+        assert np.allclose(c[:, 1, 0], 2.5, rtol=1e-5) and np.abs(c[:, [0, 2, 3]]).max() == 0
+        img = np.asarray(mi.render(s, integrator=i, spp=4))
+        assert np.allclose(img, 1.25, rtol=1e-5), img.mean()
+        print('OK')
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and "OK" in out.stdout, out.stderr[-2000:]
