@@ -12,7 +12,7 @@ import html
 
 _CSS = """
 body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:1.5em auto;
-max-width:1150px;padding:0 1em;color:#1d1d1f;line-height:1.4}
+max-width:1250px;padding:0 1em;color:#1d1d1f;line-height:1.4}
 h1{font-size:1.6em;border-bottom:2px solid #ccc;padding-bottom:.2em}
 h2{font-size:1.25em;margin-top:1.6em;border-bottom:1px solid #ddd}
 h3{font-size:1.05em}
@@ -23,7 +23,8 @@ td.l,th.l{text-align:left}
 tr:nth-child(even) td{background:#fafafa}
 caption{caption-side:bottom;font-size:.85em;color:#555;padding-top:.3em;text-align:left}
 figure{display:inline-block;margin:.4em .8em .4em 0;vertical-align:top}
-figure img{max-width:100%;image-rendering:auto;border:1px solid #ddd}
+figure img{max-width:100%;border:1px solid #ddd}
+figure img.pixels{height:210px;width:auto;margin-top:22px;image-rendering:pixelated}
 figcaption{font-size:.85em;color:#444;text-align:center}
 .row{display:flex;flex-wrap:wrap;align-items:flex-start}
 .note{color:#8a4b00;font-size:.9em}
@@ -126,16 +127,23 @@ class Doc:
         out.append("</table>")
         return "\n".join(out)
 
-    def figures(self, items, *, width: int | None = None) -> None:
-        """Add images side by side: ``items`` is a sequence of (relative src, caption)."""
-        for src, caption in items:
+    def figures(self, items) -> None:
+        """Add images side by side.
+
+        Parameters
+        ----------
+        items : sequence of tuple
+            ``(relative src, caption)`` or ``(relative src, caption, css class)``; the
+            class ``pixels`` shows a raw image at panel height with sharp pixels.
+        """
+        figs = []
+        for src, caption, *cls in items:
             self.md.append(f"![{_md_cell(caption)}]({src})")
+            attr = f' class="{html.escape(cls[0])}"' if cls else ""
+            figs.append(f'<figure><img src="{html.escape(src)}" alt="{html.escape(caption)}"{attr}>'
+                        f"<figcaption>{html.escape(caption)}</figcaption></figure>")
         self.md.append("")
-        style = f' style="width:{width}px"' if width else ""
-        figs = "".join(
-            f'<figure><img src="{html.escape(src)}" alt="{html.escape(caption)}"{style}>'
-            f"<figcaption>{html.escape(caption)}</figcaption></figure>" for src, caption in items)
-        self.html.append(f'<div class="row">{figs}</div>')
+        self.html.append(f'<div class="row">{"".join(figs)}</div>')
 
     def links(self, items) -> None:
         """Add a bullet list of links: ``items`` is a sequence of (text, href)."""

@@ -76,8 +76,8 @@ def plot_difference(path, diff: np.ndarray, *, title: str) -> None:
     vmax = float(np.percentile(finite, 99.5)) if finite.size else 0.0
     vmax = vmax or (float(finite.max()) if finite.size else 0.0) or 1.0
     h, w = diff.shape
-    img_w = 2.5 * w / h
-    fig = _new_figure(img_w + 1.0, 2.8, layout=None)
+    img_w = 2.2 * w / h
+    fig = _new_figure(img_w + 1.0, 2.5, layout=None)
     frac = img_w / (img_w + 1.0)
     ax = fig.add_axes((0.01, 0.02, frac - 0.02, 0.86))
     im = ax.imshow(diff, cmap="RdBu_r", vmin=-vmax, vmax=vmax, interpolation="nearest")
@@ -100,8 +100,8 @@ def plot_segments(path, seg_map: np.ndarray, names) -> None:
     if (present < 0).any():
         handles.append(Patch(color=np.asarray(NO_SEGMENT_RGB) / 255.0, label="none / sky"))
     h, w = seg.shape
-    img_w = 2.5 * w / h
-    fig = _new_figure(img_w + 1.6, 2.8, layout=None)
+    img_w = 2.2 * w / h
+    fig = _new_figure(img_w + 1.6, 2.5, layout=None)
     frac = img_w / (img_w + 1.6)
     ax = fig.add_axes((0.01, 0.02, frac - 0.02, 0.86))
     ax.imshow(rgb, interpolation="nearest")

@@ -161,7 +161,7 @@ def _view_panel(doc: Doc, ctx: _RunContext, view: dict, index: int) -> None:
         if img is not None:
             path, src = ctx.out(f"{stem}_{label}.png")
             images.write_png(path, images.tonemap(img, exposure=exposure))
-            items.append((src, label))
+            items.append((src, label, "pixels"))
     if obs is not None and rec is not None and obs.shape == rec.shape:
         path, src = ctx.out(f"{stem}_difference.png")
         plot_difference(path, (rec - obs).mean(axis=-1), title="reconstruction − observed")
@@ -239,7 +239,7 @@ def _section_relit(doc: Doc, ctx: _RunContext) -> None:
         if img is not None:
             path, src = ctx.out(f"relit{i:02d}_{_safe(name)}.png")
             images.write_png(path, images.tonemap(img))
-            items.append((src, name))
+            items.append((src, name, "pixels"))
     if items:
         doc.figures(items)
 

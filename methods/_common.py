@@ -1,0 +1,209 @@
+"""Pieces shared by the render-in-the-loop baselines (``iterative``, ``differentiable``).
+
+* option checks that raise :class:`~framework.errors.ConfigError` naming the key and range;
+* the initial guess (``guess`` number or per-kernel mapping, or ``init: lambertian_prior``);
+* the feasible set of the weights (bounds [0, 1] and, per segment and channel, Σ_kernels ρ <= 1):
+  nlopt constraint groups and a Euclidean projection;
+* :class:`RenderLedger`: counts full passes over the views against ``budget.renders``, times
+  Mitsuba, shows a tqdm bar;
+* the image cost of the paper's eq. 6 with p = 2, squared, per channel.
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+
+import numpy as np
+
+from framework.errors import ConfigError
+
+
+# ------------------------------------------------------------------------------------------------
+# Option checks
+# ------------------------------------------------------------------------------------------------
+def check_choice(cfg, key: str, choices) -> str:
+    """``cfg[key]`` as a string, or :class:`ConfigError` listing ``choices``."""
+    value = cfg.get(key)
+    if str(value) not in choices:
+        raise ConfigError(f"method.{key}={value} is not allowed: use one of {', '.join(map(str, choices))}")
+    return str(value)
+
+
+def check_number(cfg, key: str, lo: float, hi: float | None = None, *, integer: bool = False,
+                 lo_open: bool = False) -> float | int:
+    """``cfg[key]`` if it is a number in ``[lo, hi]`` (``(lo, hi]`` when ``lo_open``); else ConfigError."""
+    value = cfg.get(key)
+    kinds = (int,) if integer else (int, float)
+    ok = isinstance(value, kinds) and not isinstance(value, bool)
+    ok = ok and (value > lo if lo_open else value >= lo) and (hi is None or value <= hi)
+    if not ok:
+        what = "an integer" if integer else "a number"
+        rng = f"{'(' if lo_open else '['}{lo}, {hi if hi is not None else '∞'}{']' if hi is not None else ')'}"
+        raise ConfigError(f"method.{key}={value} is out of range: use {what} in {rng}")
+    return value
+
+
+# ------------------------------------------------------------------------------------------------
+# Initial guess and feasible set
+# ------------------------------------------------------------------------------------------------
+def initial_guess(cfg, problem) -> tuple[np.ndarray, int]:
+    """(P, C) start weights and the renders spent to get them.
+
+    ``cfg.init``: ``guess`` uses ``cfg.guess`` (a number for every kernel, or a mapping
+    kernel -> number); ``lambertian_prior`` runs that registered method and takes its diffuse
+    estimates, the other kernels keeping ``cfg.guess``. The result is projected onto the
+    feasible set.
+    """
+    init = check_choice(cfg, "init", ("guess", "lambertian_prior"))
+    rho = _guess_from_config(cfg.get("guess"), problem)
+    spent = 0
+    if init == "lambertian_prior":
+        rho, spent = _lambertian_prior(rho, problem)
+    return project_feasible(rho, problem.parameters), spent
+
+
+def _guess_from_config(guess, problem) -> np.ndarray:
+    kernels = {p.kernel for p in problem.parameters}
+    if isinstance(guess, Mapping):
+        missing = kernels - set(guess)
+        if missing:
+            raise ConfigError(f"method.guess={dict(guess)} lacks kernel(s) {', '.join(sorted(missing))}: "
+                              f"give one number in [0, 1] per kernel of the scene ({', '.join(sorted(kernels))})")
+        values = {k: guess[k] for k in kernels}
+    else:
+        values = {k: guess for k in kernels}
+    for k, v in values.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v <= 1.0:
+            raise ConfigError(f"method.guess={guess} is out of range: use a number in [0, 1] "
+                              f"or a mapping kernel -> number in [0, 1] (kernel {k})")
+    C = problem.n_channels
+    return np.array([[float(values[p.kernel])] * C for p in problem.parameters])
+
+
+def _lambertian_prior(rho: np.ndarray, problem) -> tuple[np.ndarray, int]:
+    """Diffuse weights from the ``lambertian_prior`` method (its renders count)."""
+    from framework.methods import get_method
+    try:
+        prior_cls = get_method("lambertian_prior")
+    except ConfigError:
+        raise ConfigError("method.init=lambertian_prior needs the lambertian_prior method "
+                          "(methods/lambertian_prior), which is not registered: use method.init=guess") from None
+    result = prior_cls(_method_config("lambertian_prior")).run(problem)
+    got = {(p.segment, p.kernel): result.estimate[i]
+           for i, p in enumerate(result.parameters or problem.parameters)}
+    rho = rho.copy()
+    for p in problem.parameters:
+        value = got.get((p.segment, p.kernel))
+        if value is not None and np.all(np.isfinite(value)):
+            rho[p.index] = value
+    return rho, int(result.renders)
+
+
+def _method_config(name: str):
+    from pathlib import Path
+
+    from omegaconf import OmegaConf
+    path = Path(__file__).resolve().parents[1] / "framework" / "conf" / "method" / f"{name}.yaml"
+    return OmegaConf.load(path) if path.exists() else OmegaConf.create({"name": name})
+
+
+def segment_groups(parameters) -> list[list[int]]:
+    """Parameter indices of each segment (the kernels whose weights share Σ ρ <= 1)."""
+    groups: dict[int, list[int]] = {}
+    for p in parameters:
+        groups.setdefault(p.segment, []).append(p.index)
+    return list(groups.values())
+
+
+def flat_constraint_groups(parameters, n_channels: int) -> list[list[int]]:
+    """Indices into ``ρ.ravel()`` (P, C) of each (segment, channel) sum constraint."""
+    return [[i * n_channels + c for i in g] for g in segment_groups(parameters) for c in range(n_channels)]
+
+
+def project_feasible(rho: np.ndarray, parameters) -> np.ndarray:
+    """Euclidean projection of ρ (P, C) onto [0, 1] ∩ {Σ_segment kernels ρ <= 1} per channel.
+
+    Where the clipped weights of a segment sum to more than 1, they are projected onto the
+    face Σ ρ = 1 of the probability simplex (sort-based algorithm of Held et al. / Duchi et
+    al. 2008), which is the exact projection onto the feasible set in that case.
+    """
+    rho = np.clip(np.asarray(rho, dtype=float), 0.0, 1.0)
+    for g in segment_groups(parameters):
+        for c in range(rho.shape[1]):
+            if rho[g, c].sum() > 1.0:
+                rho[g, c] = _project_simplex(rho[g, c])
+    return rho
+
+
+def _project_simplex(v: np.ndarray) -> np.ndarray:
+    u = np.sort(v)[::-1]
+    css = np.cumsum(u) - 1.0
+    k = np.nonzero(u - css / np.arange(1, v.size + 1) > 0)[0][-1]
+    return np.maximum(v - css[k] / (k + 1), 0.0)
+
+
+# ------------------------------------------------------------------------------------------------
+# Renders: cost, budget, timing
+# ------------------------------------------------------------------------------------------------
+def channel_costs(images: list[np.ndarray], observed: list[np.ndarray]) -> np.ndarray:
+    """(C,) Σ over views and pixels of (render - observed)² per channel (paper eq. 6, p = 2, squared)."""
+    return sum(np.sum(np.square(img.astype(np.float64) - obs), axis=(0, 1)) for img, obs in zip(images, observed))
+
+
+def observed_list(problem) -> list[np.ndarray]:
+    """Observed images in the order of ``problem.cameras`` (the Mitsuba sensors' order)."""
+    return [np.asarray(problem.observed[c.name], dtype=np.float64) for c in problem.cameras]
+
+
+class RenderLedger:
+    """Counts full passes over the views against a budget; times them; drives a tqdm bar.
+
+    Parameters
+    ----------
+    budget : int
+        ``budget.renders``: the most passes the method may spend.
+    desc : str
+        Label of the progress bar.
+    spent : int
+        Passes already spent (for example by an initial-guess method).
+    """
+
+    def __init__(self, budget: int, *, desc: str, spent: int = 0):
+        from tqdm import tqdm
+        self.budget = int(budget)
+        self.used = int(spent)
+        self.render_s = 0.0
+        self._bar = tqdm(total=self.budget, initial=self.used, desc=desc, unit="render", leave=False)
+
+    def left(self) -> int:
+        return self.budget - self.used
+
+    def can_afford(self, n: int) -> bool:
+        return self.used + n <= self.budget
+
+    def spend(self, n: int, seconds: float) -> None:
+        """Record ``n`` passes that took ``seconds`` in Mitsuba."""
+        if not self.can_afford(n):
+            raise RuntimeError(f"render budget exceeded: {self.used} + {n} > {self.budget}")
+        self.used += n
+        self.render_s += seconds
+        self._bar.update(n)
+
+    def close(self) -> None:
+        self._bar.close()
+
+
+def render_pass(ms, *, spp: int, seeds: list[int], ledger: RenderLedger) -> list[np.ndarray]:
+    """One full pass: every sensor of ``ms`` rendered once (seed ``seeds[v]``); counts 1 render."""
+    if not ledger.can_afford(1):
+        raise RuntimeError(f"render budget exceeded: {ledger.used} + 1 > {ledger.budget}")
+    t0 = time.perf_counter()
+    images = [ms.render(v, spp=spp, seed=s) for v, s in enumerate(seeds)]
+    ledger.spend(1, time.perf_counter() - t0)
+    return images
+
+
+def max_depth(problem) -> int:
+    """Mitsuba ``max_depth`` for the run's ``render.max_bounces`` (N_max + 1)."""
+    from framework.mitsuba_scene import max_depth_for
+    return max_depth_for(int(problem.settings.render.max_bounces))

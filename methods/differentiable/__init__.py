@@ -1,0 +1,209 @@
+"""Differentiable rendering baseline: Mitsuba ``prb`` reverse-mode gradients and Adam."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from framework import kernels as K
+from framework.methods import Method, MethodResult, Problem, register
+from methods import _common as C
+
+
+@register("differentiable")
+class DifferentiableMethod(Method):
+    r"""Inverse rendering as most people would do it today: differentiable path tracing + Adam.
+
+    Each iteration renders every selected view with Mitsuba's ``prb`` integrator (path replay
+    backpropagation, ``max_depth = render.max_bounces + 1``) at the current weights ρ and
+    back-propagates the same cost as the other methods, eq. 6 with :math:`p = 2`, squared,
+
+    .. math:: \epsilon(\rho) = \sum_{j} \sum_{i} \sum_{c}
+              [L^{\text{synthetic}}_c(i, j, \rho) - L^{\text{acquired}}_c(i, j)]^2 ,
+
+    to one optimisation variable per (segment, kernel) parameter and channel. That variable is
+    written, scaled by the segment's number of kernels :math:`K` (Mitsuba's ``blendbsdf``
+    shares, see :func:`framework.kernels.weight_values`), into the BSDF of *every* mesh of the
+    segment, so the gradients of all its meshes accumulate into it. ρ is updated with Adam
+    (Kingma & Ba 2015; a small host-side implementation, bias-corrected) and then projected
+    onto the feasible set: clipped to [0, 1], then, per segment and channel where
+    :math:`\sum_\text{kernels} \rho > 1`, the exact Euclidean projection onto the simplex face
+    :math:`\sum \rho = 1` (:func:`methods._common.project_feasible`).
+
+    The primal and gradient passes of an iteration use fresh seeds
+    (``inversion_seed(seed, ·)``, decorrelated from each other and from the observations).
+    One iteration costs **two renders** (a forward and a backward pass over all views);
+    the final reconstruction at the estimate costs one more. The run stops at ``iterations``
+    or when the next iteration would leave no render for the reconstruction under
+    ``budget.renders``. The estimate is the last iterate (Adam's iterates are noisy; the
+    recorded cost of each iteration is the Monte-Carlo cost of its primal render).
+
+    Parameters (``framework/conf/method/differentiable.yaml``)
+    -----------------------------------------------------------
+    lr : float
+        Adam learning rate in ρ units, > 0 (default 0.02).
+    beta1, beta2 : float
+        Adam moment decay rates in [0, 1) (defaults 0.9, 0.999).
+    iterations : int
+        Most iterations (default 200; the budget usually stops the run first).
+    spp_grad : int or null
+        Samples per pixel of the backward pass (null, default: ``render.spp``).
+    init : str
+        ``guess`` (default) or ``lambertian_prior`` (diffuse start weights from that method).
+    guess : float or mapping
+        Start weights: one number in [0, 1] for every kernel (default 0.5) or a mapping
+        kernel -> number, e.g. ``{diffuse: 0.5, specular: 0.1}``.
+
+    Limitations
+    -----------
+    The ``specular`` kernel is a Dirac lobe: ``prb`` differentiates its weight correctly
+    (the weight is a plain factor), but paths through it are only as well sampled as
+    Mitsuba's conductor allows. Adam with a constant learning rate ends in a noise ball of
+    radius about ``lr``; lower ``lr`` and raise the budget for a tighter estimate.
+    """
+
+    def run(self, problem: Problem) -> MethodResult:
+        opts = _options(self.cfg, problem)
+        t0 = time.perf_counter()
+        rho, spent = C.initial_guess(self.cfg, problem)
+        ledger = C.RenderLedger(problem.settings.budget.renders, desc="differentiable", spent=spent)
+        try:
+            fit = _Fit(problem, ledger, opts)
+            rho = fit.optimise(rho)
+            recon = fit.final_render(rho)
+        finally:
+            ledger.close()
+        total = time.perf_counter() - t0
+        return MethodResult(
+            estimate=rho, renders=ledger.used,
+            timings_s={"render": ledger.render_s, "solve": total - ledger.render_s},
+            cost_history=fit.costs, cost_times_s=fit.times,
+            reconstructions={c.name: img for c, img in zip(problem.cameras, recon)},
+            extras={"iterations": len(fit.costs), "lr": opts["lr"], "spp": opts["spp"],
+                    "spp_grad": opts["spp_grad"], "projection": "clip + simplex face"})
+
+
+def _options(cfg, problem) -> dict:
+    """The validated options; :class:`ConfigError` naming the first bad key."""
+    spp = int(problem.settings.render.spp)
+    spp_grad = cfg.get("spp_grad")
+    return {"lr": float(C.check_number(cfg, "lr", 0.0, 1.0, lo_open=True)),
+            "beta1": float(C.check_number(cfg, "beta1", 0.0, 0.999999)),
+            "beta2": float(C.check_number(cfg, "beta2", 0.0, 0.999999)),
+            "iterations": int(C.check_number(cfg, "iterations", 1, integer=True)),
+            "spp": spp,
+            "spp_grad": spp if spp_grad is None else int(C.check_number(cfg, "spp_grad", 1, integer=True))}
+
+
+class _Adam:
+    """Adam on a numpy array (bias-corrected moments)."""
+
+    def __init__(self, shape, *, lr: float, beta1: float, beta2: float, eps: float = 1e-8):
+        self.lr, self.b1, self.b2, self.eps = lr, beta1, beta2, eps
+        self.m, self.v, self.t = np.zeros(shape), np.zeros(shape), 0
+
+    def step(self, x: np.ndarray, grad: np.ndarray) -> np.ndarray:
+        self.t += 1
+        self.m = self.b1 * self.m + (1 - self.b1) * grad
+        self.v = self.b2 * self.v + (1 - self.b2) * grad ** 2
+        m_hat = self.m / (1 - self.b1 ** self.t)
+        v_hat = self.v / (1 - self.b2 ** self.t)
+        return x - self.lr * m_hat / (np.sqrt(v_hat) + self.eps)
+
+
+class _Fit:
+    """The Mitsuba scene with a ``prb`` integrator, its weight keys, and the optimisation loop."""
+
+    def __init__(self, problem: Problem, ledger: C.RenderLedger, opts: dict):
+        from framework.mitsuba_scene import MitsubaScene
+        self.problem, self.ledger, self.opts = problem, ledger, opts
+        self.ms = MitsubaScene(problem.scene, problem.cameras, spp=opts["spp"],
+                               integrator={"type": "prb", "max_depth": C.max_depth(problem)})
+        self.observed = C.observed_list(problem)
+        self.keys = _weight_keys(problem)
+        self.ms.set_weights(np.zeros((len(problem.parameters), problem.n_channels)), problem.parameters)
+        self.costs: list[float] = []
+        self.times: list[float] = []
+
+    def optimise(self, rho: np.ndarray) -> np.ndarray:
+        """Adam + projection until ``iterations`` or the budget (keeping one render for the end)."""
+        adam = _Adam(rho.shape, lr=self.opts["lr"], beta1=self.opts["beta1"], beta2=self.opts["beta2"])
+        for it in range(self.opts["iterations"]):
+            if not self.ledger.can_afford(2 + 1):
+                break
+            t0 = time.perf_counter()
+            cost, grad = self.cost_and_gradient(rho, it)
+            rho = C.project_feasible(adam.step(rho, grad), self.problem.parameters)
+            self.costs.append(cost)
+            self.times.append(time.perf_counter() - t0)
+        return rho
+
+    def cost_and_gradient(self, rho: np.ndarray, it: int) -> tuple[float, np.ndarray]:
+        """Cost at ρ and dε/dρ (P, C), from one forward and one backward pass over the views."""
+        import drjit as dr
+        import mitsuba as mi
+        variables = self.write(rho, grad=True)
+        cost, t0 = 0.0, time.perf_counter()
+        for v, obs in enumerate(self.observed):
+            seed, seed_grad = self.seeds(it, v)
+            img = mi.render(self.ms.scene, self.ms.params, sensor=v, spp=self.opts["spp"],
+                            spp_grad=self.opts["spp_grad"], seed=seed, seed_grad=seed_grad)
+            loss = dr.sum(dr.square(img[..., : obs.shape[-1]] - mi.TensorXf(obs.astype(np.float32))), axis=None)
+            cost += float(loss.array[0])
+            dr.backward(loss)
+        grad = np.stack([_to_numpy(dr.grad(var), rho.shape[1]) for var in variables])
+        self.ledger.spend(2, time.perf_counter() - t0)
+        return cost, grad
+
+    def seeds(self, it: int, view: int) -> tuple[int, int]:
+        """(primal, gradient) Mitsuba seeds of ``view`` at iteration ``it``: even, never reused."""
+        from framework.observe import inversion_seed
+        counter = 2 * (it * len(self.observed) + view)
+        return inversion_seed(self.problem.seed, counter), inversion_seed(self.problem.seed, counter + 1)
+
+    def write(self, rho: np.ndarray, *, grad: bool) -> list:
+        """Write ρ into every mesh's BSDF keys (K·ρ); with ``grad``, as fresh differentiable variables."""
+        import drjit as dr
+        variables = []
+        for p in self.problem.parameters:
+            var = _colour(self.ms.params, self.keys[p.index][0][0], rho[p.index])
+            if grad:
+                dr.enable_grad(var)
+            variables.append(var)
+            for key, scale in self.keys[p.index]:
+                self.ms.params[key] = var * scale
+        self.ms.params.update()
+        return variables
+
+    def final_render(self, rho: np.ndarray) -> list[np.ndarray]:
+        """The reconstruction at the estimate (primal ``prb`` pass, one render); empty if no budget."""
+        if not self.ledger.can_afford(1):
+            return []
+        self.write(rho, grad=False)
+        seeds = [self.seeds(len(self.costs), v)[0] for v in range(len(self.observed))]
+        return C.render_pass(self.ms, spp=self.opts["spp"], seeds=seeds, ledger=self.ledger)
+
+
+def _weight_keys(problem: Problem) -> list[list[tuple[str, float]]]:
+    """Per parameter: (full traverse key, K) of each mesh of its segment."""
+    out: list[list[tuple[str, float]]] = [[] for _ in problem.parameters]
+    index = {(p.segment, p.kernel): p.index for p in problem.parameters}
+    for i, mesh in enumerate(problem.scene.meshes):
+        if mesh.segment is None:
+            continue
+        kernels = list(problem.scene.segments[mesh.segment].kernels)
+        zeros = np.zeros((len(kernels), problem.n_channels))
+        for kernel, (key, _) in zip(kernels, K.weight_values(kernels, zeros)):
+            if (mesh.segment, kernel) in index:
+                out[index[(mesh.segment, kernel)]].append((f"mesh_{i}.bsdf.{key}", float(len(kernels))))
+    return out
+
+
+def _colour(params, key: str, values: np.ndarray):
+    """A Dr.Jit value of the type stored at ``key`` (Color3f, Float...) holding ``values``."""
+    kind = type(params[key])
+    return kind(*[float(x) for x in values]) if len(values) > 1 else kind(float(values[0]))
+
+
+def _to_numpy(value, n_channels: int) -> np.ndarray:
+    return np.broadcast_to(np.array(value, dtype=float).ravel(), (n_channels,)).copy()

@@ -1,0 +1,196 @@
+"""The paper's plain algorithm (figure 2): render, compare, finite-difference gradient, repeat."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from framework.methods import Method, MethodResult, Problem, register
+from framework.optim import StopOptimization, check_algorithm, minimize
+from methods import _common as C
+
+
+@register("iterative")
+class IterativeMethod(Method):
+    r"""Plain iterative inversion: every cost evaluation is a new Mitsuba rendering.
+
+    This is the baseline of the paper's section 4.1 (figure 2). The cost is eq. 6 with
+    :math:`p = 2`, squared,
+
+    .. math:: \epsilon(\rho) = \sum_{\text{view } j} \sum_{\text{pixel } i} \sum_{\text{channel } c}
+              [L^{\text{synthetic}}_c(i, j, \rho) - L^{\text{acquired}}_c(i, j)]^2 ,
+
+    where :math:`L^{\text{synthetic}}` is a fresh Mitsuba ``path`` rendering (``max_depth =
+    render.max_bounces + 1``, box filter, ``render.spp`` samples per pixel) of every selected
+    view with the weights ρ written into the scene in place (no reload). The gradient is
+    estimated by finite differences. The channels are independent problems, so one render with
+    parameter :math:`k` perturbed in *every* channel at once gives :math:`\partial\epsilon_c /
+    \partial\rho_{k,c}` for all channels :math:`c`: a forward-difference gradient costs
+    :math:`D + 1` renders and a central one :math:`2D + 1`, with :math:`D` the number of
+    (segment, kernel) parameters. All channels are optimised jointly by nlopt on
+    :math:`x = \mathrm{vec}(\rho)` (``P × C``), under bounds :math:`0 \le \rho \le 1` and, per
+    segment and channel, :math:`\sum_\text{kernels} \rho \le 1` (:func:`framework.optim.minimize`).
+
+    One *render* is one full pass over the selected views (CONTRACT §3). The run stops before a
+    cost (and gradient) evaluation that would leave no render for the final reconstruction under
+    ``budget.renders``, and returns the best ρ evaluated so far. A forward-difference run spends
+    exactly ``evaluations × (D + 1) + 1`` renders (the ``+ 1`` is the final reconstruction).
+
+    Parameters (``framework/conf/method/iterative.yaml``)
+    ------------------------------------------------------
+    fd : str
+        ``forward`` (default; D + 1 renders per gradient) or ``central`` (2D + 1).
+    step : float
+        Finite-difference step in ρ, in (0, 0.5] (default 0.02). A forward step that would
+        leave [0, 1] is taken backwards; central steps are clipped into [0, 1].
+    noise : str
+        ``fresh`` (default): every render has a new Mitsuba seed (``inversion_seed(seed, n)``),
+        the paper's setting, whose Monte-Carlo noise changes between the renders of one
+        finite difference; ``fixed``: common random numbers, every pass reuses the same seed
+        per view, so differences see no noise change (but a fixed bias).
+    algorithm : str
+        nlopt algorithm: ``LD_SLSQP`` (default), ``LD_MMA``, ``LD_CCSAQ``; the bound-only
+        ``LD_LBFGS``... are refused when a segment has several kernels (Σ ρ <= 1).
+    max_eval : int
+        Most cost evaluations (0, default: limited by the budget only).
+    xtol_rel, ftol_rel : float
+        nlopt's relative stopping tolerances on ρ and on the cost.
+    init : str
+        ``guess`` (default) or ``lambertian_prior`` (diffuse start weights from that method,
+        if registered; its renders count against the budget).
+    guess : float or mapping
+        Start weights: one number in [0, 1] for every kernel (default 0.5), or a mapping
+        kernel -> number such as ``{diffuse: 0.5, specular: 0.1}``. Projected onto the
+        feasible set.
+
+    Limitations
+    -----------
+    With ``noise: fresh`` the finite differences of two independent Monte-Carlo estimates are
+    dominated by noise unless ``render.spp`` is large compared with ``1 / step²``: the
+    instability the paper's section 4.2 describes. The cost of one evaluation grows linearly
+    with the number of parameters.
+    """
+
+    def run(self, problem: Problem) -> MethodResult:
+        opts = _options(self.cfg, problem)
+        t0 = time.perf_counter()
+        rho0, spent = C.initial_guess(self.cfg, problem)
+        ledger = C.RenderLedger(problem.settings.budget.renders, desc="iterative", spent=spent)
+        objective = _Objective(problem, ledger, opts)
+        try:
+            best_x, status = _optimise(objective, rho0, problem, opts)
+            rho = best_x.reshape(rho0.shape)
+            recon = objective.final_render(rho)
+        finally:
+            ledger.close()
+        total = time.perf_counter() - t0
+        return MethodResult(
+            estimate=rho, renders=ledger.used,
+            timings_s={"render": ledger.render_s, "solve": total - ledger.render_s},
+            cost_history=objective.costs, cost_times_s=objective.times,
+            reconstructions={c.name: img for c, img in zip(problem.cameras, recon)},
+            extras={"status": status, "evaluations": len(objective.costs),
+                    "gradient_evaluations": objective.n_grad, "renders_per_gradient": objective.grad_renders,
+                    "fd": opts["fd"], "step": opts["step"], "noise": opts["noise"]})
+
+
+def _options(cfg, problem) -> dict:
+    """The validated options; :class:`ConfigError` naming the first bad key."""
+    opts = {"fd": C.check_choice(cfg, "fd", ("forward", "central")),
+            "step": float(C.check_number(cfg, "step", 0.0, 0.5, lo_open=True)),
+            "noise": C.check_choice(cfg, "noise", ("fresh", "fixed")),
+            "algorithm": str(cfg.get("algorithm")),
+            "max_eval": int(C.check_number(cfg, "max_eval", 0, integer=True)),
+            "xtol_rel": float(C.check_number(cfg, "xtol_rel", 0.0)),
+            "ftol_rel": float(C.check_number(cfg, "ftol_rel", 0.0))}
+    several = any(len(g) > 1 for g in C.segment_groups(problem.parameters))
+    check_algorithm(opts["algorithm"], constrained=several, key="method.algorithm")
+    return opts
+
+
+def _optimise(objective: "_Objective", rho0: np.ndarray, problem: Problem, opts: dict) -> tuple[np.ndarray, str]:
+    """nlopt over vec(ρ); (best x seen, status). Returns ρ0 untouched if no evaluation fits the budget."""
+    if not objective.affordable(need_grad=True):
+        return rho0.ravel(), "BUDGET_TOO_SMALL"
+    res = minimize(objective, rho0.ravel(), lower=0.0, upper=1.0,
+                   inequality_groups=C.flat_constraint_groups(problem.parameters, problem.n_channels),
+                   algorithm=opts["algorithm"], max_eval=opts["max_eval"],
+                   xtol_rel=opts["xtol_rel"], ftol_rel=opts["ftol_rel"])
+    return res.x, res.status
+
+
+class _Objective:
+    """``(x, need_grad) -> (cost, gradient)`` by re-rendering; counts renders, records costs."""
+
+    def __init__(self, problem: Problem, ledger: C.RenderLedger, opts: dict):
+        from framework.mitsuba_scene import MitsubaScene
+        self.problem, self.ledger, self.opts = problem, ledger, opts
+        self.spp = int(problem.settings.render.spp)
+        self.ms = MitsubaScene(problem.scene, problem.cameras, spp=self.spp,
+                               integrator={"type": "path", "max_depth": C.max_depth(problem)})
+        self.observed = C.observed_list(problem)
+        self.shape = (len(problem.parameters), problem.n_channels)
+        self.grad_renders = len(problem.parameters) * (2 if opts["fd"] == "central" else 1)
+        self.costs: list[float] = []
+        self.times: list[float] = []
+        self.n_grad = 0
+        self._counter = 0
+
+    def affordable(self, *, need_grad: bool) -> bool:
+        """Whether one evaluation still leaves a render for the final reconstruction."""
+        return self.ledger.can_afford(1 + (self.grad_renders if need_grad else 0) + 1)
+
+    def __call__(self, x: np.ndarray, need_grad: bool):
+        if not self.affordable(need_grad=need_grad):
+            raise StopOptimization
+        t0 = time.perf_counter()
+        rho = np.asarray(x, dtype=float).reshape(self.shape)
+        base = self.channel_costs(rho)
+        grad = self.gradient(rho, base) if need_grad else None
+        self.costs.append(float(base.sum()))
+        self.times.append(time.perf_counter() - t0)
+        return float(base.sum()), grad
+
+    def channel_costs(self, rho: np.ndarray) -> np.ndarray:
+        """(C,) cost of one full pass at ρ."""
+        return C.channel_costs(self.render(rho), self.observed)
+
+    def render(self, rho: np.ndarray) -> list[np.ndarray]:
+        self.ms.set_weights(rho, self.problem.parameters)
+        return C.render_pass(self.ms, spp=self.spp, seeds=self.seeds(), ledger=self.ledger)
+
+    def seeds(self) -> list[int]:
+        """Per-view Mitsuba seeds of the next pass (fresh: never reused; fixed: the same every pass)."""
+        from framework.observe import inversion_seed
+        n = len(self.problem.cameras)
+        start = self._counter if self.opts["noise"] == "fresh" else 0
+        self._counter += n
+        return [inversion_seed(self.problem.seed, start + v) for v in range(n)]
+
+    def gradient(self, rho: np.ndarray, base: np.ndarray) -> np.ndarray:
+        """(P·C,) finite-difference gradient: one perturbed pass per parameter (two if central)."""
+        self.n_grad += 1
+        grad = np.empty(self.shape)
+        for k in range(self.shape[0]):
+            grad[k] = self._forward(rho, k, base) if self.opts["fd"] == "forward" else self._central(rho, k)
+        return grad.ravel()
+
+    def _forward(self, rho: np.ndarray, k: int, base: np.ndarray) -> np.ndarray:
+        step = self.opts["step"]
+        h = np.where(rho[k] + step <= 1.0, step, -step)
+        return (self.channel_costs(_perturbed(rho, k, rho[k] + h)) - base) / h
+
+    def _central(self, rho: np.ndarray, k: int) -> np.ndarray:
+        step = self.opts["step"]
+        hi, lo = np.minimum(rho[k] + step, 1.0), np.maximum(rho[k] - step, 0.0)
+        return (self.channel_costs(_perturbed(rho, k, hi)) - self.channel_costs(_perturbed(rho, k, lo))) / (hi - lo)
+
+    def final_render(self, rho: np.ndarray) -> list[np.ndarray]:
+        """The reconstruction at the estimate (counts one render); empty if the budget is spent."""
+        return self.render(rho) if self.ledger.can_afford(1) else []
+
+
+def _perturbed(rho: np.ndarray, k: int, row: np.ndarray) -> np.ndarray:
+    out = rho.copy()
+    out[k] = row
+    return out

@@ -1,0 +1,27 @@
+"""``method=lambertian_prior``: the inversion with every segment reduced to its diffuse kernel.
+
+The paper's Table 1 setting, and the initial guess of the kernel inversions (section 4.1:
+"a preliminary inversion under a Lambertian hypothesis"; ``method.init=lambertian_prior``).
+"""
+from __future__ import annotations
+
+from framework.errors import ConfigError
+from framework.methods import register
+from methods.symbolic import SymbolicMethod
+
+
+@register("lambertian_prior")
+class LambertianPriorMethod(SymbolicMethod):
+    """Symbolic inversion of the diffuse weights ρ_d only (specular kernels treated as absent).
+
+    Same configuration as ``symbolic`` except ``kernels`` (always ``[diffuse]``) and ``init``
+    (always ``guess``: it is itself the prior).
+    """
+
+    kernels = ("diffuse",)
+
+    def check(self):
+        if self.cfg.get("init", "guess") != "guess":
+            raise ConfigError(f"method.init={self.cfg.init}: lambertian_prior starts from method.guess; "
+                              "use method.init=guess")
+        super().check()

@@ -1,0 +1,156 @@
+"""Monomial basis of the pixel polynomials (paper eq. 7-8).
+
+Every light path ``C`` of at most ``N_max`` reflections carries the radiance
+``L(ρ, C) = α ∏_j ρ_j^{e_j}`` with ``Σ_j e_j <= N_max`` (eq. 7), so a pixel is the polynomial
+``L_sensor(ρ) = Σ_k γ_k ∏_j ρ_j^{e_{j,k}}`` (eq. 8) in the basis of all monomials of total degree
+at most ``N_max`` in ``D = dim(ρ)`` variables. There are ``N_e = C(D + N_max, N_max)`` of them
+(paper section 4.3: 286 for D = 10, N_max = 3).
+"""
+from __future__ import annotations
+
+from itertools import combinations_with_replacement
+from math import comb
+
+import numpy as np
+
+
+class MonomialBasis:
+    """All monomials ``∏_j ρ_j^{e_j}`` of total degree ``<= max_degree`` in ``n_params`` variables.
+
+    Monomials are ordered by total degree, then lexicographically by the sorted multiset of
+    their variables (``combinations_with_replacement`` order): index 0 is the constant
+    monomial, indices ``1..D`` are ``ρ_0 .. ρ_{D-1}``, then the degree-2 monomials, etc.
+
+    Parameters
+    ----------
+    n_params : int
+        ``D = dim(ρ)``, the number of kernel weights (>= 1).
+    max_degree : int
+        ``N_max``, the maximal total degree (the number of reflections of a path, >= 0).
+
+    Attributes
+    ----------
+    size : int
+        ``N_e = C(D + N_max, N_max)`` (paper section 4.3).
+    exponents : numpy.ndarray
+        ``(N_e, D)`` int array; row ``m`` holds the exponents ``e_j`` of monomial ``m``.
+    key_table : numpy.ndarray
+        Flat int32 array of length ``(D + 1)^N_max``. A path that chose parameters
+        ``p_0, ..., p_{d-1}`` at its ``d <= N_max`` reflections has the ordered key
+        ``Σ_{i<d} (p_i + 1)·(D + 1)^i``; ``key_table[key]`` is the index of the monomial
+        ``∏_i ρ_{p_i}``, so the renderer needs no sorting. Entries that are no valid key
+        (a zero digit below a non-zero one) hold -1.
+    """
+
+    def __init__(self, n_params: int, max_degree: int):
+        if int(n_params) < 1:
+            raise ValueError(f"n_params={n_params}: must be >= 1")
+        if int(max_degree) < 0:
+            raise ValueError(f"max_degree={max_degree}: must be >= 0")
+        self.n_params = D = int(n_params)
+        self.max_degree = N = int(max_degree)
+        self.size = comb(D + N, N)
+
+        exps = np.zeros((self.size, D), dtype=np.int64)
+        codes = np.zeros(self.size, dtype=np.int64)  # sorted multiset code, base D+1 digits
+        m = 0
+        for d in range(N + 1):
+            for combo in combinations_with_replacement(range(D), d):
+                for p in combo:
+                    exps[m, p] += 1
+                codes[m] = _code(np.asarray(combo, dtype=np.int64)[None, :], D)[0] if d else 0
+                m += 1
+        assert m == self.size
+        self.exponents = exps
+        self.degrees = exps.sum(axis=1)
+
+        # Key table: enumerate ordered tuples depth by depth (vectorised).
+        order = np.argsort(codes)
+        sorted_codes = codes[order]
+        table = np.full((D + 1) ** N if N > 0 else 1, -1, dtype=np.int32)
+        table[0] = 0
+        for d in range(1, N + 1):
+            tuples = np.indices((D,) * d).reshape(d, -1).T          # (D^d, d), digit i = p_i
+            weights = (D + 1) ** np.arange(d, dtype=np.int64)
+            keys = ((tuples + 1) * weights).sum(axis=1)
+            c = _code(np.sort(tuples, axis=1), D)
+            pos = np.searchsorted(sorted_codes, c)
+            table[keys] = order[pos]
+        self.key_table = table
+
+    # ------------------------------------------------------------------------------------------
+    def key(self, params) -> int:
+        """Ordered key ``Σ_i (p_i + 1)(D + 1)^i`` of the parameter sequence ``params``."""
+        return int(sum((int(p) + 1) * (self.n_params + 1) ** i for i, p in enumerate(params)))
+
+    def index(self, params) -> int:
+        """Monomial index of the multiset ``params`` (any order)."""
+        return int(self.key_table[self.key(sorted(params))])
+
+    def evaluate(self, rho: np.ndarray) -> np.ndarray:
+        """Values of all monomials at ``rho``.
+
+        Parameters
+        ----------
+        rho : numpy.ndarray
+            ``(D,)`` or batched ``(B, D)`` parameter values.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(N_e,)`` (or ``(B, N_e)``): ``∏_j ρ_j^{e_{j,m}}`` for every monomial ``m`` (eq. 7).
+        """
+        rho = np.asarray(rho, dtype=float)
+        return np.prod(rho[..., None, :] ** self.exponents, axis=-1)
+
+    def jacobian(self, rho: np.ndarray) -> np.ndarray:
+        """Derivatives ``∂(∏_j ρ_j^{e_{j,m}})/∂ρ_k``.
+
+        Parameters
+        ----------
+        rho : numpy.ndarray
+            ``(D,)`` parameter values.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(N_e, D)`` Jacobian; exact, also at ``ρ_k = 0``.
+        """
+        rho = np.asarray(rho, dtype=float)
+        E = self.exponents
+        P = rho[None, :] ** E                                   # (N_e, D) factors
+        out = np.empty(E.shape)
+        for k in range(self.n_params):
+            dk = np.where(E[:, k] > 0, E[:, k] * rho[k] ** np.maximum(E[:, k] - 1, 0), 0.0)
+            others = np.prod(np.delete(P, k, axis=1), axis=1)
+            out[:, k] = dk * others
+        return out
+
+    def hessian(self, rho: np.ndarray) -> np.ndarray:
+        """Second derivatives ``∂²(∏_j ρ_j^{e_{j,m}})/∂ρ_k∂ρ_l``, shape ``(N_e, D, D)``."""
+        rho = np.asarray(rho, dtype=float)
+        E = self.exponents
+        D = self.n_params
+        out = np.zeros((self.size, D, D))
+        for k in range(D):
+            for l in range(k, D):
+                e = E.copy()
+                coef = e[:, k].astype(float)
+                e[:, k] -= 1
+                coef = coef * np.where(e[:, k] >= 0, 1.0, 0.0)
+                coef = coef * e[:, l]
+                e[:, l] -= 1
+                ok = (e >= 0).all(axis=1)
+                val = np.where(ok, coef * np.prod(rho[None, :] ** np.maximum(e, 0), axis=1), 0.0)
+                out[:, k, l] = val
+                out[:, l, k] = val
+        return out
+
+    def __repr__(self) -> str:
+        return f"MonomialBasis(n_params={self.n_params}, max_degree={self.max_degree}, size={self.size})"
+
+
+def _code(sorted_tuples: np.ndarray, D: int) -> np.ndarray:
+    """Integer code of sorted multisets (rows), base ``D + 1`` digits ``p + 1``."""
+    d = sorted_tuples.shape[1]
+    return ((sorted_tuples + 1) * (D + 1) ** np.arange(d, dtype=np.int64)).sum(axis=1)

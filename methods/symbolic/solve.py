@@ -1,0 +1,206 @@
+"""Minimisation of the polynomial cost (paper eq. 6 with p = 2) over the kernel weights ρ.
+
+Per channel ``c`` the cost is ``ε²_c(ρ) = μ(ρ)ᵀ G_c μ(ρ) - 2 b_cᵀ μ(ρ) + yy_c`` (see
+:mod:`methods.symbolic.gram`), with exact gradient ``2 J(ρ)ᵀ (G_c μ - b_c)`` from
+:meth:`MonomialBasis.jacobian`. Constraints: ``0 <= ρ_j <= 1`` and, per segment, energy
+conservation ``Σ_{j in segment} ρ_j <= 1``. The paper used a conjugate-gradient method (GSL,
+section 4.4); here nlopt's ``LD_SLSQP`` (default) handles the constraints.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import nlopt
+import numpy as np
+
+from framework.errors import ConfigError
+from methods.symbolic.basis import MonomialBasis
+from methods.symbolic.gram import GramSystem
+
+_CONSTRAINED = {"LD_SLSQP", "LD_CCSAQ", "LD_MMA", "LN_COBYLA", "LD_AUGLAG", "LN_AUGLAG", "GN_ISRES"}
+
+
+@dataclass
+class SolveResult:
+    """Outcome of :func:`solve_polynomial`.
+
+    Attributes
+    ----------
+    estimate : numpy.ndarray
+        ``(D, C)`` best ρ found (feasible).
+    cost : numpy.ndarray
+        ``(C,)`` cost ``ε²_c`` at the estimate.
+    cost_history : list of float
+        Total cost (sum over channels) at each evaluation: the channel being solved at the
+        evaluated point, the others at their final best (already solved) or at ``x0`` (not yet).
+    eval_times_s : list of float
+        Seconds since the start of the solve at each evaluation.
+    n_evals : int
+        Number of objective evaluations, all channels and starts.
+    solve_s : float
+        Wall time of the whole solve.
+    """
+
+    estimate: np.ndarray
+    cost: np.ndarray
+    cost_history: list = field(default_factory=list)
+    eval_times_s: list = field(default_factory=list)
+    n_evals: int = 0
+    solve_s: float = 0.0
+
+
+def channel_cost_grad(system: GramSystem, basis: MonomialBasis, c: int, x: np.ndarray):
+    """Cost ``ε²_c(x)`` and its exact gradient ``2 Jᵀ(G_c μ - b_c)``."""
+    mu = basis.evaluate(x)
+    Gmu = system.G[c] @ mu
+    f = float(mu @ Gmu - 2.0 * system.b[c] @ mu + system.yy[c])
+    g = 2.0 * basis.jacobian(x).T @ (Gmu - system.b[c])
+    return f, g
+
+
+def hessian(system: GramSystem, basis: MonomialBasis, rho: np.ndarray) -> np.ndarray:
+    """Exact Hessian of the per-channel cost, ``(C, D, D)``.
+
+    ``∇²ε²_c = 2 Jᵀ G_c J + 2 Σ_m (G_c μ - b_c)_m ∇²μ_m`` with ``J`` the monomial Jacobian and
+    ``∇²μ_m`` the monomial Hessians (:meth:`MonomialBasis.hessian`). ``rho``: ``(D, C)``.
+    """
+    rho = np.asarray(rho, dtype=float).reshape(basis.n_params, -1)
+    C = system.n_channels
+    rho = np.broadcast_to(rho, (basis.n_params, C))
+    out = np.empty((C, basis.n_params, basis.n_params))
+    for c in range(C):
+        x = rho[:, c]
+        mu, J, Hm = basis.evaluate(x), basis.jacobian(x), basis.hessian(x)
+        r = system.G[c] @ mu - system.b[c]
+        out[c] = 2.0 * J.T @ system.G[c] @ J + 2.0 * np.einsum("m,mkl->kl", r, Hm)
+    return out
+
+
+def _project(x: np.ndarray, segments_params) -> np.ndarray:
+    """Clip to [0, 1] and scale down any segment whose weights sum above 1."""
+    x = np.clip(np.asarray(x, dtype=float), 0.0, 1.0)
+    for ps in segments_params:
+        s = x[ps].sum()
+        if s > 1.0:
+            x[ps] = x[ps] / s * (1.0 - 1e-12)
+    return x
+
+
+def _random_start(rng, D, segments_params) -> np.ndarray:
+    """Uniform in the feasible set of each segment (Dirichlet(1,...,1) with a slack component)."""
+    x = rng.uniform(0.0, 1.0, D)
+    for ps in segments_params:
+        if len(ps) > 1:
+            x[ps] = rng.dirichlet(np.ones(len(ps) + 1))[:len(ps)]
+    return x
+
+
+def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_params: list[list[int]],
+                     x0: np.ndarray, algorithm: str = "LD_SLSQP", starts: int = 4,
+                     max_eval: int = 2000, xtol_rel: float = 1e-12, seed: int = 0) -> SolveResult:
+    """Minimise the cost of every channel over ρ with nlopt.
+
+    Parameters
+    ----------
+    system : GramSystem
+        Accumulated normal equations (all views).
+    basis : MonomialBasis
+        The basis the coefficients were computed in (``D = basis.n_params``).
+    segments_params : list of list of int
+        Parameter indices of each segment: constraint ``Σ_{j in segment} ρ_j <= 1``.
+    x0 : numpy.ndarray
+        ``(D, C)`` (or ``(D,)``) initial guess; projected onto the feasible set.
+    algorithm : str
+        nlopt algorithm name; must accept inequality constraints when a segment has several
+        parameters (``LD_SLSQP``, ``LD_CCSAQ``, ``LD_MMA``...; not ``LD_LBFGS``).
+    starts : int
+        Number of starts per channel (>= 1): ``x0``, then seeded random feasible points.
+    max_eval : int
+        Evaluation limit per start.
+    xtol_rel : float
+        nlopt relative x tolerance (``ftol_rel`` is set to 1e-15).
+    seed : int
+        Seed of the random starts.
+
+    Returns
+    -------
+    SolveResult
+    """
+    D, C = basis.n_params, system.n_channels
+    if system.n_monomials != basis.size:
+        raise ConfigError(f"system has {system.n_monomials} monomials, basis {basis.size}")
+    if int(starts) < 1:
+        raise ConfigError(f"starts={starts}: must be >= 1")
+    if int(max_eval) < 1:
+        raise ConfigError(f"max_eval={max_eval}: must be >= 1")
+    if not hasattr(nlopt, algorithm):
+        raise ConfigError(f"algorithm={algorithm} is not an nlopt algorithm (e.g. LD_SLSQP)")
+    segs = [[int(p) for p in ps] for ps in segments_params]
+    for ps in segs:
+        for p in ps:
+            if not 0 <= p < D:
+                raise ConfigError(f"segments_params: index {p} outside [0, {D - 1}]")
+    multi = [ps for ps in segs if len(ps) > 1]
+    if multi and algorithm not in _CONSTRAINED:
+        raise ConfigError(f"algorithm={algorithm} does not take inequality constraints; "
+                          f"use one of {', '.join(sorted(_CONSTRAINED))}")
+    x0 = np.asarray(x0, dtype=float)
+    x0 = np.broadcast_to(x0.reshape(D, -1), (D, C))
+    rng = np.random.default_rng(seed)
+
+    t_start = time.perf_counter()
+    history, times = [], []
+    estimate = np.empty((D, C))
+    best_cost = np.empty(C)
+    ref_cost = np.array([channel_cost_grad(system, basis, c, _project(x0[:, c], segs))[0]
+                         for c in range(C)])
+    n_evals = 0
+
+    for c in range(C):
+        others = ref_cost.sum() - ref_cost[c]
+        best = {"f": np.inf, "x": None}
+
+        def objective(x, grad):
+            nonlocal n_evals
+            f, g = channel_cost_grad(system, basis, c, x)
+            if grad.size > 0:
+                grad[:] = g
+            n_evals += 1
+            history.append(f + others)
+            times.append(time.perf_counter() - t_start)
+            feasible = all(x[ps].sum() <= 1.0 + 1e-9 for ps in multi) and \
+                np.all(x >= -1e-12) and np.all(x <= 1.0 + 1e-12)
+            if feasible and f < best["f"]:
+                best["f"], best["x"] = f, np.array(x, dtype=float)
+            return f
+
+        for k in range(int(starts)):
+            start = _project(x0[:, c], segs) if k == 0 else _random_start(rng, D, segs)
+            opt = nlopt.opt(getattr(nlopt, algorithm), D)
+            opt.set_lower_bounds(np.zeros(D))
+            opt.set_upper_bounds(np.ones(D))
+            opt.set_min_objective(objective)
+            for ps in multi:
+                def con(x, grad, ps=ps):
+                    if grad.size > 0:
+                        grad[:] = 0.0
+                        grad[ps] = 1.0
+                    return float(x[ps].sum() - 1.0)
+                opt.add_inequality_constraint(con, 1e-12)
+            opt.set_maxeval(int(max_eval))
+            opt.set_xtol_rel(float(xtol_rel))
+            opt.set_ftol_rel(1e-15)
+            try:
+                opt.optimize(start)
+            except Exception:   # nlopt's SWIG exceptions (roundoff etc.), empty messages: keep best
+                pass
+        if best["x"] is None:   # no feasible evaluation (should not happen): fall back to x0
+            best["x"] = _project(x0[:, c], segs)
+            best["f"] = channel_cost_grad(system, basis, c, best["x"])[0]
+        estimate[:, c] = np.clip(best["x"], 0.0, 1.0)
+        best_cost[c] = best["f"]
+        ref_cost[c] = best["f"]
+
+    return SolveResult(estimate=estimate, cost=best_cost, cost_history=history, eval_times_s=times,
+                       n_evals=n_evals, solve_s=time.perf_counter() - t_start)
