@@ -72,7 +72,10 @@ def test_plane_diffuse_and_specular_kernels():
 def test_furnace_sphere():
     """Camera inside a closed diffuse sphere (normals inward) emitting Le: the radiance of
     bounce k is Le ρ^k (white furnace), so γ(ρ^k) = Le for k = 0..N_max; 4σ MC tolerance from the
-    pixel spread (all pixels identically distributed); ρ^0 is exact (Le seen directly)."""
+    pixel spread (all pixels identically distributed) plus 0.5 % : Mitsuba's analytic sphere
+    emitter is itself biased by ~0.27 % here (measured: ``path`` max_depth=2, 1024 spp, ρ = 0.5 gave
+    1.05094 ± 0.00005 for the exact 1.05; this integrator 0.70194 for γ(ρ) = 0.7, the same excess).
+    ρ^0 is exact (Le seen directly)."""
     Le = 0.7
     scene = mi.load_dict({
         "type": "scene",
@@ -91,7 +94,7 @@ def test_furnace_sphere():
     for k in range(1, N + 1):
         m = integ.basis.index([0] * k)
         mean, se = c[:, m].mean(0), c[:, m].std(0) / np.sqrt(c.shape[0])
-        assert np.all(np.abs(mean - Le) < 4 * se + 1e-6), (k, mean, se)
+        assert np.all(np.abs(mean - Le) < 4 * se + 0.005 * Le), (k, mean, se)
         assert np.all(se < 0.05 * Le)     # the test has power
 
 

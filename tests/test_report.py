@@ -4,8 +4,6 @@ import re
 import time
 from pathlib import Path
 
-import pytest
-
 from framework.report import main, write_comparison, write_run_report
 from framework.report_data import fmt_num
 from test_report_fakes import (REPORT_REFS, REPORT_SEEDS, fake_sweep,  # noqa: F401 (fixture)
@@ -110,3 +108,16 @@ def test_default_out_is_common_parent(fake_sweep):
     runs = [str(fake_sweep / "symbolic_seed0"), str(fake_sweep / "symbolic_seed1")]
     assert main(runs) == 0
     assert (Path(fake_sweep) / "comparison.html").is_file()
+
+
+def test_minimal_results_json(tmp_path):
+    run = tmp_path / "minimal"
+    run.mkdir()
+    (run / "results.json").write_text(json.dumps({
+        "method": "lambertian_prior", "scene": "s", "channels": ["Y"],
+        "parameters": [{"segment": "wall", "kernel": "mirror", "estimate": 0.5,
+                        "reference": None, "error": None}],
+        "cost_history": [3.0, 0.0, 0.0]}))
+    md = write_run_report(run)[0].read_text()
+    assert "| wall | mirror | — | 0.5000 | — |" in md
+    assert "No views recorded." in md and (run / "report_files/convergence.png").is_file()

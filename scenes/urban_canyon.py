@@ -1,0 +1,209 @@
+"""``urban_canyon``: a street between two facades, after the paper's figure 4 (section 5.1).
+
+Geometry (metres, +z up): a street 40 m long along x (x in [-20, 20]) and 10 m wide
+(y in [-5, 5]) between two buildings 15 m high and 10 m deep. Each facade has a shop floor
+(recessed shop windows under tilted awnings) and three upper floors of recessed windows
+(0.2 m deep; the glass at the back of the recess is ``window``, the recess sides are ``wall``),
+with balconies protruding 1.2 m on every other column. The ground (``asphalt``) is a
+120 m x 80 m plane. Roofs are the flat building tops.
+
+Illumination: Mitsuba's ``sunsky`` (turbidity 3) baked without its sun into ``sky.exr``
+(see :mod:`scenes.sky`), plus the sun as a ``directional`` emitter at elevation 45°, azimuth
+245° (from +y towards +x): the north facade (y = +5, facing -y) is lit, the south facade is in
+shadow, and the south building's shadow covers about 6 m of the 10 m street.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from scenes import geometry as g
+from scenes.cameras import focal_from_fov, look_at
+from scenes.io import PinholeCamera, write_colmap, write_exr, write_mesh, write_scene_yaml
+from scenes.sky import bake_sky, sun_irradiance, sun_vector
+
+LENGTH, HALF_WIDTH, DEPTH, HEIGHT = 40.0, 5.0, 10.0, 15.0
+COLUMNS = np.arange(-18.0, 18.1, 4.0)             # window column centres (x)
+FLOORS = (4.0, 7.0, 10.0)                         # upper floor levels (z)
+RECESS, BALCONY_DEPTH = 0.2, 1.2
+SHOP = (1.3, 0.4, 3.0)                            # half width, bottom, top of a shop window
+UPPER = (0.7, 0.6, 2.4)                           # half width, sill and lintel above the floor
+SUN_ELEVATION, SUN_AZIMUTH, TURBIDITY = 45.0, 245.0, 3.0
+SKY_SIZE = (64, 128)
+IMAGE, FOV = 200, 65.0
+
+REFERENCES = {  # name: (rgb diffuse, rgb specular, Table 2 diffuse, Table 2 specular)
+    "roof": ([0.24, 0.19, 0.17], 0.0, 0.2, 0.0),
+    "wall": ([0.74, 0.72, 0.66], 0.08, 0.72, 0.08),
+    "balcony": ([0.32, 0.30, 0.27], 0.0, 0.3, 0.0),
+    "asphalt": ([0.20, 0.19, 0.18], 0.0, 0.2, 0.0),
+    "awning": ([0.10, 0.03, 0.03], 0.0, 0.05, 0.0),
+    "window": ([0.16, 0.18, 0.20], 0.72, 0.18, 0.72),
+}
+
+
+def window_rects() -> list[tuple[float, float, float, float]]:
+    """Facade openings as (x0, x1, z0, z1): one shop window and three upper windows per column."""
+    rects = [(x - SHOP[0], x + SHOP[0], SHOP[1], SHOP[2]) for x in COLUMNS]
+    rects += [(x - UPPER[0], x + UPPER[0], f + UPPER[1], f + UPPER[2]) for f in FLOORS for x in COLUMNS]
+    return rects
+
+
+def _facade_frame(side: int):
+    """(point on facade, outward normal, along-street axis) for side +1 (north) or -1 (south)."""
+    return np.array([0.0, side * HALF_WIDTH, 0.0]), np.array([0.0, -side, 0.0]), np.array([1.0, 0, 0])
+
+
+def _at(side: int, x: float, z: float, out: float = 0.0) -> np.ndarray:
+    """World point at street coordinate x, height z, ``out`` metres in front of a facade."""
+    return np.array([x, side * (HALF_WIDTH - out), z])
+
+
+def _oriented_quad(side: int, origin, eu, ev) -> g.Mesh:
+    """Quad whose normal faces the street for the facade ``side`` (flipped if needed)."""
+    mesh = g.quad(origin, eu, ev)
+    want = _facade_frame(side)[1]
+    n = np.cross(eu, ev)
+    if abs(np.dot(n, want)) > 1e-9 and np.dot(n, want) < 0:
+        return g.flip(mesh)
+    return mesh
+
+
+def facade_wall(side: int) -> g.Mesh:
+    """The facade plane with holes at the openings, as a grid of wall cells."""
+    rects = window_rects()
+    xs = np.unique([-LENGTH / 2, LENGTH / 2] + [v for r in rects for v in r[:2]])
+    zs = np.unique([0.0, HEIGHT] + [v for r in rects for v in r[2:]])
+    cells = []
+    for x0, x1 in zip(xs[:-1], xs[1:]):
+        for z0, z1 in zip(zs[:-1], zs[1:]):
+            xc, zc = (x0 + x1) / 2, (z0 + z1) / 2
+            if any(r[0] < xc < r[1] and r[2] < zc < r[3] for r in rects):
+                continue
+            cells.append(_oriented_quad(side, _at(side, x0, z0), [x1 - x0, 0, 0], [0, 0, z1 - z0]))
+    return g.merge(cells)
+
+
+def recesses(side: int) -> tuple[g.Mesh, g.Mesh]:
+    """(recess sides, glass) of every opening; the glass lies ``RECESS`` behind the facade."""
+    sides, glass = [], []
+    inward = np.array([0.0, side * RECESS, 0.0])
+    for x0, x1, z0, z1 in window_rects():
+        a, b = _at(side, x0, z0), _at(side, x1, z0)
+        c, d = _at(side, x1, z1), _at(side, x0, z1)
+        centre = (a + c) / 2 + inward / 2
+        for p, q in ((a, b), (b, c), (c, d), (d, a)):
+            sides.append(g.orient_towards(g.quad(p, q - p, inward), centre))
+        glass.append(_oriented_quad(side, a + inward, b - a, d - a))
+    return g.merge(sides), g.merge(glass)
+
+
+def balconies(side: int) -> g.Mesh:
+    """Balconies on every other column of the upper floors: slab and three parapets."""
+    parts, out = [], np.array([0.0, -side, 0.0])
+    for f in FLOORS:
+        for x in COLUMNS[1::2]:
+            o = _at(side, x - 1.0, f - 0.15, out=-0.01)
+            w, d = np.array([2.0, 0, 0]), out * (BALCONY_DEPTH + 0.01)
+            parts.append(g.box(o, w, d, [0, 0, 0.15]))                          # slab
+            front = o + d - out * 0.08 + [0, 0, 0.15]
+            parts.append(g.box(front, w, out * 0.08, [0, 0, 1.0]))              # front parapet
+            for xs in (0.0, 1.92):
+                parts.append(g.box(o + [xs, 0, 0.15], [0.08, 0, 0], d - out * 0.08, [0, 0, 1.0]))
+    return g.merge(parts)
+
+
+def awnings(side: int) -> g.Mesh:
+    """Tilted awnings over the shop windows: 1.5 m out, dropping from 3.3 m to 2.8 m."""
+    out = np.array([0.0, -side, 0.0])
+    return g.merge([g.box(_at(side, x - 1.5, 3.3), [3.0, 0, 0], out * 1.5 + [0, 0, -0.5], [0, 0, 0.04])
+                    for x in COLUMNS])
+
+
+def building_shell(side: int) -> tuple[g.Mesh, g.Mesh]:
+    """(end and back walls, flat roof) of the building behind facade ``side``."""
+    box = g.aabox([-LENGTH / 2, min(side * HALF_WIDTH, side * (HALF_WIDTH + DEPTH)), 0.0],
+                  [LENGTH / 2, max(side * HALF_WIDTH, side * (HALF_WIDTH + DEPTH)), HEIGHT])
+    v, f = box
+    normals = g.face_normals(box)
+    keep_walls = (np.abs(normals[:, 2]) < 0.5) & (normals[:, 1] * side >= -0.5)   # not facade/top/bottom
+    roof = normals[:, 2] > 0.5
+    return g.compact((v, f[keep_walls])), g.compact((v, f[roof]))
+
+
+def ground() -> g.Mesh:
+    """The asphalt: a 120 m x 80 m plane at z = 0, facing up."""
+    return g.quad([-60.0, -40.0, 0.0], [120.0, 0, 0], [0, 80.0, 0])
+
+
+def meshes() -> dict[str, list[tuple[str, g.Mesh]]]:
+    """Segment name -> [(mesh file stem, mesh)], one file per building and part."""
+    out: dict[str, list] = {k: [] for k in REFERENCES}
+    for side, tag in ((1, "north"), (-1, "south")):
+        walls, roof = building_shell(side)
+        sides, glass = recesses(side)
+        out["wall"].append((f"wall_{tag}", g.merge([facade_wall(side), sides, walls])))
+        out["roof"].append((f"roof_{tag}", roof))
+        out["window"].append((f"window_{tag}", glass))
+        out["balcony"].append((f"balcony_{tag}", balconies(side)))
+        out["awning"].append((f"awning_{tag}", awnings(side)))
+    out["asphalt"].append(("asphalt", ground()))
+    return out
+
+
+def cameras() -> list[PinholeCamera]:
+    """Eight street views from a mapping vehicle 2.5 m up, alternating facades, and one aerial view."""
+    focal = focal_from_fov(IMAGE, FOV)
+    views = []
+    for i in range(8):
+        x, side, ahead = -14.0 + 4.0 * i, 1 if i % 2 == 0 else -1, 6.0 if i < 4 else -6.0
+        pose = look_at([x, 0.0, 2.5], [x + ahead, side * HALF_WIDTH, 4.5])
+        views.append(PinholeCamera(f"street_{i:03d}.png", IMAGE, IMAGE, focal, pose))
+    views.append(PinholeCamera("aerial_000.png", IMAGE, IMAGE, focal,
+                               look_at([-6.0, -24.0, 38.0], [0.0, 3.0, 2.0])))
+    return views
+
+
+def landmarks() -> np.ndarray:
+    """A few scene points for points3D.txt: the top and bottom corners of both facades."""
+    return np.array([[x, y, z] for y in (-HALF_WIDTH, HALF_WIDTH) for x in (-20.0, 20.0) for z in (0.0, HEIGHT)])
+
+
+def segments(channels: str, files: dict[str, list[str]]) -> list[dict]:
+    """scene.yaml ``segments``: rgb colour variants, or the paper's Table 2 values for mono."""
+    out = []
+    for name, (rgb_d, rgb_s, mono_d, mono_s) in REFERENCES.items():
+        ref = {"diffuse": rgb_d, "specular": rgb_s} if channels == "rgb" else {"diffuse": mono_d, "specular": mono_s}
+        out.append({"name": name, "meshes": files[name], "kernels": ["diffuse", "specular"], "reference": ref})
+    return out
+
+
+def build(folder: Path, channels: str = "rgb") -> Path:
+    """Write the scene folder (``channels``: ``rgb`` or ``mono``, the 550 nm band)."""
+    folder = Path(folder)
+    files = {seg: [str(write_mesh(folder / "meshes" / f"{stem}.ply", *m).relative_to(folder))
+                   for stem, m in parts] for seg, parts in meshes().items()}
+    sun = sun_vector(SUN_ELEVATION, SUN_AZIMUTH)
+    write_exr(folder / "sky.exr", bake_sky(sun, *SKY_SIZE, channels, TURBIDITY), "RGB" if channels == "rgb" else "Y")
+    e_sun = sun_irradiance(sun, channels, TURBIDITY)
+    write_colmap(folder / "sparse", cameras(), landmarks())
+    scene = {"name": folder.name, "channels": channels, "segments": segments(channels, files),
+             "emitters": [{"type": "envmap", "file": "sky.exr", "scale": 1.0},
+                          {"type": "directional", "direction": (-sun).tolist(),
+                           "irradiance": e_sun.tolist() if channels == "rgb" else float(e_sun[0])}]}
+    write_scene_yaml(folder / "scene.yaml", scene, _comment(channels))
+    return folder
+
+
+def _comment(channels: str) -> str:
+    band = ("RGB (Mitsuba llvm_ad_rgb sunsky)" if channels == "rgb"
+            else "the 550 nm band (sunsky evaluated in llvm_ad_spectral at 550 nm)")
+    return f"""Generated by `python -m scenes.build` (scenes/urban_canyon.py); do not edit by hand.
+Street canyon after the paper's figure 4 / Table 2 (section 5.1). Channels: {band}.
+Units: radiance W m^-2 sr^-1 nm^-1 (irradiance W m^-2 nm^-1), Mitsuba sunsky's own, scale 1:
+typical pixel values are 0.02-0.4.
+sky.exr: sunsky (turbidity {TURBIDITY}, sun_scale 0) baked {SKY_SIZE[0]}x{SKY_SIZE[1]}, image top = +z;
+below the horizon: a Lambertian ground of albedo 0.2 lit by the same sun and sky.
+Sun: elevation {SUN_ELEVATION} deg, azimuth {SUN_AZIMUTH} deg from +y towards +x; its irradiance is sunsky's
+sun disk integrated over its solid angle (sky_scale 0)."""
