@@ -1,6 +1,7 @@
 """Differentiable rendering baseline: Mitsuba ``prb`` reverse-mode gradients and Adam."""
 from __future__ import annotations
 
+import logging
 import time
 
 import numpy as np
@@ -8,6 +9,8 @@ import numpy as np
 from framework import kernels as K
 from framework.methods import Method, MethodResult, Problem, register
 from methods import _common as C
+
+log = logging.getLogger(__name__)
 
 
 @register("differentiable")
@@ -56,14 +59,17 @@ class DifferentiableMethod(Method):
 
     Limitations
     -----------
-    The ``specular`` kernel is a Dirac lobe: ``prb`` differentiates its weight correctly
-    (the weight is a plain factor), but paths through it are only as well sampled as
-    Mitsuba's conductor allows. Adam with a constant learning rate ends in a noise ball of
-    radius about ``lr``; lower ``lr`` and raise the budget for a tighter estimate.
+    ``prb`` samples BSDFs *detached*: the weight of a Dirac-lobe kernel (``specular``, a
+    perfect mirror) gets **no gradient** (Mitsuba's documentation: "the properties of ideal
+    specular objects cannot be optimized"). Such weights keep their initial guess (projected);
+    they are listed in ``extras["zero_gradient"]`` and a warning is logged. Adam with a
+    constant learning rate ends in a noise ball of radius about ``lr``; lower ``lr`` and raise
+    the budget for a tighter estimate.
     """
 
     def run(self, problem: Problem) -> MethodResult:
         opts = _options(self.cfg, problem)
+        frozen = _delta_parameters(problem)
         t0 = time.perf_counter()
         rho, spent = C.initial_guess(self.cfg, problem)
         ledger = C.RenderLedger(problem.settings.budget.renders, desc="differentiable", spent=spent)
@@ -80,7 +86,8 @@ class DifferentiableMethod(Method):
             cost_history=fit.costs, cost_times_s=fit.times,
             reconstructions={c.name: img for c, img in zip(problem.cameras, recon)},
             extras={"iterations": len(fit.costs), "lr": opts["lr"], "spp": opts["spp"],
-                    "spp_grad": opts["spp_grad"], "projection": "clip + simplex face"})
+                    "spp_grad": opts["spp_grad"], "projection": "clip + simplex face",
+                    "zero_gradient": frozen})
 
 
 def _options(cfg, problem) -> dict:
@@ -167,6 +174,7 @@ class _Fit:
         variables = []
         for p in self.problem.parameters:
             var = _colour(self.ms.params, self.keys[p.index][0][0], rho[p.index])
+            dr.make_opaque(var)  # a literal would change the kernel, and recompile it, every iteration
             if grad:
                 dr.enable_grad(var)
             variables.append(var)
@@ -182,6 +190,15 @@ class _Fit:
         self.write(rho, grad=False)
         seeds = [self.seeds(len(self.costs), v)[0] for v in range(len(self.observed))]
         return C.render_pass(self.ms, spp=self.opts["spp"], seeds=seeds, ledger=self.ledger)
+
+
+def _delta_parameters(problem: Problem) -> list[str]:
+    """``segment/kernel`` of the parameters whose kernel is a Dirac lobe (no prb gradient); warns."""
+    names = [f"{p.segment_name}/{p.kernel}" for p in problem.parameters if K.get(p.kernel).delta]
+    if names:
+        log.warning("differentiable: prb gives no gradient to Dirac-lobe weights %s; they keep their "
+                    "initial guess", ", ".join(names))
+    return names
 
 
 def _weight_keys(problem: Problem) -> list[list[tuple[str, float]]]:

@@ -12,11 +12,14 @@ import time
 import numpy as np
 
 from framework.cache import Cache
+from framework.executor import make_executor
 from framework.methods import Method, MethodResult, register
 from methods._common import check_choice, check_number, initial_guess, segment_groups
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.polynomial_pass import polynomial_pass
 from methods.symbolic.solve import solve_polynomial
+from methods.symbolic.uncertainty import (correlation_extra, observable_parameters, parameter_uncertainty,
+                                          restrict_system)
 
 
 @register("symbolic")
@@ -66,20 +69,67 @@ class SymbolicMethod(Method):
         x0, renders = initial_guess(self.cfg, sub)
         settings = problem.settings
         basis = MonomialBasis(len(params), int(settings.render.max_bounces))
-        result = polynomial_pass(sub, params, x0, basis, spp=int(settings.render.spp),
-                                 seed=int(problem.seed) + 7777 * renders, prob_floor=float(self.cfg.prob_floor),
-                                 memory_mb=float(self.cfg.memory_mb), cache=Cache(settings.cache.dir))
+        with make_executor(settings.get("executor")) as executor:
+            result = polynomial_pass(sub, params, x0, basis, spp=int(settings.render.spp),
+                                     seed=int(problem.seed) + 7777 * renders,
+                                     prob_floor=float(self.cfg.prob_floor), memory_mb=float(self.cfg.memory_mb),
+                                     cache=Cache(settings.cache.dir), executor=executor)
+        fit = self._solve(result.system, basis, params, x0, problem)
+        estimate = fit["estimate"]
+        filled = np.nan_to_num(estimate)           # unobservable weights: their monomials are all 0
+        mu = np.stack([basis.evaluate(filled[:, c]) for c in range(problem.n_channels)])
+        recon = {cam.name: result.image(cam.name, mu, (cam.height, cam.width)) for cam in problem.cameras}
+        sol = fit["solve"]
+        extras = {"n_monomials": basis.size, "solver_evaluations": sol.n_evals if sol else 0,
+                  "initial_guess": x0.tolist(), "views_from_cache": result.from_cache,
+                  "correlation": fit["correlation"], "residual_variance": fit["sigma2"],
+                  "executor": str((settings.get("executor") or {}).get("name", "serial"))}
+        timings = {"render": result.render_s, "solve": sol.solve_s if sol else 0.0}
+        relit = self._relight(sub, params, estimate)
+        if relit is not None:
+            extras["relit_images"], timings["relight"] = relit
+        timings["method"] = time.perf_counter() - t0
+        return MethodResult(
+            estimate=estimate, renders=renders + 1, parameters=params, reconstructions=recon,
+            timings_s=timings, std=fit["std"], observable=fit["observable"],
+            cost_history=list(sol.cost_history) if sol else [],
+            cost_times_s=list(sol.eval_times_s) if sol else [], extras=extras)
+
+    def _solve(self, system, basis, params, x0, problem) -> dict:
+        """Solve on the observable parameters; NaN estimate and std for the others.
+
+        Returns a dict: ``estimate`` (P, C), ``std`` (P, C), ``observable`` (P,), ``solve``
+        (SolveResult or None when nothing is observable), ``correlation`` (the JSON-able
+        ``extras["correlation"]``) and ``sigma2`` (residual variance per channel, a list).
+        """
+        P, C = len(params), problem.n_channels
+        observable = observable_parameters(system, basis)
+        estimate, std = np.full((P, C), np.nan), np.full((P, C), np.nan)
+        if not observable.any():
+            return {"estimate": estimate, "std": std, "observable": observable, "solve": None,
+                    "correlation": correlation_extra(params, observable, None), "sigma2": None}
+        sub_system, sub_basis, _ = restrict_system(system, basis, observable)
+        kept = np.flatnonzero(observable)
+        position = {int(j): k for k, j in enumerate(kept)}
+        groups = [[position[j] for j in g if j in position] for g in segment_groups(params)]
         solver = self.cfg.solver
-        sol = solve_polynomial(result.system, basis, segments_params=segment_groups(params), x0=x0,
-                               algorithm=str(solver.algorithm), starts=int(solver.starts),
+        sol = solve_polynomial(sub_system, sub_basis, segments_params=[g for g in groups if g],
+                               x0=x0[kept], algorithm=str(solver.algorithm), starts=int(solver.starts),
                                max_eval=int(solver.max_eval), xtol_rel=float(solver.xtol_rel),
                                seed=int(problem.seed))
-        mu = np.stack([basis.evaluate(sol.estimate[:, c]) for c in range(problem.n_channels)])
-        recon = {cam.name: result.image(cam.name, mu, (cam.height, cam.width)) for cam in problem.cameras}
-        return MethodResult(
-            estimate=sol.estimate, renders=renders + 1, parameters=params, reconstructions=recon,
-            timings_s={"render": result.render_s, "solve": sol.solve_s,
-                       "method": time.perf_counter() - t0},
-            cost_history=list(sol.cost_history), cost_times_s=list(sol.eval_times_s),
-            extras={"n_monomials": basis.size, "solver_evaluations": sol.n_evals,
-                    "initial_guess": x0.tolist(), "views_from_cache": result.from_cache})
+        unc = parameter_uncertainty(sub_system, sub_basis, sol.estimate)
+        estimate[kept], std[kept] = sol.estimate, unc.std
+        return {"estimate": estimate, "std": std, "observable": observable, "solve": sol,
+                "correlation": correlation_extra(params, observable, unc),
+                "sigma2": [float(v) for v in unc.sigma2]}
+
+    def _relight(self, problem, params, estimate):
+        """``(images, seconds)`` of the ``relight`` option, or None when it is off (see
+        :func:`framework.relight.relight_outputs`)."""
+        opt = self.cfg.get("relight")
+        if not opt or not opt.get("enabled", False):
+            return None
+        from framework.relight import relight_outputs
+        t = time.perf_counter()
+        images = relight_outputs(problem, params, estimate, opt)
+        return images, time.perf_counter() - t

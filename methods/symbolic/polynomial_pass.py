@@ -46,14 +46,35 @@ def tile_pixels_for(memory_mb: float, n_monomials: int, n_channels: int) -> int:
 
 
 def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBasis, *, spp: int,
-                    seed: int, prob_floor: float, memory_mb: float, cache: Cache) -> PassResult:
-    """Gram systems and coefficients of every view of ``problem`` (one render in total)."""
-    from framework.mitsuba_scene import MitsubaScene
-    from methods.symbolic.integrator import PolynomialPathIntegrator
+                    seed: int, prob_floor: float, memory_mb: float, cache: Cache, executor=None) -> PassResult:
+    """Gram systems and coefficients of every view of ``problem`` (one render in total).
 
-    scene, C = problem.scene, problem.n_channels
-    systems, coeffs, cached = {}, {}, []
-    todo = []
+    Parameters
+    ----------
+    problem : framework.methods.Problem
+    parameters : list of Parameter
+        The unknowns (``D = len(parameters)``).
+    guesses : numpy.ndarray
+        ``(D, C)`` guess driving the kernel selection.
+    basis : MonomialBasis
+    spp, seed, prob_floor, memory_mb
+        Pass settings; view ``i`` uses the Mitsuba seed ``inversion_seed(seed, i)``.
+    cache : Cache
+        Per-view results are read from and written to it by this (driver) process.
+    executor : framework.executor.SerialExecutor or DaskExecutor, optional
+        Where views are rendered (default: this process). Rendered views' Gram systems are
+        summed as a pairwise tree (on the workers for Dask), then the cached views are added in
+        view order; the result equals the serial one to float-summation order.
+
+    Returns
+    -------
+    PassResult
+    """
+    from framework.executor import SerialExecutor
+
+    executor = executor or SerialExecutor()
+    C = problem.n_channels
+    systems, coeffs, cached, todo = {}, {}, [], []
     for i, cam in enumerate(problem.cameras):
         key = _key(problem, cam, parameters, guesses, spp, seed, prob_floor, basis, view=i)
         hit = cache.load("polynomial_pass", key)
@@ -63,24 +84,80 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
         systems[cam.name], coeffs[cam.name] = _unpack(hit, C)
         cached.append(cam.name)
     t0 = time.perf_counter()
+    rendered_total = None
     if todo:
-        ms = MitsubaScene(scene, problem.cameras, spp=spp)
-        segment_kernels = [[(p.kernel, p.index) for p in parameters if p.segment == s]
-                           for s in range(len(scene.segments))]
-        integrator = PolynomialPathIntegrator.create(
-            ms.shape_segments, segment_kernels, len(parameters), guesses,
-            max_bounces=basis.max_degree, prob_floor=prob_floor,
-            tile_pixels=tile_pixels_for(memory_mb, basis.size, C))
-        for i, cam, key in todo:
-            system, mats = _render_view(integrator, ms, i, cam, problem.observed[cam.name], basis, spp,
-                                        inversion_seed(seed, i))
+        tasks = [view_task(problem, parameters, guesses, basis, i, spp=spp, seed=seed, prob_floor=prob_floor,
+                           tile_pixels=tile_pixels_for(memory_mb, basis.size, C)) for i, _, _ in todo]
+        variant = str(problem.settings.get("variant_resolved") or problem.settings.get("variant", "auto"))
+        handles = executor.map(render_view_task, tasks, variant=variant, threads=executor.threads_per_worker)
+        rendered_total = executor.tree_reduce(handles, sum_systems)
+        for (i, cam, key), (system, mats) in zip(todo, executor.gather(handles)):
             cache.store("polynomial_pass", key, _pack(system, mats))
             systems[cam.name], coeffs[cam.name] = system, mats
     render_s = time.perf_counter() - t0
-    total = GramSystem.zeros(basis.size, C)
-    for s in systems.values():
-        total = total + s
-    return PassResult(total, systems, coeffs, render_s, cached)
+    total = as_system(rendered_total) if rendered_total is not None else GramSystem.zeros(basis.size, C)
+    for name in cached:
+        total = total + systems[name]
+    ordered = {c.name: systems[c.name] for c in problem.cameras}
+    return PassResult(total, ordered, coeffs, render_s, cached)
+
+
+def view_task(problem, parameters, guesses, basis, i: int, *, spp: int, seed: int, prob_floor: float,
+              tile_pixels: int) -> dict:
+    """Everything a worker needs to render view ``i``: plain picklable data (numpy Scene model)."""
+    cam = problem.cameras[i]
+    return {"scene": problem.scene, "cameras": list(problem.cameras), "view": int(i),
+            "parameters": list(parameters), "guesses": np.asarray(guesses, float),
+            "n_params": basis.n_params, "max_bounces": basis.max_degree, "spp": int(spp),
+            "seed": inversion_seed(seed, i), "prob_floor": float(prob_floor), "tile_pixels": int(tile_pixels),
+            "observed": np.asarray(problem.observed[cam.name])}
+
+
+_WORKER_STATE: dict = {}    # per process: the last (MitsubaScene, integrator), reused across views
+
+
+def render_view_task(task: dict, *, variant: str, threads: int | None = None
+                     ) -> tuple[GramSystem, list[sp.csr_matrix]]:
+    """Render one view of a :func:`view_task` in this process (driver or Dask worker).
+
+    Selects ``variant``, caps Dr.Jit at ``threads`` threads, builds (or reuses) the Mitsuba
+    scene and the polynomial integrator, and returns the view's Gram system and coefficients.
+    """
+    from framework.executor import init_worker
+    init_worker(variant, threads)
+    ms, integrator = _scene_and_integrator(task, variant)
+    basis = MonomialBasis(task["n_params"], task["max_bounces"])
+    cam = task["cameras"][task["view"]]
+    return _render_view(integrator, ms, task["view"], cam, task["observed"], basis, task["spp"], task["seed"])
+
+
+def _scene_and_integrator(task: dict, variant: str):
+    from framework.mitsuba_scene import MitsubaScene
+    from methods.symbolic.integrator import PolynomialPathIntegrator
+    scene, params = task["scene"], task["parameters"]
+    key = (variant, scene.content_hash, scene.root, tuple(c.name for c in task["cameras"]), task["spp"],
+           task["guesses"].tobytes(), task["prob_floor"], task["max_bounces"], task["tile_pixels"],
+           tuple((p.segment, p.kernel) for p in params))
+    if _WORKER_STATE.get("key") != key:
+        _WORKER_STATE.clear()
+        ms = MitsubaScene(scene, task["cameras"], spp=task["spp"])
+        segment_kernels = [[(p.kernel, p.index) for p in params if p.segment == s]
+                           for s in range(len(scene.segments))]
+        integrator = PolynomialPathIntegrator.create(
+            ms.shape_segments, segment_kernels, len(params), task["guesses"],
+            max_bounces=task["max_bounces"], prob_floor=task["prob_floor"], tile_pixels=task["tile_pixels"])
+        _WORKER_STATE.update(key=key, value=(ms, integrator))
+    return _WORKER_STATE["value"]
+
+
+def as_system(x) -> GramSystem:
+    """The Gram system of a view output ``(system, coefficients)`` or of a system."""
+    return x[0] if isinstance(x, tuple) else x
+
+
+def sum_systems(a, b) -> GramSystem:
+    """``a + b`` of two view outputs or systems (the tree reduction's operator)."""
+    return as_system(a) + as_system(b)
 
 
 def _render_view(integrator, ms, i, cam, observed, basis, spp, seed):

@@ -1,0 +1,202 @@
+"""Observability and standard errors of the kernel weights from the polynomial cost.
+
+Per channel the cost is the explicit polynomial ``ε²_c(ρ) = μᵀG_cμ - 2b_cᵀμ + yy_c``
+(:mod:`methods.symbolic.gram`), so its exact Hessian at the estimate is available without any
+rendering (:func:`methods.symbolic.solve.hessian`).
+
+Observability
+    Parameter ``ρ_j`` is *unobservable* when no pixel's polynomial depends on it: every monomial
+    containing ``ρ_j`` has a zero coefficient in every pixel, i.e. ``G_mm = Σ_i γ_im² = 0`` for
+    every such monomial ``m`` (tested against a relative tolerance ``rtol`` times the largest
+    diagonal entry of ``G``, all channels together). The cost is then exactly independent of
+    ``ρ_j``; the solve runs on the observable parameters only (:func:`restrict_system`, exact,
+    because the dropped monomials have zero rows and columns in ``G`` and zero entries in ``b``).
+
+Standard errors (Gauss-Newton / Laplace approximation)
+    With ``n`` pixels (all views), ``D`` observable parameters, the residual variance
+    ``σ²_c = ε²_c(ρ̂) / (n - D)`` and the exact Hessian ``H_c`` of ``ε²_c`` at ``ρ̂``,
+    ``Cov_c ≈ 2 σ²_c H_c⁻¹`` (``H_c ≈ 2JᵀJ``, so this is ``σ²_c (JᵀJ)⁻¹``). ``H_c`` is
+    symmetrised and inverted through its eigen-decomposition: eigenvalues ``<= rcond · λ_max``
+    (near-singular directions, including negative ones) are dropped (pseudo-inverse). A
+    parameter whose squared loading on the dropped directions exceeds ``null_tol`` is not
+    determined to first order; its ``std`` is NaN rather than the pseudo-inverse's
+    underestimate. The approximation ignores the bound and Σρ <= 1 constraints: where a
+    constraint is active the true uncertainty is one-sided and smaller.
+
+Correlation
+    ``corr_c = Cov_c / (std_c std_cᵀ)`` per channel; the reported matrix is the mean over
+    channels of the per-channel correlations (entries NaN in a channel are left out of the mean).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from methods.symbolic.basis import MonomialBasis
+from methods.symbolic.gram import GramSystem
+from methods.symbolic.solve import hessian
+
+#: relative tolerance of the observability test on diag(G)
+OBSERVABLE_RTOL = 1e-12
+#: eigenvalues of H below RCOND * max eigenvalue are treated as zero
+RCOND = 1e-10
+#: squared loading on dropped directions above which a std is reported NaN
+NULL_TOL = 1e-2
+
+
+@dataclass
+class Uncertainty:
+    """Standard errors and correlations of the observable parameters.
+
+    Attributes
+    ----------
+    std : numpy.ndarray
+        ``(D, C)`` standard errors (NaN where not determined to first order).
+    covariance : numpy.ndarray
+        ``(C, D, D)`` covariance ``2σ²_c H_c⁺``.
+    correlation : numpy.ndarray
+        ``(C, D, D)`` per-channel correlation matrices.
+    sigma2 : numpy.ndarray
+        ``(C,)`` residual variance ``ε²_c / (n - D)``.
+    dropped : numpy.ndarray
+        ``(C,)`` number of near-singular directions dropped per channel.
+    """
+
+    std: np.ndarray
+    covariance: np.ndarray
+    correlation: np.ndarray
+    sigma2: np.ndarray
+    dropped: np.ndarray
+
+    @property
+    def mean_correlation(self) -> np.ndarray:
+        """``(D, D)`` mean over channels of the per-channel correlations (NaN-aware)."""
+        corr = self.correlation
+        ok = np.isfinite(corr)
+        n = ok.sum(axis=0)
+        total = np.where(ok, corr, 0.0).sum(axis=0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(n > 0, total / np.maximum(n, 1), np.nan)
+
+
+def observable_parameters(system: GramSystem, basis: MonomialBasis, *, rtol: float = OBSERVABLE_RTOL
+                          ) -> np.ndarray:
+    """``(D,)`` bool: does some pixel's polynomial depend on ``ρ_j``?
+
+    Parameters
+    ----------
+    system : GramSystem
+        Gram system summed over all views.
+    basis : MonomialBasis
+        Its monomial basis.
+    rtol : float
+        ``ρ_j`` is unobservable when ``max_c max_{m ∋ j} G_c[m, m] <= rtol · max(diag G)``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(D,)`` bool.
+    """
+    diag = np.einsum("cmm->cm", system.G).max(axis=0)            # (N_e,) Σ_i γ_im², worst channel
+    scale = float(diag.max()) if diag.size else 0.0
+    if scale <= 0.0:
+        return np.zeros(basis.n_params, dtype=bool)
+    contains = basis.exponents > 0                                # (N_e, D)
+    per_param = np.where(contains, diag[:, None], 0.0).max(axis=0)
+    return per_param > rtol * scale
+
+
+def restrict_system(system: GramSystem, basis: MonomialBasis, keep: np.ndarray
+                    ) -> tuple[GramSystem, MonomialBasis, np.ndarray]:
+    """The Gram system in the monomials of the parameters ``keep`` only.
+
+    Parameters
+    ----------
+    system, basis
+        Full system and basis in ``D`` parameters.
+    keep : numpy.ndarray
+        ``(D,)`` bool mask, at least one True.
+
+    Returns
+    -------
+    (GramSystem, MonomialBasis, numpy.ndarray)
+        The restricted system, its basis (``sum(keep)`` parameters, same maximal degree) and
+        the full-basis index of each restricted monomial. Exact when the dropped parameters are
+        unobservable (their monomials have zero rows/columns in ``G`` and zero ``b``).
+    """
+    kept = np.flatnonzero(keep)
+    sub = MonomialBasis(len(kept), basis.max_degree)
+    idx = np.array([basis.index(np.repeat(kept, e)) for e in sub.exponents], dtype=np.int64)
+    G = system.G[:, idx][:, :, idx]
+    return GramSystem(G.copy(), system.b[:, idx].copy(), system.yy.copy(), system.n_pixels), sub, idx
+
+
+def parameter_uncertainty(system: GramSystem, basis: MonomialBasis, rho: np.ndarray, *,
+                          rcond: float = RCOND, null_tol: float = NULL_TOL) -> Uncertainty:
+    """Standard errors ``sqrt(diag(2σ²_c H_c⁺))`` at the estimate ``rho``.
+
+    Parameters
+    ----------
+    system : GramSystem
+        Gram system of the observable parameters (:func:`restrict_system`).
+    basis : MonomialBasis
+        Its basis (``D`` parameters).
+    rho : numpy.ndarray
+        ``(D, C)`` estimate.
+    rcond, null_tol : float
+        Eigenvalue threshold of the pseudo-inverse, and the loading on dropped directions
+        above which a parameter's std is NaN (see the module docstring).
+
+    Returns
+    -------
+    Uncertainty
+    """
+    rho = np.asarray(rho, dtype=float).reshape(basis.n_params, -1)
+    C, D = system.n_channels, basis.n_params
+    H = hessian(system, basis, rho)
+    mu = np.stack([basis.evaluate(rho[:, c]) for c in range(C)])
+    dof = max(system.n_pixels - D, 1)
+    sigma2 = np.maximum(system.cost(mu), 0.0) / dof
+    cov = np.empty((C, D, D))
+    std = np.empty((D, C))
+    dropped = np.zeros(C, dtype=int)
+    for c in range(C):
+        Hinv, null_load, dropped[c] = _pseudo_inverse(H[c], rcond)
+        cov[c] = 2.0 * sigma2[c] * Hinv
+        s = np.sqrt(np.maximum(np.diag(cov[c]), 0.0))
+        std[:, c] = np.where(null_load > null_tol, np.nan, s)
+    corr = _correlation(cov, std)
+    return Uncertainty(std=std, covariance=cov, correlation=corr, sigma2=sigma2, dropped=dropped)
+
+
+def _pseudo_inverse(H: np.ndarray, rcond: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """Eigen pseudo-inverse of the symmetrised ``H``, each parameter's loading on the dropped
+    directions, and their number."""
+    w, V = np.linalg.eigh(0.5 * (H + H.T))
+    top = float(w.max()) if w.size else 0.0
+    good = w > rcond * top if top > 0 else np.zeros_like(w, dtype=bool)
+    Hinv = (V[:, good] / w[good]) @ V[:, good].T
+    null_load = (V[:, ~good] ** 2).sum(axis=1)
+    return Hinv, null_load, int((~good).sum())
+
+
+def _correlation(cov: np.ndarray, std: np.ndarray) -> np.ndarray:
+    """``(C, D, D)`` correlations; NaN where a std is NaN or zero."""
+    s = np.sqrt(np.maximum(np.einsum("cii->ci", cov), 0.0))          # (C, D)
+    s = np.where(np.isfinite(std.T) & (s > 0), s, np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / (s[:, :, None] * s[:, None, :])
+    return np.clip(corr, -1.0, 1.0)
+
+
+def correlation_extra(parameters, keep: np.ndarray, unc: Uncertainty | None) -> dict:
+    """``extras["correlation"]``: labels ``segment/kernel`` of the observable parameters and the
+    channel-mean correlation matrix (JSON-able; NaN entries become None)."""
+    kept = [p for p, k in zip(parameters, keep) if k]
+    labels = [f"{p.segment_name}/{p.kernel}" for p in kept]
+    if unc is None:
+        return {"labels": labels, "matrix": [], "averaged_over_channels": True}
+    m = unc.mean_correlation
+    matrix = [[None if not np.isfinite(x) else float(x) for x in row] for row in m]
+    return {"labels": labels, "matrix": matrix, "averaged_over_channels": True}
