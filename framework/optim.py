@@ -106,12 +106,14 @@ def minimize(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndarray 
     check_algorithm(algorithm, constrained=bool(groups))
 
     best = OptimResult(x=np.clip(x0, lo, hi), f=np.inf)
+    stop = []
 
     def objective(x, grad):
         need = grad.size > 0
         try:
             f, g = fun_and_grad(np.array(x), need)
         except StopOptimization:
+            stop.append(True)
             raise nlopt.ForcedStop() from None
         f = float(f)
         best.history.append(f)
@@ -132,7 +134,7 @@ def minimize(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndarray 
     opt.set_ftol_rel(float(ftol_rel))
     if max_eval > 0:
         opt.set_maxeval(int(max_eval))
-    best.status = _run(opt, best.x.copy())
+    best.status = _run(opt, best.x.copy(), lambda: bool(stop))
     if not np.isfinite(best.f):
         raise OptimizationError(f"nlopt {algorithm} stopped ({best.status}) before any feasible evaluation")
     return best
@@ -143,23 +145,29 @@ _STATUS = {1: "SUCCESS", 2: "STOPVAL_REACHED", 3: "FTOL_REACHED", 4: "XTOL_REACH
            -4: "ROUNDOFF_LIMITED", -5: "FORCED_STOP"}
 
 
-def _run(opt, x0: np.ndarray) -> str:
-    """``opt.optimize(x0)``, turning nlopt's message-less exceptions into a status or an error."""
+def _run(opt, x0: np.ndarray, stopped) -> str:
+    """``opt.optimize(x0)``, turning nlopt's message-less exceptions into a status or an error.
+
+    nlopt's Python classes (``ForcedStop``, ``RoundoffLimited``) and SWIG classes
+    (``nlopt.forced_stop``, ``nlopt.runtime_error``, ``nlopt.invalid_argument``...) are not
+    Python's ``RuntimeError``/``ValueError``; some algorithms (LD_LBFGS) report a forced stop
+    as a bare ``runtime_error``, hence ``stopped()``.
+    """
     import nlopt
     try:
         opt.optimize(x0)
-    except nlopt.ForcedStop:
+    except (nlopt.ForcedStop, nlopt.forced_stop):
         return "FORCED_STOP"
-    except nlopt.RoundoffLimited:
+    except (nlopt.RoundoffLimited, nlopt.roundoff_limited):
         return "ROUNDOFF_LIMITED"
-    except MemoryError as exc:
-        raise OptimizationError(f"nlopt ran out of memory ({exc!r})") from None
-    except ValueError as exc:  # nlopt.invalid_argument is a ValueError subclass
-        raise OptimizationError(f"nlopt rejected its arguments ({type(exc).__name__}: {exc!s} ; "
-                                "check bounds, x0 and the algorithm)") from None
-    except RuntimeError:  # generic nlopt failure (empty message): keep the best point seen
-        return "FAILURE"
-    return _STATUS.get(opt.last_optimize_result(), str(opt.last_optimize_result()))
+    except nlopt.logic_error as exc:  # invalid_argument and friends
+        raise OptimizationError(f"nlopt rejected its arguments ({type(exc).__name__}; check bounds, x0, "
+                                "tolerances and the algorithm)") from None
+    except nlopt.runtime_error:
+        return "FORCED_STOP" if stopped() else "FAILURE"   # generic failure: keep the best point seen
+    except MemoryError:
+        raise OptimizationError("nlopt ran out of memory") from None
+    return "FORCED_STOP" if stopped() else _STATUS.get(opt.last_optimize_result(), str(opt.last_optimize_result()))
 
 
 def _sum_constraint(g: np.ndarray):

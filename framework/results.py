@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from framework.cache import atomic_write_bytes
-from framework.exr import write_exr
+from framework.images import write_exr
 from framework.methods import MethodResult, Problem
 
 
@@ -49,6 +49,7 @@ def image_rmse(problem: Problem, result: MethodResult) -> float | None:
 def write_view_images(run_dir: Path, problem: Problem, result: MethodResult, segment_maps: dict) -> list[dict]:
     """Observed / reconstruction EXRs and segment maps under ``images/``; their entries for results.json."""
     entries = []
+    (run_dir / "images").mkdir(parents=True, exist_ok=True)
     for cam in problem.cameras:
         base = f"images/{cam.name}"
         write_exr(run_dir / f"{base}.observed.exr", problem.observed[cam.name], problem.scene.channels)

@@ -1,4 +1,7 @@
-"""Writers (and a few readers) for the pieces of a scene folder: meshes, EXRs, COLMAP, scene.yaml."""
+"""Writers (and a few readers) for the pieces of a scene folder: meshes, COLMAP, scene.yaml.
+
+EXR files go through :mod:`framework.images`. Used by the bundled scenes and the tests' tiny scenes.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -46,39 +49,6 @@ def read_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
         raise FileNotFoundError(path)
     mesh = o3d.io.read_triangle_mesh(str(path))
     return np.asarray(mesh.vertices), np.asarray(mesh.triangles)
-
-
-def write_exr(path: Path, image: np.ndarray, channels: str = "RGB") -> Path:
-    """Write a float32 EXR, one channel per letter of ``channels`` (``'RGB'`` or ``'Y'``).
-
-    Parameters
-    ----------
-    path : Path
-        Output file.
-    image : ndarray, shape (h, w, c) or (h, w)
-        Linear values; made contiguous float32 (OpenEXR writes garbage otherwise).
-    channels : str
-        Channel names, one letter each.
-    """
-    import OpenEXR
-
-    img = np.asarray(image, dtype=np.float32).reshape(image.shape[0], image.shape[1], -1)
-    if img.shape[2] != len(channels):
-        raise ValueError(f"{img.shape[2]} image channels for channel names {channels!r}")
-    planes = {c: np.ascontiguousarray(img[:, :, i], np.float32) for i, c in enumerate(channels)}
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    with OpenEXR.File(header, planes) as f:
-        f.write(str(path))
-    return Path(path)
-
-
-def read_exr(path: Path, channels: str = "RGB") -> np.ndarray:
-    """Read the named channels of an EXR into an array of shape (h, w, len(channels))."""
-    import OpenEXR
-
-    with OpenEXR.File(str(path), separate_channels=True) as f:
-        ch = f.channels()
-        return np.stack([np.array(ch[c].pixels, dtype=np.float32) for c in channels], axis=-1)
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,8 @@ from framework.backend import set_variant
 from framework.envmap import TO_WORLD
 from framework.kernels import forward_bsdf, spectrum, weight_values
 from scenes.cameras import perspective_sensor
-from scenes.io import PinholeCamera, read_colmap, read_exr
+from framework.images import read_exr
+from scenes.io import PinholeCamera, read_colmap
 
 
 def load_yaml(folder: Path) -> dict:
@@ -39,7 +40,7 @@ def _emitter(folder: Path, e: dict, ch: tuple[str, ...], area: dict[str, dict]) 
     import mitsuba as mi
 
     if e["type"] == "envmap":
-        img = read_exr(folder / e["file"], "".join(ch))
+        img = read_exr(folder / e["file"])
         if ch == ("Y",):
             img = img[..., 0]
         return {"type": "envmap", "bitmap": mi.Bitmap(np.ascontiguousarray(img, np.float32)),

@@ -20,7 +20,8 @@ import numpy as np
 
 from scenes import geometry as g
 from scenes.cameras import focal_from_fov, look_at
-from scenes.io import PinholeCamera, write_colmap, write_exr, write_mesh, write_scene_yaml
+from framework.images import write_exr
+from scenes.io import PinholeCamera, write_colmap, write_mesh, write_scene_yaml
 from scenes.sky import bake_sky, sun_irradiance, sun_vector
 
 LENGTH, HALF_WIDTH, DEPTH, HEIGHT = 40.0, 5.0, 10.0, 15.0
@@ -185,7 +186,7 @@ def build(folder: Path, channels: str = "rgb") -> Path:
     files = {seg: [str(write_mesh(folder / "meshes" / f"{stem}.ply", *m).relative_to(folder))
                    for stem, m in parts] for seg, parts in meshes().items()}
     sun = sun_vector(SUN_ELEVATION, SUN_AZIMUTH)
-    write_exr(folder / "sky.exr", bake_sky(sun, *SKY_SIZE, channels, TURBIDITY), "RGB" if channels == "rgb" else "Y")
+    write_exr(folder / "sky.exr", bake_sky(sun, *SKY_SIZE, channels, TURBIDITY), ("R", "G", "B") if channels == "rgb" else ("Y",))
     e_sun = sun_irradiance(sun, channels, TURBIDITY)
     write_colmap(folder / "sparse", cameras(), landmarks())
     scene = {"name": folder.name, "channels": channels, "segments": segments(channels, files),

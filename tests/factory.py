@@ -5,7 +5,8 @@ from pathlib import Path
 
 import numpy as np
 
-from framework.scene_writer import look_at, write_colmap, write_mesh, write_scene_yaml
+from scenes.cameras import look_at
+from scenes.io import PinholeCamera, write_colmap, write_mesh, write_scene_yaml
 
 QUAD_FACES = np.array([[0, 1, 2], [0, 2, 3]])
 
@@ -36,7 +37,7 @@ def make_tiny_scene(root: Path, *, size: int = 16, channels: str = "rgb", n_view
     if "specular" in kernels:
         ref_ground["specular"] = val([0.1, 0.1, 0.1])
         ref_block["specular"] = val([0.2, 0.2, 0.2])
-    write_scene_yaml(root, {
+    write_scene_yaml(root / "scene.yaml", {
         "name": "tiny", "channels": channels,
         "segments": [
             {"name": "ground", "meshes": ["meshes/ground.ply"], "kernels": list(kernels), "reference": ref_ground},
@@ -46,7 +47,6 @@ def make_tiny_scene(root: Path, *, size: int = 16, channels: str = "rgb", n_view
     })
     f = size / (2 * np.tan(np.radians(30)))
     eyes = [[6, -5, 4], [-6, -5, 3], [5, 6, 5], [-5, 6, 4]]
-    write_colmap(root / "sparse", [
-        {"name": f"view_{i}.png", "width": size, "height": size, "f": f, "cx": size / 2, "cy": size / 2,
-         "cam_from_world": look_at(eyes[i], [0, 0, 0.8])} for i in range(n_views)])
+    write_colmap(root / "sparse", [PinholeCamera(f"view_{i}.png", size, size, f, look_at(eyes[i], [0, 0, 0.8]))
+                                   for i in range(n_views)])
     return root

@@ -6,9 +6,8 @@ import pytest
 import yaml
 
 from framework.errors import ConfigError, EnvironmentSetupError, SceneError
-from framework.exr import write_exr
+from framework.images import write_exr
 from framework.scene import load_scene
-from framework.scene_writer import write_colmap
 
 
 def _edit(root, fn):
@@ -25,6 +24,14 @@ def _images(root, *, shape=(16, 16, 3), value=0.2, names=("R", "G", "B"), skip=(
             continue
         img = np.full(shape, value, np.float32)
         write_exr(root / "images" / f"view_{i}.exr", img, names)
+
+
+def _write_one_camera(sparse, camera_line):
+    """A COLMAP text model written by hand (format of COLMAP's docs): one camera, one image."""
+    sparse.mkdir(parents=True, exist_ok=True)
+    (sparse / "cameras.txt").write_text(f"1 {camera_line}\n")
+    (sparse / "images.txt").write_text("1 1 0 0 0 0 0 5 1 view_0.png\n\n")
+    (sparse / "points3D.txt").write_text("")
 
 
 def test_scene_yaml_errors(tmp_path, tiny_scene):
@@ -47,7 +54,7 @@ def test_mesh_errors(tiny_scene):
     ply.write_bytes(b"not a ply file")
     with pytest.raises(SceneError, match="block.ply: no triangles"):
         load_scene(tiny_scene)
-    from framework.scene_writer import write_mesh
+    from scenes.io import write_mesh
     write_mesh(ply, np.zeros((3, 3)), np.zeros((0, 3), int))
     with pytest.raises(SceneError, match="block.ply: no triangles"):
         load_scene(tiny_scene)
@@ -84,12 +91,10 @@ def test_colmap_errors(tiny_scene):
     shutil.rmtree(tiny_scene / "sparse")
     with pytest.raises(SceneError, match="sparse: missing COLMAP model"):
         load_scene(tiny_scene)
-    cam = {"name": "view_0.png", "width": 16, "height": 16, "f": 12.0, "cx": 8, "cy": 8,
-           "cam_from_world": np.eye(4)[:3]}
-    write_colmap(tiny_scene / "sparse", [dict(cam, model="SIMPLE_RADIAL", params=[12.0, 8, 8, 0.01])])
+    _write_one_camera(tiny_scene / "sparse", "SIMPLE_RADIAL 16 16 12 8 8 0.01")
     with pytest.raises(SceneError, match="is SIMPLE_RADIAL; undistort the images to a PINHOLE"):
         load_scene(tiny_scene)
-    write_colmap(tiny_scene / "sparse", [dict(cam, params=[12.0, 13.0, 8, 8])])
+    _write_one_camera(tiny_scene / "sparse", "PINHOLE 16 16 12 13 8 8")
     with pytest.raises(SceneError, match="fx=12.0 != fy=13.0; resample"):
         load_scene(tiny_scene)
 
@@ -102,7 +107,7 @@ def test_image_errors(tiny_scene):
     with pytest.raises(SceneError, match="image is 12x16, its camera is 16x16"):
         load_scene(tiny_scene)
     _images(tiny_scene, shape=(16, 16, 1), names=("Y",))
-    with pytest.raises(SceneError, match="channels Y; this scene needs R,G,B"):
+    with pytest.raises(SceneError, match="1 channel\(s\); this scene needs R,G,B"):
         load_scene(tiny_scene)
     _images(tiny_scene, value=np.nan)
     with pytest.raises(SceneError, match="NaN/Inf/negative values"):

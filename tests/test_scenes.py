@@ -14,7 +14,8 @@ import yaml
 from scenes import BUNDLED_DIR, bundled_names
 from scenes import build as scene_build
 from scenes import furnace, plane_sky, urban_canyon
-from scenes.io import read_colmap, read_exr, read_mesh, write_exr
+from framework.images import read_exr, write_exr
+from scenes.io import read_colmap, read_mesh
 
 NAMES = ["urban_canyon", "urban_canyon_mono", "cornell_box", "plane_sky", "furnace"]
 CONF = Path(__file__).resolve().parents[1] / "framework" / "conf" / "scene"
@@ -63,7 +64,7 @@ def test_folder_rereads(name):
     ch = "Y" if scene["channels"] == "mono" else "RGB"
     for e in scene["emitters"]:
         if e["type"] == "envmap":
-            sky = read_exr(folder / e["file"], ch)
+            sky = read_exr(folder / e["file"])
             assert sky.shape[2] == len(ch) and np.isfinite(sky).all() and sky.min() >= 0 and sky.max() > 0
     size = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
     assert size < 2_000_000
@@ -73,8 +74,8 @@ def test_folder_rereads(name):
 @pytest.mark.parametrize("channels", ["RGB", "Y"])
 def test_exr_roundtrip(tmp_path, channels):
     img = np.random.default_rng(0).random((5, 7, len(channels))).astype(np.float32)
-    write_exr(tmp_path / "a.exr", img[:, ::-1][:, ::-1], channels)     # non-contiguous input
-    np.testing.assert_array_equal(read_exr(tmp_path / "a.exr", channels), img)
+    write_exr(tmp_path / "a.exr", img[:, ::-1][:, ::-1], tuple(channels))     # non-contiguous input
+    np.testing.assert_array_equal(read_exr(tmp_path / "a.exr"), img)
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -164,7 +165,7 @@ def test_sun_matches_sky():
     to_sun = -np.asarray(sun["direction"])
     np.testing.assert_allclose(to_sun, urban_canyon.sun_vector(45.0, 245.0), atol=1e-6)
     assert np.degrees(np.arcsin(to_sun[2])) == pytest.approx(45.0)
-    sky = read_exr(BUNDLED_DIR / "urban_canyon" / "sky.exr", "RGB")
+    sky = read_exr(BUNDLED_DIR / "urban_canyon" / "sky.exr")
     dirs = texel_directions(*sky.shape[:2])
     upper = sky.shape[0] // 2
     i, j = np.unravel_index(sky[:upper].sum(-1).argmax(), (upper, sky.shape[1]))

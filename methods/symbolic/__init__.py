@@ -42,7 +42,20 @@ class SymbolicMethod(Method):
     solver.algorithm, solver.starts, solver.max_eval, solver.xtol_rel
         nlopt settings (``LD_SLSQP``: takes the per-segment Σρ <= 1 constraints).
 
-    Uses ``render.spp``, ``render.max_bounces`` (N_max) and ``seed`` of the main config.
+    relight : mapping, optional
+        ``{enabled: false, sun_direction: [x, y, z] | null, sun_irradiance: null, sky_radiance: null,
+        spp: 64, reflectance: diffuse}``: when enabled, ``extras["relit_images"]`` holds
+        ``<view>.relit`` (path-traced at the estimate under the new light) and
+        ``<view>.reflectance`` (shadow-free albedo) (H, W, C) arrays (:mod:`framework.relight`);
+        not counted in ``renders`` (post-inversion), timed as ``timings_s["relight"]``.
+
+    Uses ``render.spp``, ``render.max_bounces`` (N_max), ``seed`` and ``executor`` (views rendered
+    in Dask workers, :mod:`framework.executor`) of the main config.
+
+    Uncertainty (:mod:`methods.symbolic.uncertainty`): parameters no pixel depends on are
+    ``observable`` False (estimate and std NaN) and left out of the solve; ``std`` is
+    ``sqrt(diag(2σ²_c H_c⁺))`` at the estimate; ``extras["correlation"]`` holds the labels
+    ``segment/kernel`` of the observable parameters and their channel-mean correlation matrix.
     Limitations: kernel BRDFs only (paper section 4.3); N_e = C(D + N_max, N_max) monomials,
     so the solve costs O(N_e²) per evaluation.
     """

@@ -1,0 +1,192 @@
+"""The plain iterative baseline (methods/iterative), its nlopt wrapper (framework/optim.py) and
+the shared pieces (methods/_common.py), on the 16x16 tiny scene.
+
+:func:`tiny_problem` is reused by tests/test_differentiable.py.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from omegaconf import OmegaConf
+
+from framework.errors import ConfigError
+
+
+def tiny_problem(root, *, kernels=("diffuse",), spp=16, budget=100, n_views=1, obs_spp=256):
+    """A Problem on make_tiny_scene: observations rendered at the references, ``obs_spp``, odd seed.
+
+    Observations use ``max_depth = N_max + 1`` (N_max = 3), as the inversions do, so the
+    estimates are unbiased up to Monte-Carlo noise.
+    """
+    from factory import make_tiny_scene
+    from framework.methods import Problem
+    from framework.observe import render_references
+    from framework.scene import load_scene
+    scene = load_scene(make_tiny_scene(root, kernels=kernels, n_views=n_views))
+    cams = list(scene.cameras)
+    obs = render_references(scene, cams, spp=obs_spp, max_depth=4, seed=0)
+    settings = OmegaConf.create({"render": {"spp": spp, "max_bounces": 3}, "budget": {"renders": budget},
+                                 "seed": 0})
+    return Problem(scene=scene, cameras=cams, observed={c.name: o for c, o in zip(cams, obs)},
+                   parameters=scene.parameters(), settings=settings, seed=0)
+
+
+def method_config(name: str, **overrides):
+    """The method's shipped YAML with ``overrides``."""
+    from pathlib import Path
+    cfg = OmegaConf.load(Path(__file__).parents[1] / "framework" / "conf" / "method" / f"{name}.yaml")
+    for key, value in overrides.items():
+        cfg[key] = value
+    return cfg
+
+
+def run_iterative(problem, **overrides):
+    from framework.methods import get_method
+    return get_method("iterative")(method_config("iterative", **overrides)).run(problem)
+
+
+def expected_renders(result, D: int) -> int:
+    """Forward differences: D + 1 renders per evaluation with gradient, 1 without, + 1 final."""
+    n_grad, n_eval = result.extras["gradient_evaluations"], result.extras["evaluations"]
+    return n_grad * (D + 1) + (n_eval - n_grad) + 1
+
+
+def test_iterative_recovers_diffuse(tmp_path):
+    """Fixed noise (common random numbers), forward FD, 64 spp: |ρ - ρ_ref| <= 0.05.
+
+    Tolerance source: measured max error 0.021 on this scene (forward differences shift the
+    optimum by about step/2 = 0.01, plus Monte-Carlo noise at 64 vs 256 spp); 0.05 leaves 2x.
+    """
+    problem = tiny_problem(tmp_path / "s", spp=64, budget=200)
+    result = run_iterative(problem, noise="fixed")
+    ref = problem.scene.reference(problem.parameters)
+    assert np.max(np.abs(result.estimate - ref)) <= 0.05
+    assert result.renders <= 200
+    assert result.renders == expected_renders(result, D=len(problem.parameters))
+    assert len(result.cost_history) == len(result.cost_times_s) == result.extras["evaluations"]
+    assert min(result.cost_history) < result.cost_history[0]
+    assert set(result.reconstructions) == {c.name for c in problem.cameras}
+    assert result.reconstructions[problem.cameras[0].name].shape == (16, 16, 3)
+    assert set(result.timings_s) >= {"render", "solve"}
+
+
+def test_iterative_budget_stop(tmp_path):
+    """A small budget stops cleanly (FORCED_STOP) within it, keeping one render for the end."""
+    problem = tiny_problem(tmp_path / "s", budget=10)
+    result = run_iterative(problem, noise="fresh")
+    D = len(problem.parameters)
+    assert result.renders <= 10
+    assert result.renders == expected_renders(result, D)
+    assert result.extras["status"] == "FORCED_STOP"
+    assert result.reconstructions
+
+
+def test_iterative_budget_too_small_keeps_guess(tmp_path):
+    """With no room for one gradient, the estimate is the guess and only the final render is spent."""
+    problem = tiny_problem(tmp_path / "s", budget=3)
+    result = run_iterative(problem, guess=0.3)
+    assert result.renders == 1
+    np.testing.assert_allclose(result.estimate, 0.3)
+    assert result.extras["status"] == "BUDGET_TOO_SMALL"
+
+
+def test_iterative_central_counts(tmp_path):
+    """Central differences: 2D + 1 renders per evaluation with gradient; max_eval limits evaluations."""
+    problem = tiny_problem(tmp_path / "s", budget=100)
+    result = run_iterative(problem, fd="central", max_eval=3, noise="fixed")
+    D = len(problem.parameters)
+    n_grad, n_eval = result.extras["gradient_evaluations"], result.extras["evaluations"]
+    assert n_eval <= 3
+    assert result.renders == n_grad * (2 * D + 1) + (n_eval - n_grad) + 1
+
+
+@pytest.mark.parametrize("key, value", [
+    ("fd", "backward"), ("step", 0), ("step", 0.7), ("step", "big"), ("noise", "random"),
+    ("algorithm", "LD_FOO"), ("max_eval", -1), ("max_eval", 2.5), ("xtol_rel", -1.0), ("ftol_rel", -1e-3),
+    ("init", "magic"), ("guess", 1.5), ("guess", {"specular": 0.1}), ("guess", "half"),
+])
+def test_iterative_errors(tmp_path, key, value):
+    """Each bad option raises ConfigError naming the key."""
+    problem = tiny_problem(tmp_path / "s", budget=5)
+    with pytest.raises(ConfigError, match=f"method.{key}="):
+        run_iterative(problem, **{key: value})
+
+
+def test_iterative_errors_unconstrained_algorithm(tmp_path):
+    """LD_LBFGS refuses the Σρ <= 1 constraints of a segment with two kernels (PITFALLS)."""
+    problem = tiny_problem(tmp_path / "s", kernels=("diffuse", "specular"), budget=5, obs_spp=16)
+    with pytest.raises(ConfigError, match="method.algorithm=LD_LBFGS"):
+        run_iterative(problem, algorithm="LD_LBFGS")
+
+
+def test_iterative_errors_missing_lambertian_prior(tmp_path):
+    """init: lambertian_prior without that method registered names the fix."""
+    from framework.methods import get_method
+    try:
+        get_method("lambertian_prior")
+        pytest.skip("lambertian_prior is registered")
+    except ConfigError:
+        pass
+    problem = tiny_problem(tmp_path / "s", budget=5)
+    with pytest.raises(ConfigError, match="method.init=lambertian_prior"):
+        run_iterative(problem, init="lambertian_prior")
+
+
+# ------------------------------------------------------------------------------------------------
+# framework/optim.py and methods/_common.py
+# ------------------------------------------------------------------------------------------------
+def test_minimize_constrained_quadratic():
+    """min |x - t|² with t = (0.8, 0.6): Σ x <= 1 gives (0.6, 0.4) to 1e-6 (analytic)."""
+    from framework.optim import minimize
+    t = np.array([0.8, 0.6])
+    res = minimize(lambda x, g: (float(np.sum((x - t) ** 2)), 2 * (x - t)), np.array([0.5, 0.5]),
+                   inequality_groups=[[0, 1]], xtol_rel=1e-10)
+    np.testing.assert_allclose(res.x, [0.6, 0.4], atol=1e-6)
+    assert res.history and res.f == pytest.approx(min(res.history))
+
+
+def test_minimize_stop_keeps_best():
+    """StopOptimization after 3 evaluations returns the best point seen, status FORCED_STOP."""
+    from framework.optim import StopOptimization, minimize
+    calls = []
+
+    def f(x, need):
+        if len(calls) == 3:
+            raise StopOptimization
+        calls.append(x.copy())
+        return float(np.sum((x - 0.9) ** 2)), 2 * (x - 0.9)
+
+    res = minimize(f, np.array([0.1, 0.1]), algorithm="LD_LBFGS")
+    assert res.status == "FORCED_STOP" and res.n_eval == 3
+    assert res.f == min(res.history)
+
+
+def test_minimize_rejects_lbfgs_with_constraints():
+    from framework.optim import minimize
+    with pytest.raises(ConfigError, match="LD_LBFGS"):
+        minimize(lambda x, g: (0.0, np.zeros(2)), np.zeros(2), inequality_groups=[[0, 1]], algorithm="LD_LBFGS")
+
+
+def test_project_feasible():
+    """Clip to [0, 1]; a segment's sum > 1 goes to the nearest point of the simplex face."""
+    from framework.methods import Parameter
+    from methods._common import project_feasible
+    params = [Parameter(0, 0, "a", "diffuse"), Parameter(1, 0, "a", "specular"), Parameter(2, 1, "b", "diffuse")]
+    rho = np.array([[0.9, 1.4], [0.5, -0.2], [1.3, 0.4]])
+    out = project_feasible(rho, params)
+    np.testing.assert_allclose(out, [[0.7, 1.0], [0.3, 0.0], [1.0, 0.4]])
+
+
+def test_iterative_init_lambertian_prior(tmp_path):
+    """init: lambertian_prior starts from that method's diffuse estimates; its renders count."""
+    from framework.methods import get_method
+    try:
+        get_method("lambertian_prior")
+    except ConfigError:
+        pytest.skip("lambertian_prior is not registered")
+    problem = tiny_problem(tmp_path / "s", budget=4, obs_spp=64)
+    problem.settings.merge_with({"cache": {"dir": None}, "executor": {"name": "serial"}, "variant": "llvm_ad_rgb"})
+    result = run_iterative(problem, init="lambertian_prior")
+    assert 2 <= result.renders <= 4
+    ref = problem.scene.reference(problem.parameters)
+    assert np.max(np.abs(result.estimate - ref)) <= 0.1
