@@ -54,7 +54,7 @@ def run_experiment(cfg: DictConfig, run_dir: str | Path) -> dict:
     from framework.cache import Cache
     from framework.methods import Problem, get_method
     from framework.observe import observed_images
-    from framework.results import results_dict, write_results, write_view_images
+    from framework.results import results_dict, write_relit_images, write_results, write_view_images
     from framework.scene import load_scene
 
     t0 = time.perf_counter()
@@ -86,7 +86,9 @@ def run_experiment(cfg: DictConfig, run_dir: str | Path) -> dict:
                 "observe": OmegaConf.to_container(cfg.observe),
                 "method_settings": OmegaConf.to_container(cfg.method, resolve=True)}
     views = write_view_images(run_dir, problem, result, segment_maps)
-    results = results_dict(problem, result, method=str(cfg.method.name), settings=settings, views=views)
+    relit = write_relit_images(run_dir, problem, result)
+    results = results_dict(problem, result, method=str(cfg.method.name), settings=settings, views=views,
+                           relit=relit)
     if cfg.get("report", True):
         t_report = time.perf_counter()
         write_results(run_dir, results)       # the report reads it; rewritten below with the timing

@@ -65,8 +65,20 @@ def write_view_images(run_dir: Path, problem: Problem, result: MethodResult, seg
     return entries
 
 
+def write_relit_images(run_dir: Path, problem: Problem, result: MethodResult) -> list[dict]:
+    """Relit and reflectance images a method returned in ``extras["relit_images"]`` (popped):
+    EXRs under ``images/`` and the ``relit`` entries of results.json."""
+    images = result.extras.pop("relit_images", None) or {}
+    entries = []
+    for name, image in images.items():
+        path = f"images/{name}.exr"
+        write_exr(run_dir / path, image, problem.scene.channels)
+        entries.append({"name": name, "image": path})
+    return entries
+
+
 def results_dict(problem: Problem, result: MethodResult, *, method: str, settings: dict,
-                 views: list[dict]) -> dict:
+                 views: list[dict], relit: list[dict]) -> dict:
     return {
         "method": method,
         "scene": problem.scene.name,
@@ -80,6 +92,7 @@ def results_dict(problem: Problem, result: MethodResult, *, method: str, setting
         "settings": settings,
         "segments": [s.name for s in problem.scene.segments],
         "views": views,
+        "relit": relit,
         **result.extras,
     }
 
