@@ -119,14 +119,11 @@ def test_iterative_errors_unconstrained_algorithm(tmp_path):
         run_iterative(problem, algorithm="LD_LBFGS")
 
 
-def test_iterative_errors_missing_lambertian_prior(tmp_path):
+def test_iterative_errors_missing_lambertian_prior(tmp_path, monkeypatch):
     """init: lambertian_prior without that method registered names the fix."""
-    from framework.methods import get_method
-    try:
-        get_method("lambertian_prior")
-        pytest.skip("lambertian_prior is registered")
-    except ConfigError:
-        pass
+    def unregistered(name):
+        raise ConfigError(f"method={name} is not a registered method")
+    monkeypatch.setattr("framework.methods.get_method", unregistered)
     problem = tiny_problem(tmp_path / "s", budget=5)
     with pytest.raises(ConfigError, match="method.init=lambertian_prior"):
         run_iterative(problem, init="lambertian_prior")

@@ -11,14 +11,13 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
-import nlopt
 import numpy as np
 
 from framework.errors import ConfigError
+from framework.optim import check_algorithm, minimize
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.gram import GramSystem
 
-_CONSTRAINED = {"LD_SLSQP", "LD_CCSAQ", "LD_MMA", "LN_COBYLA", "LD_AUGLAG", "LN_AUGLAG", "GN_ISRES"}
 
 
 @dataclass
@@ -134,17 +133,12 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
         raise ConfigError(f"starts={starts}: must be >= 1")
     if int(max_eval) < 1:
         raise ConfigError(f"max_eval={max_eval}: must be >= 1")
-    if not hasattr(nlopt, algorithm):
-        raise ConfigError(f"algorithm={algorithm} is not an nlopt algorithm (e.g. LD_SLSQP)")
     segs = [[int(p) for p in ps] for ps in segments_params]
     for ps in segs:
         for p in ps:
             if not 0 <= p < D:
                 raise ConfigError(f"segments_params: index {p} outside [0, {D - 1}]")
-    multi = [ps for ps in segs if len(ps) > 1]
-    if multi and algorithm not in _CONSTRAINED:
-        raise ConfigError(f"algorithm={algorithm} does not take inequality constraints; "
-                          f"use one of {', '.join(sorted(_CONSTRAINED))}")
+    check_algorithm(algorithm, constrained=any(len(ps) > 1 for ps in segs))
     x0 = np.asarray(x0, dtype=float)
     x0 = np.broadcast_to(x0.reshape(D, -1), (D, C))
     rng = np.random.default_rng(seed)
@@ -159,48 +153,25 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
 
     for c in range(C):
         others = ref_cost.sum() - ref_cost[c]
-        best = {"f": np.inf, "x": None}
 
-        def objective(x, grad):
-            nonlocal n_evals
+        def cost_grad(x, need_grad, c=c):
             f, g = channel_cost_grad(system, basis, c, x)
-            if grad.size > 0:
-                grad[:] = g
-            n_evals += 1
             history.append(f + others)
             times.append(time.perf_counter() - t_start)
-            feasible = all(x[ps].sum() <= 1.0 + 1e-9 for ps in multi) and \
-                np.all(x >= -1e-12) and np.all(x <= 1.0 + 1e-12)
-            if feasible and f < best["f"]:
-                best["f"], best["x"] = f, np.array(x, dtype=float)
-            return f
+            return f, g
 
+        best = None
         for k in range(int(starts)):
             start = _project(x0[:, c], segs) if k == 0 else _random_start(rng, D, segs)
-            opt = nlopt.opt(getattr(nlopt, algorithm), D)
-            opt.set_lower_bounds(np.zeros(D))
-            opt.set_upper_bounds(np.ones(D))
-            opt.set_min_objective(objective)
-            for ps in multi:
-                def con(x, grad, ps=ps):
-                    if grad.size > 0:
-                        grad[:] = 0.0
-                        grad[ps] = 1.0
-                    return float(x[ps].sum() - 1.0)
-                opt.add_inequality_constraint(con, 1e-12)
-            opt.set_maxeval(int(max_eval))
-            opt.set_xtol_rel(float(xtol_rel))
-            opt.set_ftol_rel(1e-15)
-            try:
-                opt.optimize(start)
-            except Exception:   # nlopt's SWIG exceptions (roundoff etc.), empty messages: keep best
-                pass
-        if best["x"] is None:   # no feasible evaluation (should not happen): fall back to x0
-            best["x"] = _project(x0[:, c], segs)
-            best["f"] = channel_cost_grad(system, basis, c, best["x"])[0]
-        estimate[:, c] = np.clip(best["x"], 0.0, 1.0)
-        best_cost[c] = best["f"]
-        ref_cost[c] = best["f"]
+            run = minimize(cost_grad, start, lower=0.0, upper=1.0, inequality_groups=segs,
+                           algorithm=algorithm, max_eval=int(max_eval), xtol_rel=float(xtol_rel),
+                           ftol_rel=1e-15, constraint_tol=1e-12)
+            n_evals += run.n_eval
+            if best is None or run.f < best.f:
+                best = run
+        estimate[:, c] = np.clip(best.x, 0.0, 1.0)
+        best_cost[c] = best.f
+        ref_cost[c] = best.f
 
     return SolveResult(estimate=estimate, cost=best_cost, cost_history=history, eval_times_s=times,
                        n_evals=n_evals, solve_s=time.perf_counter() - t_start)
