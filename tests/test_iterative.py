@@ -121,9 +121,14 @@ def test_iterative_errors_unconstrained_algorithm(tmp_path):
 
 def test_iterative_errors_missing_lambertian_prior(tmp_path, monkeypatch):
     """init: lambertian_prior without that method registered names the fix."""
+    from framework import methods
+    registered = methods.get_method
+
     def unregistered(name):
-        raise ConfigError(f"method={name} is not a registered method")
-    monkeypatch.setattr("framework.methods.get_method", unregistered)
+        if name == "lambertian_prior":
+            raise ConfigError(f"method={name} is not a registered method")
+        return registered(name)
+    monkeypatch.setattr(methods, "get_method", unregistered)
     problem = tiny_problem(tmp_path / "s", budget=5)
     with pytest.raises(ConfigError, match="method.init=lambertian_prior"):
         run_iterative(problem, init="lambertian_prior")
