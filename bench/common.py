@@ -1,0 +1,77 @@
+"""Shared helpers: composing configs, choosing views, error statistics."""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def compose(overrides: list[str]):
+    """The Hydra config of ``framework/conf`` with ``overrides`` (as ``python -m framework.run``)."""
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_module
+
+    import framework.run  # noqa: F401  (registers the scene_label resolver)
+    with initialize_config_module("framework.conf", version_base=None):
+        return hydra_compose("config", overrides=list(overrides))
+
+
+def view_names(scene_name: str) -> list[str]:
+    """All camera names of a bundled scene, its default view first."""
+    from framework.scene import load_scene
+    from scenes import BUNDLED_DIR
+    cfg = compose([f"scene={scene_name}"])
+    names = [c.name for c in load_scene(Path(BUNDLED_DIR) / scene_name).cameras]
+    first = [v for v in cfg.scene.views if v in names]
+    return first + [n for n in names if n not in first]
+
+
+def views_override(scene_name: str, n: int) -> str:
+    """``views=...`` override for the first ``n`` views (default view first); ``n = 0``: all."""
+    names = view_names(scene_name)
+    if n <= 0 or n >= len(names):
+        return "views=all"
+    return "views=[" + ",".join(names[:n]) + "]"
+
+
+def seed_cache(src: Path, dst: Path) -> None:
+    """Copy the observed images (only them) of cache ``src`` into the fresh cache ``dst``."""
+    dst.mkdir(parents=True, exist_ok=True)
+    if (src / "observed").is_dir():
+        shutil.copytree(src / "observed", dst / "observed", dirs_exist_ok=True)
+
+
+def param_errors(results: dict, keys: set | None = None) -> dict[tuple, list[float]]:
+    """``(segment, kernel) -> [error per channel]`` of the observable parameters of a run.
+
+    Parameters
+    ----------
+    results : dict
+        A results dict (results.json).
+    keys : set of (str, str), optional
+        Only these parameters (e.g. the ones the symbolic run of the same views can observe).
+    """
+    out = {}
+    for p in results["parameters"]:
+        key = (p["segment"], p["kernel"])
+        if p.get("error") is None or p.get("observable") is False or (keys is not None and key not in keys):
+            continue
+        out[key] = [float(e) for e in p["error"] if e is not None]
+    return out
+
+
+def error_stats(results: dict, keys: set | None = None) -> tuple[float, float]:
+    """``(worst |error|, mean |error|)`` over observable parameters and channels (NaN if none)."""
+    errs = [abs(e) for v in param_errors(results, keys).values() for e in v]
+    if not errs:
+        return float("nan"), float("nan")
+    return float(max(errs)), float(np.mean(errs))
+
+
+def observable_keys(results: dict) -> set:
+    """The ``(segment, kernel)`` pairs a run reports as observable."""
+    return {(p["segment"], p["kernel"]) for p in results["parameters"]
+            if p.get("observable", True) and p.get("error") is not None}

@@ -1,0 +1,53 @@
+"""Benchmark sizes: the real benchmark and the ``--quick`` toy version."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class Sizes:
+    """Every size knob of the benchmark.
+
+    Attributes
+    ----------
+    name : str
+        ``default`` or ``quick``.
+    ratio_spps : tuple of int
+        Samples per pixel of the pass-vs-render comparison (section 1).
+    ratio_reps : int
+        Timed repetitions (median) after one warm-up.
+    mem_views : tuple of int
+        Numbers of views of the memory runs (section 2); 0 means all views.
+    mem_dask_views : int
+        Views of the ``executor=dask`` memory run (0: skipped).
+    mem_spp, mem_observe_spp : int
+        ``render.spp`` and ``observe.spp`` of the memory runs.
+    cmp_spp, cmp_observe_spp, cmp_budget : int
+        ``render.spp``, ``observe.spp``, ``budget.renders`` of the comparison (section 3).
+    cmp_budget_all : int
+        ``budget.renders`` of the iterative and differentiable runs on all views.
+    all_views : int
+        Views used as "all views" (0: every view of the scene).
+    extra : tuple of str
+        Overrides added to every in-process run.
+    """
+
+    name: str = "default"
+    ratio_spps: tuple = (16, 64)
+    ratio_reps: int = 3
+    mem_views: tuple = (1, 4, 0)
+    mem_dask_views: int = 4
+    mem_spp: int = 32
+    mem_observe_spp: int = 128
+    cmp_spp: int = 32
+    cmp_observe_spp: int = 256
+    cmp_budget: int = 200
+    cmp_budget_all: int = 60
+    all_views: int = 0
+    extra: tuple = field(default_factory=tuple)
+
+
+DEFAULT = Sizes()
+QUICK = Sizes(name="quick", ratio_spps=(4,), ratio_reps=1, mem_views=(1, 2), mem_dask_views=2,
+              mem_spp=4, mem_observe_spp=8, cmp_spp=4, cmp_observe_spp=16, cmp_budget=20,
+              cmp_budget_all=14, all_views=2, extra=("method.solver.starts=1",))
