@@ -42,7 +42,7 @@ class Sizes:
     cmp_spp: int = 32
     cmp_observe_spp: int = 256
     cmp_budget: int = 200
-    cmp_budget_all: int = 60
+    cmp_budget_all: int = 30
     all_views: int = 0
     extra: tuple = field(default_factory=tuple)
 

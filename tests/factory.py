@@ -50,3 +50,18 @@ def make_tiny_scene(root: Path, *, size: int = 16, channels: str = "rgb", n_view
     write_colmap(root / "sparse", [PinholeCamera(f"view_{i}.png", size, size, f, look_at(eyes[i], [0, 0, 0.8]))
                                    for i in range(n_views)])
     return root
+
+
+def small_copy(name: str, dest: Path, *, size: int, views: list[str]) -> Path:
+    """A copy of bundled scene ``name`` whose ``views`` are resampled to ``size`` x ``size`` pixels
+    (same pose and field of view), for tests that must stay <= 64x64."""
+    import shutil
+
+    from scenes import BUNDLED_DIR
+    from scenes.io import read_colmap
+    shutil.copytree(Path(BUNDLED_DIR) / name, dest)
+    shutil.rmtree(dest / "sparse")
+    cams = [c for c in read_colmap(Path(BUNDLED_DIR) / name / "sparse") if c.name in views]
+    write_colmap(dest / "sparse", [PinholeCamera(c.name, size, size, c.focal * size / c.width, c.cam_from_world)
+                                   for c in cams])
+    return dest

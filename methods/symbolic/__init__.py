@@ -37,6 +37,10 @@ class SymbolicMethod(Method):
     prob_floor : float in [0, 1], default 0.1
         Every kernel of a segment keeps at least this selection probability, so the polynomial
         is unbiased for every ρ, not only near the guess.
+    gram : ``cross`` | ``plain``, default ``cross``
+        ``cross`` splits the samples into two independent halves and builds G = ½(AᵀB + BᵀA):
+        unbiased, whereas ``plain`` G = AᵀA adds the coefficients' Monte Carlo covariance to G,
+        which shrinks the estimates at low spp (regression dilution).
     memory_mb : float > 0, default 512
         Memory for the coefficient tiles of the pass; sets the tile size.
     solver.algorithm, solver.starts, solver.max_eval, solver.xtol_rel
@@ -70,6 +74,7 @@ class SymbolicMethod(Method):
 
     def check(self):
         check_number(self.cfg, "prob_floor", 0.0, 1.0)
+        check_choice(self.cfg, "gram", ("cross", "plain"))
         check_number(self.cfg, "memory_mb", 0.0, lo_open=True)
         check_number(self.cfg.solver, "starts", 1, integer=True)
         check_choice(self.cfg.solver, "algorithm", ("LD_SLSQP", "LD_MMA", "LD_CCSAQ"))
@@ -86,7 +91,8 @@ class SymbolicMethod(Method):
             result = polynomial_pass(sub, params, x0, basis, spp=int(settings.render.spp),
                                      seed=int(problem.seed) + 7777 * renders,
                                      prob_floor=float(self.cfg.prob_floor), memory_mb=float(self.cfg.memory_mb),
-                                     cache=Cache(settings.cache.dir), executor=executor)
+                                     cache=Cache(settings.cache.dir), executor=executor,
+                                     cross_gram=self.cfg.get("gram", "cross") == "cross")
         fit = self._solve(result.system, basis, params, x0, problem)
         estimate = fit["estimate"]
         filled = np.nan_to_num(estimate)           # unobservable weights: their monomials are all 0

@@ -46,7 +46,8 @@ def tile_pixels_for(memory_mb: float, n_monomials: int, n_channels: int) -> int:
 
 
 def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBasis, *, spp: int,
-                    seed: int, prob_floor: float, memory_mb: float, cache: Cache, executor=None) -> PassResult:
+                    seed: int, prob_floor: float, memory_mb: float, cache: Cache, executor=None,
+                    cross_gram: bool = True) -> PassResult:
     """Gram systems and coefficients of every view of ``problem`` (one render in total).
 
     Parameters
@@ -59,6 +60,8 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
     basis : MonomialBasis
     spp, seed, prob_floor, memory_mb
         Pass settings; view ``i`` uses the Mitsuba seed ``inversion_seed(seed, i)``.
+    cross_gram : bool
+        Build G from two independent half-sample estimates (unbiased by Monte Carlo noise).
     cache : Cache
         Per-view results are read from and written to it by this (driver) process.
     executor : framework.executor.SerialExecutor or DaskExecutor, optional
@@ -76,7 +79,7 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
     C = problem.n_channels
     systems, coeffs, cached, todo = {}, {}, [], []
     for i, cam in enumerate(problem.cameras):
-        key = _key(problem, cam, parameters, guesses, spp, seed, prob_floor, basis, view=i)
+        key = _key(problem, cam, parameters, guesses, spp, seed, prob_floor, basis, view=i) | {"cross_gram": cross_gram}
         hit = cache.load("polynomial_pass", key)
         if hit is None:
             todo.append((i, cam, key))
@@ -87,7 +90,8 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
     rendered_total = None
     if todo:
         tasks = [view_task(problem, parameters, guesses, basis, i, spp=spp, seed=seed, prob_floor=prob_floor,
-                           tile_pixels=tile_pixels_for(memory_mb, basis.size, C)) for i, _, _ in todo]
+                           tile_pixels=tile_pixels_for(memory_mb, basis.size, C), cross_gram=cross_gram)
+                 for i, _, _ in todo]
         variant = str(problem.settings.get("variant_resolved") or problem.settings.get("variant", "auto"))
         handles = executor.map(render_view_task, tasks, variant=variant, threads=executor.threads_per_worker)
         rendered_total = executor.tree_reduce(handles, sum_systems)
@@ -103,14 +107,14 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
 
 
 def view_task(problem, parameters, guesses, basis, i: int, *, spp: int, seed: int, prob_floor: float,
-              tile_pixels: int) -> dict:
+              tile_pixels: int, cross_gram: bool = True) -> dict:
     """Everything a worker needs to render view ``i``: plain picklable data (numpy Scene model)."""
     cam = problem.cameras[i]
     return {"scene": problem.scene, "cameras": list(problem.cameras), "view": int(i),
             "parameters": list(parameters), "guesses": np.asarray(guesses, float),
             "n_params": basis.n_params, "max_bounces": basis.max_degree, "spp": int(spp),
             "seed": inversion_seed(seed, i), "prob_floor": float(prob_floor), "tile_pixels": int(tile_pixels),
-            "observed": np.asarray(problem.observed[cam.name])}
+            "observed": np.asarray(problem.observed[cam.name]), "cross_gram": bool(cross_gram)}
 
 
 _WORKER_STATE: dict = {}    # per process: the last (MitsubaScene, integrator), reused across views
@@ -128,7 +132,8 @@ def render_view_task(task: dict, *, variant: str, threads: int | None = None
     ms, integrator = _scene_and_integrator(task, variant)
     basis = MonomialBasis(task["n_params"], task["max_bounces"])
     cam = task["cameras"][task["view"]]
-    return _render_view(integrator, ms, task["view"], cam, task["observed"], basis, task["spp"], task["seed"])
+    return _render_view(integrator, ms, task["view"], cam, task["observed"], basis, task["spp"], task["seed"],
+                        cross=task.get("cross_gram", True))
 
 
 def _scene_and_integrator(task: dict, variant: str):
@@ -160,8 +165,13 @@ def sum_systems(a, b) -> GramSystem:
     return as_system(a) + as_system(b)
 
 
-def _render_view(integrator, ms, i, cam, observed, basis, spp, seed):
-    """Tile by tile: accumulate the Gram system and keep sparse coefficients."""
+def _render_view(integrator, ms, i, cam, observed, basis, spp, seed, cross=True):
+    """Tile by tile: accumulate the Gram system and keep sparse coefficients.
+
+    ``cross``: the samples are split into two independent halves (seeds ``seed`` and
+    ``seed ^ 2**30``, both even) whose cross product makes G free of Monte Carlo noise
+    (:meth:`GramSystem.accumulate`); the kept coefficients are the mean of all samples.
+    """
     from tqdm import tqdm
     C = observed.shape[-1]
     n_pix = cam.width * cam.height
@@ -171,8 +181,15 @@ def _render_view(integrator, ms, i, cam, observed, basis, spp, seed):
     tiles = range(0, n_pix, integrator.tile_pixels)
     for start in tqdm(tiles, desc=f"polynomial pass {cam.name}", unit="tile", leave=False):
         stop = min(n_pix, start + integrator.tile_pixels)
-        gamma = integrator.coefficients(ms.scene, i, spp=spp, seed=seed, pixel_range=(start, stop))
-        system.accumulate(gamma, y[start:stop])
+        if cross and spp >= 2:
+            half = spp // 2
+            a = integrator.coefficients(ms.scene, i, spp=half, seed=seed, pixel_range=(start, stop))
+            b = integrator.coefficients(ms.scene, i, spp=spp - half, seed=seed ^ 2**30, pixel_range=(start, stop))
+            system.accumulate(a, y[start:stop], coeffs_b=b)
+            gamma = (half * a + (spp - half) * b) / spp
+        else:
+            gamma = integrator.coefficients(ms.scene, i, spp=spp, seed=seed, pixel_range=(start, stop))
+            system.accumulate(gamma, y[start:stop])
         for c in range(C):
             parts[c].append(sp.csr_matrix(gamma[:, :, c]))
     return system, [sp.vstack(p, format="csr") for p in parts]

@@ -1,0 +1,74 @@
+"""Section 3: method comparison at equal spp, in this process, via ``run_experiment``.
+
+Observations are rendered once per (scene, views) into a shared observation cache and copied
+into each run's fresh cache, so every run reads its observed images from that cache (they
+are not part of its time) and computes everything else afresh.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from bench.common import compose, seed_cache, views_override
+
+#: (label, method overrides, iterative-type: budget reduced on all views)
+METHODS = [
+    ("symbolic", ["method=symbolic"], False),
+    ("lambertian_prior", ["method=lambertian_prior"], False),
+    ("symbolic+init=lambertian_prior", ["method=symbolic", "method.init=lambertian_prior"], False),
+    ("iterative (noise fresh)", ["method=iterative", "method.noise=fresh"], True),
+    ("iterative (noise fixed)", ["method=iterative", "method.noise=fixed"], True),
+    ("differentiable", ["method=differentiable"], True),
+]
+
+
+def _extra(sizes, method_overrides: list[str]) -> list[str]:
+    """``sizes.extra`` restricted to what the method's config has (solver.* only for nlopt-solve ones)."""
+    solve = any(o in ("method=symbolic", "method=lambertian_prior") for o in method_overrides)
+    return [o for o in sizes.extra if solve or not o.startswith("method.solver")]
+
+
+def run_one(sizes, root: Path, label: str, scene: str, n_views: int, overrides: list[str], budget: int,
+            log=print) -> dict:
+    """One in-process run into ``root/<scene>/<views>/<label>``; returns a row dict with its results."""
+    from framework.experiment import run_experiment
+    vtag = "single" if n_views == 1 else "all"
+    slug = label.replace(" ", "_").replace("(", "").replace(")", "").replace("+", "_").replace("=", "-")
+    run_dir, cache = root / scene / vtag / slug, root / "cache" / scene / vtag / slug
+    seed_cache(root / "cache" / "observed" / scene / vtag, cache)
+    views = "views=default" if n_views == 1 else views_override(scene, sizes.all_views)
+    cfg = compose([*overrides, f"scene={scene}", views, f"render.spp={sizes.cmp_spp}",
+                   f"observe.spp={sizes.cmp_observe_spp}", f"budget.renders={budget}", "report=false",
+                   f"cache.dir={cache}", *_extra(sizes, overrides)])
+    t = time.perf_counter()
+    res = run_experiment(cfg, run_dir)
+    wall = time.perf_counter() - t
+    log(f"[compare] {scene} {vtag} {label}: {res['timings_s']['total']:.1f} s, {res['renders']} renders")
+    return {"label": label, "scene": scene, "views": vtag, "n_views": len(res["settings"]["views"]),
+            "budget": budget, "wall_s": wall, "run_dir": str(run_dir), "results": res}
+
+
+def warm_observations(sizes, root: Path, scene: str, n_views: int) -> float:
+    """Render the observations of ``scene`` once into the shared observation cache; seconds spent."""
+    from framework.cache import Cache
+    from framework.observe import observed_images
+    from bench.render_ratio import build_problem
+    vtag = "single" if n_views == 1 else "all"
+    views = "views=default" if n_views == 1 else views_override(scene, sizes.all_views)
+    cfg = compose([f"scene={scene}", views, f"observe.spp={sizes.cmp_observe_spp}",
+                   f"cache.dir={root / 'cache' / 'observed' / scene / vtag}"])
+    t = time.perf_counter()
+    problem, _ = build_problem(cfg)
+    observed_images(problem.scene, problem.cameras, cfg, cache=Cache(cfg.cache.dir))
+    return time.perf_counter() - t
+
+
+def run(sizes, root: Path, log=print) -> list[dict]:
+    """All comparison runs on urban_canyon: single view then all views."""
+    rows = []
+    for n_views in (1, 0):
+        warm_observations(sizes, root, "urban_canyon", n_views)
+        for label, overrides, reduced in METHODS:
+            budget = sizes.cmp_budget_all if (reduced and n_views != 1) else sizes.cmp_budget
+            rows.append(run_one(sizes, root, label, "urban_canyon", n_views, overrides, budget, log))
+    return rows

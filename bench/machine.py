@@ -1,0 +1,52 @@
+"""Description of the machine and software the benchmark ran on."""
+from __future__ import annotations
+
+import datetime
+import os
+import platform
+import subprocess
+
+from bench.common import ROOT
+
+
+def _cpuinfo_model() -> str:
+    try:
+        for line in open("/proc/cpuinfo", encoding="utf-8"):
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def _mem_gib() -> float:
+    try:
+        for line in open("/proc/meminfo", encoding="utf-8"):
+            if line.startswith("MemTotal"):
+                return int(line.split()[1]) / 2**20
+    except OSError:
+        pass
+    return float("nan")
+
+
+def _git() -> str:
+    try:
+        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                             text=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
+                               capture_output=True, text=True).stdout.strip()
+        return rev + (" (with uncommitted changes)" if dirty else "")
+    except OSError:
+        return "unknown"
+
+
+def describe() -> dict:
+    """CPU model, cores, RAM, Mitsuba variant and versions, Python, date, git revision."""
+    from framework import backend
+    variant = backend.set_variant("auto", channels=("R", "G", "B"))
+    import drjit as dr
+    import mitsuba as mi
+    return {"cpu": _cpuinfo_model(), "cores": os.cpu_count(), "ram_gib": _mem_gib(),
+            "variant": f"{variant} (rgb scenes), llvm_ad_mono (mono scenes)", "mitsuba": mi.__version__,
+            "drjit": dr.__version__, "python": platform.python_version(), "platform": platform.platform(),
+            "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"), "git": _git()}

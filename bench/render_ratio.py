@@ -1,0 +1,98 @@
+"""Section 1: one polynomial (symbolic) pass vs a plain Mitsuba ``path`` render of the same view.
+
+Both at the same spp on the same 200x200 view; ``path`` with ``max_depth = N_max + 1`` and the
+box filter (as the pass). The pass is timed as the method runs it
+(:func:`methods.symbolic.polynomial_pass.render_view_task`: coefficients, Gram accumulation,
+sparse coefficients), and the solve (:meth:`SymbolicMethod._solve`) on its Gram system.
+"""
+from __future__ import annotations
+
+import statistics
+import time
+
+import numpy as np
+
+from bench.common import compose
+
+
+def build_problem(cfg):
+    """``(problem, method)`` as :func:`framework.experiment.run_experiment` builds them."""
+    from framework import backend
+    from framework.cache import Cache
+    from framework.experiment import scene_dir, select_cameras
+    from framework.methods import Problem, get_method
+    from framework.observe import observed_images
+    from framework.scene import load_scene
+    from omegaconf import open_dict
+    scene = load_scene(scene_dir(cfg))
+    with open_dict(cfg):
+        cfg.variant_resolved = backend.set_variant(str(cfg.variant), channels=scene.channels)
+    cameras = select_cameras(scene, cfg)
+    observed, _ = observed_images(scene, cameras, cfg, cache=Cache(cfg.cache.dir))
+    problem = Problem(scene=scene, cameras=cameras, observed=observed, parameters=scene.parameters(),
+                      settings=cfg, seed=int(cfg.seed))
+    return problem, get_method(str(cfg.method.name))(cfg.method)
+
+
+def _timed(fn, reps: int) -> tuple[float, object]:
+    """Median seconds of ``reps`` calls of ``fn`` after one warm-up call, and the last output."""
+    out = fn()
+    times = []
+    for _ in range(reps):
+        t = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t)
+    return statistics.median(times), out
+
+
+def _pass_fn(problem, method, spp: int):
+    """A no-argument function running the method's polynomial pass of view 0 at ``spp``."""
+    from methods._common import initial_guess
+    from methods.symbolic.basis import MonomialBasis
+    from methods.symbolic.polynomial_pass import render_view_task, tile_pixels_for, view_task
+    params = problem.parameters
+    x0, _ = initial_guess(method.cfg, problem)
+    basis = MonomialBasis(len(params), int(problem.settings.render.max_bounces))
+    tile = tile_pixels_for(float(method.cfg.memory_mb), basis.size, problem.n_channels)
+    task = view_task(problem, params, x0, basis, 0, spp=spp, seed=int(problem.seed), prob_floor=float(
+        method.cfg.prob_floor), tile_pixels=tile)
+    variant = str(problem.settings.variant_resolved)
+    return (lambda: render_view_task(task, variant=variant)), basis, x0
+
+
+def _render_fn(problem, spp: int):
+    """A no-argument function rendering view 0 with ``path`` (max_depth N_max + 1, box filter)."""
+    from framework.mitsuba_scene import MitsubaScene, max_depth_for
+    depth = max_depth_for(int(problem.settings.render.max_bounces))
+    ms = MitsubaScene(problem.scene, problem.cameras[:1], spp=spp, integrator={"type": "path", "max_depth": depth})
+    return lambda: ms.render(0, spp=spp, seed=2)
+
+
+def measure_spp(problem, method, spp: int, reps: int) -> dict:
+    """Pass, render and solve times at one spp; returns a row dict."""
+    pass_fn, basis, x0 = _pass_fn(problem, method, spp)
+    t_pass, (system, _) = _timed(pass_fn, reps)
+    t_render, _ = _timed(_render_fn(problem, spp), reps)
+    t = time.perf_counter()
+    method._solve(system, basis, problem.parameters, x0, problem)
+    t_solve = time.perf_counter() - t
+    return {"spp": spp, "pass_s": t_pass, "render_s": t_render, "ratio": t_pass / t_render,
+            "solve_s": t_solve, "solve_share": t_solve / t_render, "solve_share_pass": t_solve / t_pass,
+            "n_monomials": basis.size, "n_params": len(problem.parameters)}
+
+
+def run(sizes, cache_dir, log=print) -> dict:
+    """Section 1 on urban_canyon's default view; returns ``{"rows": [...], "view": ..., ...}``."""
+    cfg = compose(["scene=urban_canyon", f"observe.spp={sizes.cmp_observe_spp}", f"cache.dir={cache_dir}",
+                   *sizes.extra])
+    problem, method = build_problem(cfg)
+    rows = []
+    for spp in sizes.ratio_spps:
+        rows.append(measure_spp(problem, method, spp, sizes.ratio_reps))
+        log(f"[ratio] spp {spp}: pass {rows[-1]['pass_s']:.2f} s, render {rows[-1]['render_s']:.3f} s, "
+            f"ratio {rows[-1]['ratio']:.1f}")
+    cam = problem.cameras[0]
+    return {"rows": rows, "view": cam.name, "size": f"{cam.width}x{cam.height}",
+            "max_bounces": int(cfg.render.max_bounces), "reps": sizes.ratio_reps,
+            "segments": len(problem.scene.segments), "kernels": sorted({p.kernel for p in problem.parameters}),
+            "channels": list(problem.scene.channels), "observe_spp": sizes.cmp_observe_spp}
