@@ -50,6 +50,8 @@ def observed_images(scene: Scene, cameras: list[Camera], settings, *, cache: Cac
             out[c.name] = hit["image"]
         else:
             todo.append(c)
+    if not todo:
+        return out, 0.0
     t0 = time.perf_counter()
     if todo:
         log.info("rendering %d observed view(s) at %d spp", len(todo), obs.spp)

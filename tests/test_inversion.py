@@ -1,0 +1,134 @@
+"""End-to-end inversions on bundled scenes (issue: symbolic inversion; baselines).
+
+Observations use ``observe.max_depth=4`` so that they hold the same N_max = 3 reflections as
+the inversions' own rendering: the tolerances below then measure estimator noise and
+ill-posedness, not the truncation of longer paths (see README).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hydra import compose, initialize_config_module
+
+import framework.run  # noqa: F401  (scene_label resolver)
+from factory import make_tiny_scene, small_copy
+from framework.experiment import run_experiment
+
+MATCHED = ["observe.max_depth=4", "report=false"]
+
+
+def _run(tmp_path, name, overrides):
+    with initialize_config_module("framework.conf", version_base=None):
+        cfg = compose("config", overrides=[f"cache.dir={tmp_path / 'cache'}", *MATCHED, *overrides])
+    return run_experiment(cfg, tmp_path / name)
+
+
+def _errors(results, segments=None):
+    return np.array([abs(e) for p in results["parameters"] if p["error"] is not None
+                     and (segments is None or p["segment"] in segments) for e in p["error"]])
+
+
+@pytest.fixture(scope="module")
+def small_canyon(tmp_path_factory):
+    """urban_canyon at 48x48: two street views (lit and shaded facade) and the aerial view."""
+    return small_copy("urban_canyon", tmp_path_factory.mktemp("uc") / "urban_canyon", size=48,
+                      views=["street_002.png", "street_003.png", "aerial_000.png"])
+
+
+def test_symbolic_recovers_cornell_box(tmp_path):
+    """64x64, 64 spp, 512-spp observations: measured max |error| 0.006; tolerance 0.02.
+    Regression values (this seed) are stored to 1e-4."""
+    r = _run(tmp_path, "a", ["method=symbolic", "scene=cornell_box", "render.spp=64", "observe.spp=512"])
+    assert r["renders"] == 1
+    assert _errors(r).max() < 0.02
+    white = next(p for p in r["parameters"] if p["segment"] == "white")
+    np.testing.assert_allclose(white["estimate"], [0.8879, 0.7019, 0.6688], atol=2e-4)
+    again = _run(tmp_path, "b", ["method=symbolic", "scene=cornell_box", "render.spp=64", "observe.spp=512",
+                                 f"cache.dir={tmp_path / 'other-cache'}"])
+    assert [p["estimate"] for p in again["parameters"]] == [p["estimate"] for p in r["parameters"]]
+
+
+def test_symbolic_recovers_small_urban_canyon(tmp_path, small_canyon):
+    """Kernel setting (diffuse + specular, 12 parameters), 3 views of 48x48, 64 spp.
+
+    Measured: |error| <= 0.011 for the diffuse weights of wall, roof, asphalt and balcony and
+    <= 0.04 for the window's specular weight; the small dark awning is worst (0.08).
+    Tolerances: 0.02, 0.06 and 0.12.
+    """
+    r = _run(tmp_path, "k", ["method=symbolic", f"scene.dir={small_canyon}", "views=all", "render.spp=64",
+                             "observe.spp=512"])
+    big = [p for p in r["parameters"] if p["kernel"] == "diffuse" and p["segment"] in ("wall", "roof", "asphalt", "balcony")]
+    assert max(abs(e) for p in big for e in p["error"]) < 0.02
+    window_s = next(p for p in r["parameters"] if p["segment"] == "window" and p["kernel"] == "specular")
+    assert max(abs(e) for e in window_s["error"]) < 0.06
+    assert _errors(r).max() < 0.12
+
+
+def test_lambertian_prior_on_small_urban_canyon(tmp_path, small_canyon):
+    """The paper's Table 1 setting: segments without a specular part are recovered (measured
+    <= 0.008, tolerance 0.02); the window, 0.72 specular, is not (the paper's -0.67)."""
+    r = _run(tmp_path, "l", ["method=lambertian_prior", f"scene.dir={small_canyon}", "views=all",
+                             "render.spp=64", "observe.spp=512"])
+    assert all(p["kernel"] == "diffuse" for p in r["parameters"])
+    assert _errors(r, {"roof", "balcony", "asphalt"}).max() < 0.02
+    assert _errors(r, {"window"}).max() > 0.1
+
+
+def test_observations_rendered_once_and_cache_rebuilt_when_corrupt(tmp_path):
+    """A second run reuses the observed images and the polynomial pass; a corrupt cache entry
+    is detected (checksum) and rebuilt, never trusted."""
+    scene = make_tiny_scene(tmp_path / "tiny")
+    args = ["method=symbolic", f"scene.dir={scene}", "render.spp=8", "observe.spp=32"]
+    first = _run(tmp_path, "1", args)
+    assert first["timings_s"]["observe"] > 0 and first["views_from_cache"] == []
+    second = _run(tmp_path, "2", args)
+    assert second["timings_s"]["observe"] == 0.0
+    assert second["views_from_cache"] == ["view_0.png", "view_1.png"]
+    entries = sorted((tmp_path / "cache" / "polynomial_pass").glob("*.npz"))
+    data = bytearray(entries[0].read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    entries[0].write_bytes(bytes(data))
+    third = _run(tmp_path, "3", args)
+    assert len(third["views_from_cache"]) == 1
+    assert [p["estimate"] for p in third["parameters"]] == [p["estimate"] for p in first["parameters"]]
+
+
+@pytest.mark.parametrize("method,extra,tol", [
+    ("iterative", ["method.noise=fixed", "budget.renders=120"], 0.05),
+    ("differentiable", ["budget.renders=120", "render.spp=16"], 0.05),
+    ("lambertian_prior", [], 0.02),
+])
+def test_baselines_recover_cornell_box(tmp_path, method, extra, tol):
+    """Each baseline within its own tolerance (iterative: forward differences of step 0.02
+    shift the optimum by ~step/2; differentiable: Adam noise), within its render budget."""
+    r = _run(tmp_path, method, [f"method={method}", "scene=cornell_box", "render.spp=32", "observe.spp=256",
+                                *extra])
+    assert r["renders"] <= 120
+    assert _errors(r).max() < tol, _errors(r)
+
+
+def test_iterative_fresh_noise_spreads_more_than_symbolic(tmp_path):
+    """The paper's claim (section 4.2): re-rendering with fresh noise at every evaluation makes
+    the plain algorithm's estimates spread across seeds more than the symbolic method's.
+    3 seeds on the tiny diffuse scene at 4 spp; asserted as a ratio of standard deviations > 1.5."""
+    scene = make_tiny_scene(tmp_path / "tiny", kernels=("diffuse",))
+    spread = {}
+    for method, extra in (("iterative", ["method.noise=fresh", "budget.renders=40"]), ("symbolic", [])):
+        runs = [_run(tmp_path, f"{method}{s}", [f"method={method}", f"scene.dir={scene}", f"seed={s}",
+                                               "render.spp=4", "observe.spp=256", *extra]) for s in range(3)]
+        est = np.array([[p["estimate"] for p in r["parameters"]] for r in runs])
+        spread[method] = est.std(axis=0).mean()
+    assert spread["iterative"] > 1.5 * spread["symbolic"], spread
+
+
+def test_lambertian_prior_init_is_no_worse_than_flat_guess(tmp_path, small_canyon):
+    """method.init=lambertian_prior gives the kernel inversion at least the accuracy of a flat
+    0.5 guess (mean |error| within 0.005), in no more solver evaluations."""
+    base = ["method=symbolic", f"scene.dir={small_canyon}", "views=all", "render.spp=64", "observe.spp=256"]
+    flat = _run(tmp_path, "flat", base)
+    prior = _run(tmp_path, "prior", [*base, "method.init=lambertian_prior"])
+    assert prior["renders"] == 2
+    assert _errors(prior).mean() <= _errors(flat).mean() + 0.005
+    assert prior["solver_evaluations"] <= flat["solver_evaluations"]
