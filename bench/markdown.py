@@ -119,7 +119,7 @@ def section_compare(rows: list[dict], sizes, report_path) -> list[str]:
         base = next(r for r in sub if r["label"] == "symbolic")
         keys = observable_keys(base["results"])
         lines += [f"### {'Single view (default)' if vtag == 'single' else 'All views'}", ""]
-        lines += table(["method", "views", "budget", "total (s)", "renders", "worst |err|", "mean |err|",
+        lines += table(["method", "views", "budget", "total (s)", "renders", "worst abs. error", "mean abs. error",
                         "time / symbolic"], [_cmp_row(r, base if r is not base else None, keys) for r in sub])
         lines += [""] + _speedup_verdicts(sub, keys) + [""]
     return lines
@@ -167,7 +167,7 @@ def _target_summary(rows: list[dict]) -> list[str]:
             worst = max(abs(e) for e in errs)
             out.append([r["scene"], f"{seg}/{kernel}", f(worst), TARGET.get(kernel, "-"),
                         "yes" if worst <= TARGET.get(kernel, 0) else "no"])
-    return table(["scene", "parameter", "worst |error| over channels", "target", "met"], out)
+    return table(["scene", "parameter", "worst abs. error over channels", "target", "met"], out)
 
 
 def section_paper(mono: list[dict], cmp_rows: list[dict]) -> list[str]:
