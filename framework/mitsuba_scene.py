@@ -115,7 +115,6 @@ class MitsubaScene:
 
     def set_weights(self, rho: np.ndarray, parameters) -> None:
         """Write ρ (P, C) of ``parameters`` into every mesh's BSDF; kernels not listed get 0."""
-        import mitsuba as mi
         rho = np.asarray(rho, dtype=float)
         value = {(p.segment, p.kernel): rho[p.index] for p in parameters}
         for i, m in enumerate(self.model.meshes):

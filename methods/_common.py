@@ -207,3 +207,17 @@ def max_depth(problem) -> int:
     """Mitsuba ``max_depth`` for the run's ``render.max_bounces`` (N_max + 1)."""
     from framework.mitsuba_scene import max_depth_for
     return max_depth_for(int(problem.settings.render.max_bounces))
+
+
+def loop_result(problem, ledger: RenderLedger, *, started: float, rho: np.ndarray, costs: list[float],
+                times: list[float], reconstructions: list[np.ndarray], extras: dict):
+    """The :class:`~framework.methods.MethodResult` of a render-in-the-loop method: Mitsuba time
+    is ``render``, the rest of the wall time since ``started`` is ``solve``."""
+    from framework.methods import MethodResult
+    total = time.perf_counter() - started
+    return MethodResult(
+        estimate=rho, renders=ledger.used,
+        timings_s={"render": ledger.render_s, "solve": total - ledger.render_s},
+        cost_history=costs, cost_times_s=times,
+        reconstructions={c.name: img for c, img in zip(problem.cameras, reconstructions)},
+        extras=extras)

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 
 from scenes import geometry as g
 from scenes.cameras import focal_from_fov, look_at

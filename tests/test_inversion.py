@@ -6,7 +6,6 @@ ill-posedness, not the truncation of longer paths (see README).
 """
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pytest

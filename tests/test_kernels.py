@@ -46,7 +46,6 @@ def test_forward_bsdf_white_furnace_albedo():
 
     Monte Carlo over 2^18 BSDF samples; tolerance 5 standard errors of the sample mean.
     """
-    import drjit as dr
     import mitsuba as mi
     b = _bsdf(["diffuse", "specular"], RHO)
     n = 1 << 18

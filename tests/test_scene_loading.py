@@ -33,7 +33,6 @@ def test_segments_parameters_references(tiny_scene):
 def test_colmap_point_lies_on_mitsuba_ray(tiny_scene):
     """A world point projected by pycolmap's camera model lies on the Mitsuba sensor ray
     through that pixel position (distance < 1e-4 m at ~8 m, i.e. far below a pixel)."""
-    import drjit as dr
     import mitsuba as mi
     import pycolmap
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.gram import GramSystem

@@ -79,12 +79,8 @@ class DifferentiableMethod(Method):
             recon = fit.final_render(rho)
         finally:
             ledger.close()
-        total = time.perf_counter() - t0
-        return MethodResult(
-            estimate=rho, renders=ledger.used,
-            timings_s={"render": ledger.render_s, "solve": total - ledger.render_s},
-            cost_history=fit.costs, cost_times_s=fit.times,
-            reconstructions={c.name: img for c, img in zip(problem.cameras, recon)},
+        return C.loop_result(
+            problem, ledger, started=t0, rho=rho, costs=fit.costs, times=fit.times, reconstructions=recon,
             extras={"iterations": len(fit.costs), "lr": opts["lr"], "spp": opts["spp"],
                     "spp_grad": opts["spp_grad"], "projection": "clip + simplex face",
                     "zero_gradient": frozen})

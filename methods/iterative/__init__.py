@@ -83,12 +83,9 @@ class IterativeMethod(Method):
             recon = objective.final_render(rho)
         finally:
             ledger.close()
-        total = time.perf_counter() - t0
-        return MethodResult(
-            estimate=rho, renders=ledger.used,
-            timings_s={"render": ledger.render_s, "solve": total - ledger.render_s},
-            cost_history=objective.costs, cost_times_s=objective.times,
-            reconstructions={c.name: img for c, img in zip(problem.cameras, recon)},
+        return C.loop_result(
+            problem, ledger, started=t0, rho=rho, costs=objective.costs, times=objective.times,
+            reconstructions=recon,
             extras={"status": status, "evaluations": len(objective.costs),
                     "gradient_evaluations": objective.n_grad, "renders_per_gradient": objective.grad_renders,
                     "fd": opts["fd"], "step": opts["step"], "noise": opts["noise"]})
