@@ -11,7 +11,6 @@ import framework.backend
 
 framework.backend.set_variant("llvm_ad_rgb")
 
-import drjit as dr  # noqa: E402
 import mitsuba as mi  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
