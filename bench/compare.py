@@ -63,12 +63,26 @@ def warm_observations(sizes, root: Path, scene: str, n_views: int) -> float:
     return time.perf_counter() - t
 
 
+#: runs that raised: ``(scene, views, label, repr of the exception)``, listed in BENCHMARKS.md
+FAILED: list[tuple] = []
+
+
+def try_one(*args, log=print) -> dict | None:
+    """:func:`run_one`, or None (recorded in :data:`FAILED`) if the run raises."""
+    try:
+        return run_one(*args, log=log)
+    except Exception as exc:  # one broken method must not lose the other measurements
+        FAILED.append((args[3], "single" if args[4] == 1 else "all", args[2], repr(exc)[:300]))
+        log(f"[compare] FAILED {FAILED[-1]}")
+        return None
+
+
 def run(sizes, root: Path, log=print) -> list[dict]:
-    """All comparison runs on urban_canyon: single view then all views."""
+    """All comparison runs on urban_canyon: single view then all views (failed runs left out)."""
     rows = []
     for n_views in (1, 0):
         warm_observations(sizes, root, "urban_canyon", n_views)
         for label, overrides, reduced in METHODS:
             budget = sizes.cmp_budget_all if (reduced and n_views != 1) else sizes.cmp_budget
-            rows.append(run_one(sizes, root, label, "urban_canyon", n_views, overrides, budget, log))
-    return rows
+            rows.append(try_one(sizes, root, label, "urban_canyon", n_views, overrides, budget, log=log))
+    return [r for r in rows if r is not None]

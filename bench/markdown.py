@@ -122,7 +122,10 @@ def section_compare(rows: list[dict], sizes, report_path) -> list[str]:
         lines += table(["method", "views", "budget", "total (s)", "renders", "worst abs. error", "mean abs. error",
                         "time / symbolic"], [_cmp_row(r, base if r is not base else None, keys) for r in sub])
         lines += [""] + _speedup_verdicts(sub, keys) + [""]
-    return lines
+    from bench.compare import FAILED
+    for scene, vtag, label, err in FAILED:
+        lines.append(f"- FAILED: {scene} {vtag} {label}: `{err}` (no numbers)")
+    return lines + ([""] if FAILED else [])
 
 
 def _estimate(res: dict, seg: str, kernel: str):
@@ -165,9 +168,9 @@ def _target_summary(rows: list[dict]) -> list[str]:
             continue
         for (seg, kernel), errs in sorted(param_errors(r["results"]).items()):
             worst = max(abs(e) for e in errs)
-            out.append([r["scene"], f"{seg}/{kernel}", f(worst), TARGET.get(kernel, "-"),
+            out.append([r["scene"], r["label"], f"{seg}/{kernel}", f(worst), TARGET.get(kernel, "-"),
                         "yes" if worst <= TARGET.get(kernel, 0) else "no"])
-    return table(["scene", "parameter", "worst abs. error over channels", "target", "met"], out)
+    return table(["scene", "method", "parameter", "worst abs. error over channels", "target", "met"], out)
 
 
 def section_paper(mono: list[dict], cmp_rows: list[dict]) -> list[str]:
