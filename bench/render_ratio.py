@@ -60,11 +60,13 @@ def _pass_fn(problem, method, spp: int):
     return (lambda: render_view_task(task, variant=variant)), basis, x0
 
 
-def _render_fn(problem, spp: int):
-    """A no-argument function rendering view 0 with ``path`` (max_depth N_max + 1, box filter)."""
+def _render_fn(problem, spp: int, rho):
+    """A no-argument function rendering view 0 with ``path`` (max_depth N_max + 1, box filter)
+    at the weights ``rho`` (the pass's guesses: a render of the iterative method's loop)."""
     from framework.mitsuba_scene import MitsubaScene, max_depth_for
     depth = max_depth_for(int(problem.settings.render.max_bounces))
     ms = MitsubaScene(problem.scene, problem.cameras[:1], spp=spp, integrator={"type": "path", "max_depth": depth})
+    ms.set_weights(rho, problem.parameters)    # weights start at 0: a black scene renders too fast
     return lambda: ms.render(0, spp=spp, seed=2)
 
 
@@ -72,7 +74,7 @@ def measure_spp(problem, method, spp: int, reps: int) -> dict:
     """Pass, render and solve times at one spp; returns a row dict."""
     pass_fn, basis, x0 = _pass_fn(problem, method, spp)
     t_pass, (system, _) = _timed(pass_fn, reps)
-    t_render, _ = _timed(_render_fn(problem, spp), reps)
+    t_render, _ = _timed(_render_fn(problem, spp, x0), reps)
     t = time.perf_counter()
     method._solve(system, basis, problem.parameters, x0, problem)
     t_solve = time.perf_counter() - t

@@ -91,6 +91,10 @@ class MitsubaScene:
         Samples per pixel of each sensor's sampler.
     integrator : dict, optional
         Mitsuba integrator dict (default ``path`` with ``max_depth=-1``).
+
+    Notes
+    -----
+    Every kernel weight starts at 0 (a black scene): call :meth:`set_weights` before rendering.
     """
 
     def __init__(self, scene: Scene, cameras: list[Camera], *, spp: int, integrator: dict | None = None):

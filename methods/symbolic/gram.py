@@ -93,17 +93,24 @@ class GramSystem:
                 raise ValueError(f"coeffs_b shape {coeffs_b.shape} does not match coeffs {coeffs.shape}")
             if mask is not None:
                 coeffs_b = coeffs_b[mask]
-        for c in range(C):
-            A = sp.csr_matrix(np.asarray(coeffs[:, :, c], dtype=np.float64))
+        as_csr = lambda g: [sp.csr_matrix(np.asarray(g[:, :, c], dtype=np.float64)) for c in range(C)]
+        return self.accumulate_sparse(as_csr(coeffs), observed, as_csr(coeffs_b) if coeffs_b is not None else None)
+
+    def accumulate_sparse(self, A: list, observed: np.ndarray, B: list | None = None) -> "GramSystem":
+        """:meth:`accumulate` for coefficients given as one sparse ``(n, N_e)`` matrix per channel
+        (``A``, and the independent half ``B``), as :meth:`PolynomialPathIntegrator.coefficients_sparse`
+        returns them."""
+        observed = np.asarray(observed, dtype=np.float64).reshape(A[0].shape[0], -1)
+        n = A[0].shape[0]
+        for c in range(self.n_channels):
             y = observed[:, c]
-            if coeffs_b is None:
-                self.G[c] += (A.T @ A).toarray()
-                self.b[c] += A.T @ y
+            if B is None:
+                self.G[c] += (A[c].T @ A[c]).toarray()
+                self.b[c] += A[c].T @ y
             else:
-                B = sp.csr_matrix(np.asarray(coeffs_b[:, :, c], dtype=np.float64))
-                AB = (A.T @ B).toarray()
+                AB = (A[c].T @ B[c]).toarray()
                 self.G[c] += 0.5 * (AB + AB.T)
-                self.b[c] += 0.5 * (A.T @ y + B.T @ y)
+                self.b[c] += 0.5 * (A[c].T @ y + B[c].T @ y)
             self.yy[c] += float(y @ y)
         self.n_pixels += n
         return self

@@ -265,29 +265,37 @@ class PolynomialPathIntegrator(mi.SamplingIntegrator):
                               "configure(shape_segments, segment_kernels, n_params, guesses)")
 
     # ------------------------------------------------------------------------------------------
-    def _trace(self, scene, sampler, ray, beta, active, sink):
-        """Trace one path per lane; ``sink(value, monomial, rho_product, active)`` receives every
-        contribution (a Spectrum already multiplied by β, the MIS weight and 1/q)."""
-        D, C = self.n_params, self.n_channels
+    @dr.syntax
+    def _trace(self, scene, sampler, ray, beta, active, store=None):
+        """Trace one path per lane (a Dr.Jit recorded loop over bounces, so that lanes whose
+        path ended stop costing work) and return L, the radiance at ρ = guesses.
+
+        ``store(slot, monomial, value, active)``, if given, receives every contribution (a
+        Spectrum already multiplied by β, the MIS weight and 1/q): slot 0 for emitters seen
+        from the camera, slot d + 1 for the contributions of path vertex d.
+        """
+        D = self.n_params
         seg_table = self._segment_table(scene)
         n_tab = dr.width(seg_table)
         ctx = mi.BSDFContext()
         K_max = self._K_max
+        store = store or (lambda slot, mono, value, act: None)
 
         ray = mi.Ray3f(ray)
         active = mi.Bool(active)
         beta = mi.Spectrum(beta)
-        rho_prod = mi.Spectrum(1.0)          # ∏ guess[p_i] along the path (sample() only)
-        key = mi.UInt32(0)
+        rho_prod = mi.Spectrum(1.0)          # ∏ guess[p_i] along the path
+        key = mi.UInt32(0)                   # Σ (p_i + 1)(D + 1)^i, see MonomialBasis.key_table
+        stride = mi.UInt32(1)                # (D + 1)^depth
+        depth = mi.UInt32(0)
 
         # ---------------------- Camera ray: directly visible emitters ---------------------
         si = scene.ray_intersect(ray, mi.RayFlags.All, coherent=True, active=active)
-        emitter = si.emitter(scene, active)
-        Le = emitter.eval(si, active)
-        sink(beta * Le, mi.UInt32(0), rho_prod, active)
+        Le = beta * si.emitter(scene, active).eval(si, active)
+        store(mi.UInt32(0), mi.UInt32(0), Le, active)
+        L = dr.select(active, Le, 0.0)
 
-        prev_si = mi.Interaction3f(si)
-        for depth in range(self.max_bounces):
+        while dr.hint(active, max_iterations=self.max_bounces, label="Polynomial path"):
             # ------------------------- Segment and kernel choice ---------------------------
             sid = dr.reinterpret_array(mi.UInt32, si.shape)
             valid = active & si.is_valid() & (sid < n_tab)
@@ -306,13 +314,10 @@ class PolynomialPathIntegrator(mi.SamplingIntegrator):
             kt = dr.gather(mi.UInt32, self._ktype, idx, active)
             is_delta = dr.gather(mi.UInt32, self._delta, kt, active) != 0
             bsdf = dr.reinterpret_array(mi.BSDFPtr, dr.gather(mi.UInt32, self._bsdf_ids, kt, active))
-            key = dr.select(active, key + (p + 1) * ((D + 1) ** depth), key)
+            key = dr.select(active, key + (p + 1) * stride, key)
             mono = dr.gather(mi.UInt32, self._key_table, key, active)
             inv_q = dr.select(active & (q > 0), dr.rcp(q), 0)
-            g = mi.Spectrum(0.0)
-            for c in range(C):
-                g[c] = dr.gather(mi.Float, self._guess_flat, p * C + c, active)
-            rho_next = rho_prod * g
+            rho_prod = rho_prod * self._guess(p, active)
 
             # ---------------------------- Emitter sampling ---------------------------------
             active_em = active & ~is_delta
@@ -344,20 +349,26 @@ class PolynomialPathIntegrator(mi.SamplingIntegrator):
             contrib += dr.select(active, beta * Le * mis_bsdf, 0.0)
 
             # ------------------ Both contributions: monomial of this path -------------------
-            sink(contrib, mono, rho_next, active | active_em)
-            rho_prod = rho_next
+            store(depth + 1, mono, contrib, active | active_em)
+            L += dr.select(active | active_em, contrib * rho_prod, 0.0)
+            depth += 1
+            stride *= D + 1
+            active &= depth < self.max_bounces
+        return L
+
+    def _guess(self, p, active):
+        """The guesses of parameter ``p``, one per channel (for the radiance at the guesses)."""
+        g = mi.Spectrum(0.0)
+        for c in range(self.n_channels):
+            g[c] = dr.gather(mi.Float, self._guess_flat, p * self.n_channels + c, active)
+        return g
 
     # ------------------------------------------------------------------------------------------
     def sample(self, scene, sampler, ray, medium=None, active=True):
         """Radiance of ``ray`` with ρ = guesses: the polynomial evaluated at the guesses."""
         self._check()
-        result = [mi.Spectrum(0.0)]
-
-        def sink(value, mono, rho_prod, act):
-            result[0] = result[0] + dr.select(act, value * rho_prod, 0.0)
-
-        self._trace(scene, sampler, mi.Ray3f(ray), mi.Spectrum(1.0), mi.Bool(active), sink)
-        return result[0], mi.Bool(active), []
+        L = self._trace(scene, sampler, mi.Ray3f(ray), mi.Spectrum(1.0), mi.Bool(active))
+        return L, mi.Bool(active), []
 
     def aov_names(self):
         return []
@@ -369,7 +380,17 @@ class PolynomialPathIntegrator(mi.SamplingIntegrator):
     # ------------------------------------------------------------------------------------------
     def coefficients(self, scene: mi.Scene, sensor=0, *, spp: int, seed: int = 0,
                      pixel_range: tuple[int, int] | None = None) -> np.ndarray:
-        """Polynomial coefficients ``γ`` (eq. 8) of the pixels of one view.
+        """Dense ``(stop - start, N_e, C)`` float32 coefficients ``γ`` (eq. 8) of one view's pixels.
+
+        Same arguments as :meth:`coefficients_sparse`, whose result this densifies (for tests and
+        small images; the inversion keeps the sparse form).
+        """
+        mats = self.coefficients_sparse(scene, sensor, spp=spp, seed=seed, pixel_range=pixel_range)
+        return np.stack([m.toarray() for m in mats], axis=-1).astype(np.float32)
+
+    def coefficients_sparse(self, scene: mi.Scene, sensor=0, *, spp: int, seed: int = 0,
+                            pixel_range: tuple[int, int] | None = None) -> list:
+        """Polynomial coefficients ``γ`` (eq. 8) of the pixels of one view, one sparse matrix per channel.
 
         Parameters
         ----------
@@ -386,9 +407,10 @@ class PolynomialPathIntegrator(mi.SamplingIntegrator):
 
         Returns
         -------
-        numpy.ndarray
-            ``(stop - start, N_e, C)`` float32 coefficients.
+        list of scipy.sparse.csr_matrix
+            ``C`` matrices of shape ``(stop - start, N_e)``, float64.
         """
+        import scipy.sparse as sp
         self._check()
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
@@ -404,18 +426,20 @@ class PolynomialPathIntegrator(mi.SamplingIntegrator):
         start, stop = (0, n_pix) if pixel_range is None else (int(pixel_range[0]), int(pixel_range[1]))
         if not 0 <= start <= stop <= n_pix:
             raise ConfigError(f"pixel_range=({start}, {stop}) outside [0, {n_pix}]")
-        N_e, C = self.basis.size, self.n_channels
-        out = np.zeros((stop - start, N_e, C), np.float32)
-        for t0 in range(start, stop, self.tile_pixels):
-            t1 = min(stop, t0 + self.tile_pixels)
-            out[t0 - start:t1 - start] = self._coefficients_tile(scene, sensor, spp, seed, t0, t1)
-        return out
+        tiles = [self._coefficients_tile(scene, sensor, spp, seed, t0, min(stop, t0 + self.tile_pixels))
+                 for t0 in range(start, stop, self.tile_pixels)]
+        if not tiles:
+            return [sp.csr_matrix((0, self.basis.size)) for _ in range(self.n_channels)]
+        return [sp.vstack([t[c] for t in tiles], format="csr") for c in range(self.n_channels)]
 
     def _coefficients_tile(self, scene, sensor, spp, seed, start, stop):
+        """Trace one tile; every contribution is an event (pixel, monomial, value) summed on the
+        host into sparse matrices: no dense pixels x N_e buffer (coefficients are ~1-3 % non-zero)."""
+        import scipy.sparse as sp
         N_e, C = self.basis.size, self.n_channels
         n = stop - start
-        if n * N_e * C >= 2 ** 32 or n * spp >= 2 ** 32:
-            raise ConfigError(f"tile of {n} pixels too large for 32-bit indices: lower tile_pixels")
+        if n * spp >= 2 ** 32:
+            raise ConfigError(f"tile of {n} pixels x {spp} spp too large for 32-bit indices: lower tile_pixels")
         film = sensor.film()
         W = int(film.crop_size()[0])
         crop_size = mi.ScalarVector2f(film.crop_size())
@@ -446,19 +470,28 @@ class PolynomialPathIntegrator(mi.SamplingIntegrator):
         ray, weight = sensor.sample_ray_differential(time=time, sample1=wavelength_sample,
                                                      sample2=pos_adjusted, sample3=aperture)
 
-        buf = dr.zeros(mi.Float, n * N_e * C)
-        base = local_pix * (N_e * C)
-        mode = self.reduce_mode
+        # -------- Events: slot k of lane l holds its path's k-th (monomial, value) -------------
+        lanes, slots = n * spp, self.max_bounces + 1
+        ev_mono = dr.zeros(mi.UInt32, lanes * slots)
+        ev_val = [dr.zeros(mi.Float, lanes * slots) for _ in range(C)]
+        lane_base = dr.arange(mi.UInt32, lanes) * slots
 
-        def sink(value, mono, rho_prod, act):
-            off = base + mono * C
+        def store(slot, mono, value, act):
+            at = lane_base + slot
+            dr.scatter(ev_mono, mono, at, act)
             for c in range(C):
-                dr.scatter_reduce(dr.ReduceOp.Add, buf, value[c], off + c, act, mode=mode)
+                dr.scatter(ev_val[c], value[c], at, act)
 
         beta = mi.Spectrum(weight) * dr.opaque(mi.Float, 1.0 / spp)
-        self._trace(scene, sampler, mi.Ray3f(ray), beta, mi.Bool(True), sink)
-        dr.eval(buf)
-        return buf.numpy().reshape(n, N_e, C)
+        self._trace(scene, sampler, mi.Ray3f(ray), beta, mi.Bool(True), store)
+        dr.eval(ev_mono, ev_val)                                   # one kernel for the tile
+
+        rows = np.repeat(np.arange(n, dtype=np.int32), spp * slots)
+        cols = ev_mono.numpy()
+        vals = np.stack([v.numpy() for v in ev_val], axis=1)      # Floats copy fast; Color3f does not
+        keep = np.any(vals != 0, axis=1)
+        rows, cols, vals = rows[keep], cols[keep], vals[keep].astype(np.float64)
+        return [sp.csr_matrix((vals[:, c], (rows, cols)), shape=(n, N_e)) for c in range(C)]
 
 
 def _tile_seed(seed: int, start: int) -> int:

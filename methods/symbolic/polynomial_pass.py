@@ -181,17 +181,18 @@ def _render_view(integrator, ms, i, cam, observed, basis, spp, seed, cross=True)
     tiles = range(0, n_pix, integrator.tile_pixels)
     for start in tqdm(tiles, desc=f"polynomial pass {cam.name}", unit="tile", leave=False):
         stop = min(n_pix, start + integrator.tile_pixels)
+        tile = dict(pixel_range=(start, stop))
         if cross and spp >= 2:
             half = spp // 2
-            a = integrator.coefficients(ms.scene, i, spp=half, seed=seed, pixel_range=(start, stop))
-            b = integrator.coefficients(ms.scene, i, spp=spp - half, seed=seed ^ 2**30, pixel_range=(start, stop))
-            system.accumulate(a, y[start:stop], coeffs_b=b)
-            gamma = (half * a + (spp - half) * b) / spp
+            a = integrator.coefficients_sparse(ms.scene, i, spp=half, seed=seed, **tile)
+            b = integrator.coefficients_sparse(ms.scene, i, spp=spp - half, seed=seed ^ 2**30, **tile)
+            system.accumulate_sparse(a, y[start:stop], b)
+            gamma = [(half * a[c] + (spp - half) * b[c]) / spp for c in range(C)]
         else:
-            gamma = integrator.coefficients(ms.scene, i, spp=spp, seed=seed, pixel_range=(start, stop))
-            system.accumulate(gamma, y[start:stop])
+            gamma = integrator.coefficients_sparse(ms.scene, i, spp=spp, seed=seed, **tile)
+            system.accumulate_sparse(gamma, y[start:stop])
         for c in range(C):
-            parts[c].append(sp.csr_matrix(gamma[:, :, c]))
+            parts[c].append(gamma[c].tocsr())
     return system, [sp.vstack(p, format="csr") for p in parts]
 
 
