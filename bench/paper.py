@@ -26,27 +26,9 @@ RUNS = [("lambertian_prior", ["method=lambertian_prior"], 1), ("symbolic", ["met
         ("symbolic", ["method=symbolic"], 0)]
 
 
-def use_variant(variant: str) -> None:
-    """Select ``variant`` and re-create the polynomial integrator class for it.
-
-    :class:`~methods.symbolic.integrator.PolynomialPathIntegrator` subclasses the
-    ``mi.SamplingIntegrator`` of the variant active when its module was first imported; after an
-    in-process switch (rgb -> mono) constructing it raises ``TypeError``. Reloading the module
-    (imported lazily by the pass) defines it again for the new variant.
-    """
-    import importlib
-    import sys
-
-    from framework import backend
-    backend.set_variant(variant)
-    if "methods.symbolic.integrator" in sys.modules:
-        importlib.reload(sys.modules["methods.symbolic.integrator"])
-
-
 def run(sizes, root: Path, log=print) -> list[dict]:
     """The mono runs (row dicts as :func:`bench.compare.run_one`)."""
     rows = []
-    use_variant("llvm_ad_mono")
     for n_views in (1, 0):
         warm_observations(sizes, root, "urban_canyon_mono", n_views)
     for label, overrides, n_views in RUNS:

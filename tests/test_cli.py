@@ -95,3 +95,14 @@ def test_cli_run_writes_run_folder(tiny_scene, tmp_path):
     assert len(runs) == 1
     for name in ("results.json", "report.md", "report.html"):
         assert (runs[0] / name).is_file(), name
+
+
+def test_rgb_then_mono_scene_in_one_process(tmp_path):
+    """Plugins are per Mitsuba variant: an rgb and a mono symbolic run share one process."""
+    from factory import make_tiny_scene
+    for ch in ("rgb", "mono", "rgb"):
+        scene = make_tiny_scene(tmp_path / ch, channels=ch)
+        cfg = _compose(["method=symbolic", f"scene.dir={scene}", f"cache.dir={tmp_path / 'c'}", *FAST])
+        results = run_experiment(cfg, tmp_path / f"run_{ch}")
+        assert results["settings"]["variant"] == f"llvm_ad_{ch}"
+        assert len(results["parameters"][0]["estimate"]) == (3 if ch == "rgb" else 1)
