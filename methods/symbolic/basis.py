@@ -78,6 +78,17 @@ class MonomialBasis:
             table[keys] = order[pos]
         self.key_table = table
 
+        # ∂μ_m/∂ρ_k = e_mk · μ_{m - 1_k}: the lowered monomial is in the basis too (degree - 1).
+        index = {tuple(e): i for i, e in enumerate(exps.tolist())}
+        lowered = np.zeros_like(exps)
+        for m_, e in enumerate(exps.tolist()):
+            for k in range(D):
+                if e[k] > 0:
+                    e[k] -= 1
+                    lowered[m_, k] = index[tuple(e)]
+                    e[k] += 1
+        self._lowered = lowered
+
     # ------------------------------------------------------------------------------------------
     def key(self, params) -> int:
         """Ordered key ``Σ_i (p_i + 1)(D + 1)^i`` of the parameter sequence ``params``."""
@@ -103,28 +114,23 @@ class MonomialBasis:
         rho = np.asarray(rho, dtype=float)
         return np.prod(rho[..., None, :] ** self.exponents, axis=-1)
 
-    def jacobian(self, rho: np.ndarray) -> np.ndarray:
+    def jacobian(self, rho: np.ndarray, mu: np.ndarray | None = None) -> np.ndarray:
         """Derivatives ``∂(∏_j ρ_j^{e_{j,m}})/∂ρ_k``.
 
         Parameters
         ----------
         rho : numpy.ndarray
             ``(D,)`` parameter values.
+        mu : numpy.ndarray, optional
+            ``evaluate(rho)``, if already computed.
 
         Returns
         -------
         numpy.ndarray
-            ``(N_e, D)`` Jacobian; exact, also at ``ρ_k = 0``.
+            ``(N_e, D)`` Jacobian ``e_mk μ_{m - 1_k}``; exact, also at ``ρ_k = 0``.
         """
-        rho = np.asarray(rho, dtype=float)
-        E = self.exponents
-        P = rho[None, :] ** E                                   # (N_e, D) factors
-        out = np.empty(E.shape)
-        for k in range(self.n_params):
-            dk = np.where(E[:, k] > 0, E[:, k] * rho[k] ** np.maximum(E[:, k] - 1, 0), 0.0)
-            others = np.prod(np.delete(P, k, axis=1), axis=1)
-            out[:, k] = dk * others
-        return out
+        mu = self.evaluate(rho) if mu is None else mu
+        return self.exponents * mu[self._lowered]
 
     def hessian(self, rho: np.ndarray) -> np.ndarray:
         """Second derivatives ``∂²(∏_j ρ_j^{e_{j,m}})/∂ρ_k∂ρ_l``, shape ``(N_e, D, D)``."""

@@ -54,7 +54,7 @@ def channel_cost_grad(system: GramSystem, basis: MonomialBasis, c: int, x: np.nd
     mu = basis.evaluate(x)
     Gmu = system.G[c] @ mu
     f = float(mu @ Gmu - 2.0 * system.b[c] @ mu + system.yy[c])
-    g = 2.0 * basis.jacobian(x).T @ (Gmu - system.b[c])
+    g = 2.0 * basis.jacobian(x, mu).T @ (Gmu - system.b[c])
     return f, g
 
 
