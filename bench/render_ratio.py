@@ -53,7 +53,7 @@ def _pass_fn(problem, method, spp: int):
     params = problem.parameters
     x0, _ = initial_guess(method.cfg, problem)
     basis = MonomialBasis(len(params), int(problem.settings.render.max_bounces))
-    tile = tile_pixels_for(float(method.cfg.memory_mb), basis.size, problem.n_channels)
+    tile = tile_pixels_for(float(method.cfg.memory_mb), spp, basis.max_degree, problem.n_channels)
     task = view_task(problem, params, x0, basis, 0, spp=spp, seed=int(problem.seed), prob_floor=float(
         method.cfg.prob_floor), tile_pixels=tile)
     variant = str(problem.settings.variant_resolved)

@@ -13,9 +13,10 @@ Configuration (``framework/conf/executor/*.yaml``, CONTRACT section 2):
     itself and limits Dr.Jit to ``threads_per_worker`` threads (:func:`init_worker`), so the
     workers do not oversubscribe the cores.
 
-Both executors expose the same three calls: :meth:`map` (one task per item, handles in item
-order), :meth:`gather` (handles -> values) and :meth:`tree_reduce` (pairwise sum of handles as a
-balanced binary tree; on Dask the additions run on the workers).
+Both executors expose the same calls: :meth:`map` (one task per item, handles in item
+order), :meth:`imap` (values in item order, one at a time), :meth:`gather` (handles -> values)
+and :meth:`tree_reduce` (pairwise sum of handles as a balanced binary tree; on Dask the
+additions run on the workers).
 """
 from __future__ import annotations
 
@@ -52,6 +53,12 @@ class SerialExecutor:
 
     def map(self, fn: Callable, items: list, **kwargs) -> list:
         return [fn(item, **kwargs) for item in items]
+
+    def imap(self, fn: Callable, items: list, **kwargs):
+        """Values of ``fn(item)`` in item order, one at a time (the caller can drop each before
+        the next arrives, so memory does not grow with the number of items)."""
+        for item in items:
+            yield fn(item, **kwargs)
 
     def gather(self, handles: list) -> list:
         return list(handles)
@@ -106,6 +113,15 @@ class DaskExecutor(SerialExecutor):
 
     def gather(self, handles: list) -> list:
         return self.client.gather(list(handles))
+
+    def imap(self, fn: Callable, items: list, **kwargs):
+        """All tasks submitted at once; values yielded in item order, each future released
+        once its value is here."""
+        handles = self.map(fn, items, **kwargs)
+        for i in range(len(handles)):
+            value = handles[i].result()
+            handles[i].release()
+            yield value
 
     def tree_reduce(self, handles: list, op: Callable = operator.add) -> Any:
         """Pairwise tree sum computed on the workers; returns the gathered value."""

@@ -476,7 +476,7 @@ def _define_class():
 
             # -------- Events: slot k of lane l holds its path's k-th (monomial, value) -------------
             lanes, slots = n * spp, self.max_bounces + 1
-            ev_mono = dr.zeros(mi.UInt32, lanes * slots)
+            ev_mono = dr.full(mi.UInt32, _EMPTY, lanes * slots)     # slots no contribution reached
             ev_val = [dr.zeros(mi.Float, lanes * slots) for _ in range(C)]
             lane_base = dr.arange(mi.UInt32, lanes) * slots
 
@@ -493,11 +493,14 @@ def _define_class():
             rows = np.repeat(np.arange(n, dtype=np.int32), spp * slots)
             cols = ev_mono.numpy()
             vals = np.stack([v.numpy() for v in ev_val], axis=1)      # Floats copy fast; Color3f does not
-            keep = np.any(vals != 0, axis=1)
+            keep = (cols != _EMPTY) & np.any(vals != 0, axis=1)   # occluded NEE etc. add zeros
             rows, cols, vals = rows[keep], cols[keep], vals[keep].astype(np.float64)
             return [sp.csr_matrix((vals[:, c], (rows, cols)), shape=(n, N_e)) for c in range(C)]
 
     return PolynomialPathIntegrator
+
+
+_EMPTY = 0xFFFFFFFF   # monomial index of an event slot that received no contribution
 
 
 def _tile_seed(seed: int, start: int) -> int:

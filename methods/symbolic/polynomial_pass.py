@@ -23,26 +23,41 @@ from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.gram import GramSystem
 
 log = logging.getLogger(__name__)
-BYTES_PER_COEFFICIENT = 4 * 3   # float32 buffer + Dr.Jit temporaries during scatter and readback
+BYTES_COPIES = 3   # an event buffer lives in Dr.Jit, in numpy and in the COO arrays
 
 
 @dataclass
 class PassResult:
-    system: GramSystem                                   # summed over views
-    systems: dict[str, GramSystem]                       # per view
-    coefficients: dict[str, list[sp.csr_matrix]]         # view -> per channel (n_pix, N_e)
+    """The pass over all views: their summed Gram system, and each view's own results.
+
+    ``views[name]`` is the view's ``(GramSystem, coefficient matrices)``, or, when the run has a
+    cache, a function reloading them from it: memory then stays flat in the number of views.
+    """
+
+    system: GramSystem                                   # summed over views, in view order
+    views: dict[str, object]
     render_s: float = 0.0
     from_cache: list[str] = field(default_factory=list)  # views read from the cache
 
+    def view(self, name: str) -> tuple[GramSystem, list[sp.csr_matrix]]:
+        entry = self.views[name]
+        return entry() if callable(entry) else entry
+
     def image(self, view: str, mu: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         """The polynomial image of ``view`` at monomials ``mu`` (C, N_e): (H, W, C) float32."""
-        chans = [self.coefficients[view][c] @ mu[c] for c in range(len(mu))]
+        mats = self.view(view)[1]
+        chans = [mats[c] @ mu[c] for c in range(len(mu))]
         return np.stack(chans, axis=-1).reshape(*shape, len(mu)).astype(np.float32)
 
 
-def tile_pixels_for(memory_mb: float, n_monomials: int, n_channels: int) -> int:
-    """Largest tile whose coefficient buffers fit in ``memory_mb`` (at least 64 pixels)."""
-    return max(64, int(memory_mb * 2**20 // (n_monomials * n_channels * BYTES_PER_COEFFICIENT)))
+def tile_pixels_for(memory_mb: float, spp: int, max_bounces: int, n_channels: int) -> int:
+    """Largest tile whose event buffers fit in ``memory_mb`` (at least 64 pixels).
+
+    A pixel holds ``spp × (N_max + 1)`` event slots of one monomial index and ``C`` values
+    (4 bytes each), held about three times (Dr.Jit buffers, their numpy copies, the COO arrays).
+    """
+    per_pixel = spp * (max_bounces + 1) * 4 * (1 + n_channels) * BYTES_COPIES
+    return max(64, int(memory_mb * 2**20 // per_pixel))
 
 
 def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBasis, *, spp: int,
@@ -65,9 +80,9 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
     cache : Cache
         Per-view results are read from and written to it by this (driver) process.
     executor : framework.executor.SerialExecutor or DaskExecutor, optional
-        Where views are rendered (default: this process). Rendered views' Gram systems are
-        summed as a pairwise tree (on the workers for Dask), then the cached views are added in
-        view order; the result equals the serial one to float-summation order.
+        Where views are rendered (default: this process); their results arrive one at a time,
+        are cached at once and added to the total in the same order for both executors, so Dask
+        and serial runs give the same estimates.
 
     Returns
     -------
@@ -77,33 +92,32 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
 
     executor = executor or SerialExecutor()
     C = problem.n_channels
-    systems, coeffs, cached, todo = {}, {}, [], []
+    views, cached, todo = {}, [], []
+    total = GramSystem.zeros(basis.size, C)
     for i, cam in enumerate(problem.cameras):
         key = _key(problem, cam, parameters, guesses, spp, seed, prob_floor, basis, view=i) | {"cross_gram": cross_gram}
         hit = cache.load("polynomial_pass", key)
         if hit is None:
             todo.append((i, cam, key))
             continue
-        systems[cam.name], coeffs[cam.name] = _unpack(hit, C)
+        total = total + _unpack(hit, C)[0]
+        views[cam.name] = _loader(cache, key, C)
         cached.append(cam.name)
     t0 = time.perf_counter()
-    rendered_total = None
     if todo:
         tasks = [view_task(problem, parameters, guesses, basis, i, spp=spp, seed=seed, prob_floor=prob_floor,
-                           tile_pixels=tile_pixels_for(memory_mb, basis.size, C), cross_gram=cross_gram)
+                           tile_pixels=tile_pixels_for(memory_mb, spp, basis.max_degree, C), cross_gram=cross_gram)
                  for i, _, _ in todo]
         variant = str(problem.settings.get("variant_resolved") or problem.settings.get("variant", "auto"))
-        handles = executor.map(render_view_task, tasks, variant=variant, threads=executor.threads_per_worker)
-        rendered_total = executor.tree_reduce(handles, sum_systems)
-        for (i, cam, key), (system, mats) in zip(todo, executor.gather(handles)):
+        results = executor.imap(render_view_task, tasks, variant=variant, threads=executor.threads_per_worker)
+        for (i, cam, key), (system, mats) in zip(todo, results):
             cache.store("polynomial_pass", key, _pack(system, mats))
-            systems[cam.name], coeffs[cam.name] = system, mats
+            total = total + system
+            # with a cache, each view waits on disk: memory stays flat in the number of views
+            views[cam.name] = _loader(cache, key, C) if cache.dir is not None else (system, mats)
     render_s = time.perf_counter() - t0
-    total = as_system(rendered_total) if rendered_total is not None else GramSystem.zeros(basis.size, C)
-    for name in cached:
-        total = total + systems[name]
-    ordered = {c.name: systems[c.name] for c in problem.cameras}
-    return PassResult(total, ordered, coeffs, render_s, cached)
+    ordered = {c.name: views[c.name] for c in problem.cameras}
+    return PassResult(total, ordered, render_s, cached)
 
 
 def view_task(problem, parameters, guesses, basis, i: int, *, spp: int, seed: int, prob_floor: float,
@@ -153,16 +167,6 @@ def _scene_and_integrator(task: dict, variant: str):
             max_bounces=task["max_bounces"], prob_floor=task["prob_floor"], tile_pixels=task["tile_pixels"])
         _WORKER_STATE.update(key=key, value=(ms, integrator))
     return _WORKER_STATE["value"]
-
-
-def as_system(x) -> GramSystem:
-    """The Gram system of a view output ``(system, coefficients)`` or of a system."""
-    return x[0] if isinstance(x, tuple) else x
-
-
-def sum_systems(a, b) -> GramSystem:
-    """``a + b`` of two view outputs or systems (the tree reduction's operator)."""
-    return as_system(a) + as_system(b)
 
 
 def _render_view(integrator, ms, i, cam, observed, basis, spp, seed, cross=True):
@@ -216,6 +220,16 @@ def _pack(system: GramSystem, mats: list[sp.csr_matrix]) -> dict[str, np.ndarray
         out.update({f"c{c}_data": m.data, f"c{c}_indices": m.indices, f"c{c}_indptr": m.indptr,
                     f"c{c}_shape": np.array(m.shape)})
     return out
+
+
+def _loader(cache: Cache, key: dict, C: int):
+    """A function reloading a view's (Gram system, coefficients) from the cache."""
+    def load():
+        hit = cache.load("polynomial_pass", key)
+        if hit is None:
+            raise RuntimeError(f"cache entry of {key['view']} vanished from {cache.dir} during the run")
+        return _unpack(hit, C)
+    return load
 
 
 def _unpack(arrays: dict, C: int) -> tuple[GramSystem, list[sp.csr_matrix]]:
