@@ -19,6 +19,9 @@ METHODS = [
     ("iterative (noise fresh)", ["method=iterative", "method.noise=fresh"], True),
     ("iterative (noise fixed)", ["method=iterative", "method.noise=fixed"], True),
     ("differentiable", ["method=differentiable"], True),
+    # the same estimator on observations holding only N_max = 3 reflections (like the model):
+    # separates the paper's truncation of longer paths from the estimator's own error
+    ("symbolic, observations at N_max (observe.max_depth=4)", ["method=symbolic", "observe.max_depth=4"], False),
 ]
 
 
