@@ -21,7 +21,7 @@ METHODS = [
     ("differentiable", ["method=differentiable"], True),
     # the same estimator on observations holding only N_max = 3 reflections (like the model):
     # separates the paper's truncation of longer paths from the estimator's own error
-    ("symbolic, observations at N_max (observe.max_depth=4)", ["method=symbolic", "observe.max_depth=4"], False),
+    ("symbolic (observations at N_max)", ["method=symbolic", "observe.max_depth=4"], False),
 ]
 
 
