@@ -90,11 +90,11 @@ def run_experiment(cfg: DictConfig, run_dir: str | Path) -> dict:
     results = results_dict(problem, result, method=str(cfg.method.name), settings=settings, views=views,
                            relit=relit)
     if cfg.get("report", True):
+        from framework.report import write_run_report
         t_report = time.perf_counter()
-        write_results(run_dir, results)       # the report reads it; rewritten below with the timing
-        _write_report(run_dir)
+        write_run_report(run_dir, results)
         results["timings_s"]["report"] = time.perf_counter() - t_report
-    write_results(run_dir, results)
+    write_results(run_dir, results)           # last: a run that failed leaves no results.json
     log.info("wrote %s", run_dir / "results.json")
     return results
 
@@ -103,12 +103,3 @@ def _segment_maps(scene, cameras) -> dict:
     from framework.mitsuba_scene import MitsubaScene
     ms = MitsubaScene(scene, cameras, spp=1)
     return {c.name: ms.segment_map(i) for i, c in enumerate(cameras)}
-
-
-def _write_report(run_dir: Path) -> None:
-    try:
-        from framework.report import write_run_report
-    except ImportError:  # reporting not installed in this build
-        log.warning("framework.report unavailable: no report written")
-        return
-    write_run_report(run_dir)

@@ -45,12 +45,12 @@ def load_results(run_dir: str | os.PathLike) -> dict:
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ReportError(f"{path}: unreadable JSON ({exc}); re-run the method to rewrite it "
                           "or remove the broken run folder") from exc
-    _check_results(path, data)
-    return data
+    return check_results(path, data)
 
 
-def _check_results(path: Path, data) -> None:
-    """Raise ReportError unless ``data`` has the CONTRACT section 3 shape the report needs."""
+def check_results(path: Path, data) -> dict:
+    """``data`` if it has the CONTRACT section 3 shape the report needs; ReportError naming
+    ``path`` otherwise."""
     if not isinstance(data, dict):
         raise ReportError(f"{path}: expected a JSON object, got {type(data).__name__}; "
                           "re-run the method to rewrite it")
@@ -64,6 +64,7 @@ def _check_results(path: Path, data) -> None:
         if not isinstance(par, dict) or "segment" not in par or "kernel" not in par:
             raise ReportError(f"{path}: parameters[{i}] needs 'segment' and 'kernel' "
                               "(CONTRACT section 3)")
+    return data
 
 
 def find_run_dirs(dirs) -> list[Path]:

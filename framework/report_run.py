@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from framework import images
-from framework.report_data import as_list, fmt_num, kernel_label, load_results, seed_of
+from framework.report_data import (RESULTS_NAME, as_list, check_results, fmt_num, kernel_label, load_results,
+                                   seed_of)
 from framework.report_doc import Doc
 
 FILES_DIR = "report_files"
@@ -244,13 +245,16 @@ def _section_relit(doc: Doc, ctx: _RunContext) -> None:
         doc.figures(items)
 
 
-def write_run_report(run_dir) -> tuple[Path, Path]:
+def write_run_report(run_dir, results: dict | None = None) -> tuple[Path, Path]:
     """Write ``report.md`` and ``report.html`` for one run.
 
     Parameters
     ----------
     run_dir : str or path-like
         A run folder holding ``results.json`` (CONTRACT section 3) and its images.
+    results : dict, optional
+        The results themselves, when ``results.json`` is not written yet (a run writes it last,
+        so that a failing report leaves none behind); default: read from the folder.
 
     Returns
     -------
@@ -264,7 +268,7 @@ def write_run_report(run_dir) -> tuple[Path, Path]:
     """
     start = time.perf_counter()
     run_dir = Path(run_dir)
-    res = load_results(run_dir)
+    res = load_results(run_dir) if results is None else check_results(run_dir / RESULTS_NAME, results)
     ctx = _RunContext(run_dir, res)
     seed = seed_of(res)
     title = f"{res['method']} on {res['scene']}" + (f" (seed {seed})" if seed is not None else "")
