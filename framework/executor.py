@@ -13,16 +13,13 @@ Configuration (``framework/conf/executor/*.yaml``, CONTRACT section 2):
     itself and limits Dr.Jit to ``threads_per_worker`` threads (:func:`init_worker`), so the
     workers do not oversubscribe the cores.
 
-Both executors expose the same calls: :meth:`map` (one task per item, handles in item
-order), :meth:`imap` (values in item order, one at a time), :meth:`gather` (handles -> values)
-and :meth:`tree_reduce` (pairwise sum of handles as a balanced binary tree; on Dask the
-additions run on the workers).
+Both executors expose :meth:`imap`: the values of one task per item, in item order, one at a
+time (the caller sums the views' Gram systems in that order, so both give the same result).
 """
 from __future__ import annotations
 
 import logging
-import operator
-from typing import Any, Callable
+from typing import Callable
 
 log = logging.getLogger(__name__)
 
@@ -37,38 +34,17 @@ def init_worker(variant: str, threads: int | None) -> None:
             dr.set_thread_count(int(threads))
 
 
-def _pairs(items: list, add: Callable) -> list:
-    """One level of a pairwise reduction: ``[add(a0, a1), add(a2, a3), ..., (last)]``."""
-    out = [add(items[i], items[i + 1]) for i in range(0, len(items) - 1, 2)]
-    if len(items) % 2:
-        out.append(items[-1])
-    return out
-
-
 class SerialExecutor:
-    """Runs tasks in the calling process; handles are the values themselves."""
+    """Runs tasks in the calling process."""
 
     name = "serial"
     threads_per_worker = None
-
-    def map(self, fn: Callable, items: list, **kwargs) -> list:
-        return [fn(item, **kwargs) for item in items]
 
     def imap(self, fn: Callable, items: list, **kwargs):
         """Values of ``fn(item)`` in item order, one at a time (the caller can drop each before
         the next arrives, so memory does not grow with the number of items)."""
         for item in items:
             yield fn(item, **kwargs)
-
-    def gather(self, handles: list) -> list:
-        return list(handles)
-
-    def tree_reduce(self, handles: list, op: Callable = operator.add) -> Any:
-        """Pairwise tree sum (same tree shape as :class:`DaskExecutor`); None for no handle."""
-        items = list(handles)
-        while len(items) > 1:
-            items = _pairs(items, op)
-        return items[0] if items else None
 
     def close(self) -> None:
         pass
@@ -107,30 +83,15 @@ class DaskExecutor(SerialExecutor):
             self.client = Client(self._cluster)
         log.info("dask executor: %s", self.client)
 
-    def map(self, fn: Callable, items: list, **kwargs) -> list:
-        # pure=False: every item is its own task even when two items hash alike
-        return [self.client.submit(fn, item, pure=False, **kwargs) for item in items]
-
-    def gather(self, handles: list) -> list:
-        return self.client.gather(list(handles))
-
     def imap(self, fn: Callable, items: list, **kwargs):
         """All tasks submitted at once; values yielded in item order, each future released
         once its value is here."""
-        handles = self.map(fn, items, **kwargs)
+        # pure=False: every item is its own task even when two items hash alike
+        handles = [self.client.submit(fn, item, pure=False, **kwargs) for item in items]
         for i in range(len(handles)):
             value = handles[i].result()
             handles[i].release()
             yield value
-
-    def tree_reduce(self, handles: list, op: Callable = operator.add) -> Any:
-        """Pairwise tree sum computed on the workers; returns the gathered value."""
-        items = list(handles)
-        if not items:
-            return None
-        while len(items) > 1:
-            items = _pairs(items, lambda a, b: self.client.submit(op, a, b, pure=False))
-        return self.client.gather(items[0])
 
     def close(self) -> None:
         self.client.close()

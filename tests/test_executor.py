@@ -19,13 +19,6 @@ def test_make_executor_defaults_and_errors():
         make_executor(OmegaConf.create({"name": "dask", "n_workers": 0}))
 
 
-def test_serial_tree_reduce_is_pairwise():
-    """((a + b) + (c + d)) + e, shown with string concatenation."""
-    ex = SerialExecutor()
-    assert ex.tree_reduce(list("abcde"), lambda x, y: f"({x}{y})") == "(((ab)(cd))e)"
-    assert ex.tree_reduce([]) is None
-
-
 def test_dask_local_cluster_equals_serial_and_fills_cache(tmp_path):
     """Two worker processes render the two views (same seeds per view): the estimates equal the
     serial run's within 1e-6 relative (only the summation order of the Gram systems may differ);
