@@ -121,25 +121,10 @@ def flat_constraint_groups(parameters, n_channels: int) -> list[list[int]]:
 
 
 def project_feasible(rho: np.ndarray, parameters) -> np.ndarray:
-    """Euclidean projection of ρ (P, C) onto [0, 1] ∩ {Σ_segment kernels ρ <= 1} per channel.
-
-    Where the clipped weights of a segment sum to more than 1, they are projected onto the
-    face Σ ρ = 1 of the probability simplex (sort-based algorithm of Held et al. / Duchi et
-    al. 2008), which is the exact projection onto the feasible set in that case.
-    """
-    rho = np.clip(np.asarray(rho, dtype=float), 0.0, 1.0)
-    for g in segment_groups(parameters):
-        for c in range(rho.shape[1]):
-            if rho[g, c].sum() > 1.0:
-                rho[g, c] = _project_simplex(rho[g, c])
-    return rho
-
-
-def _project_simplex(v: np.ndarray) -> np.ndarray:
-    u = np.sort(v)[::-1]
-    css = np.cumsum(u) - 1.0
-    k = np.nonzero(u - css / np.arange(1, v.size + 1) > 0)[0][-1]
-    return np.maximum(v - css[k] / (k + 1), 0.0)
+    """ρ (P, C) projected per channel onto [0, 1] ∩ {Σ_segment kernels ρ <= 1}
+    (:func:`framework.optim.project_feasible` with the segments' index groups)."""
+    from framework.optim import project_feasible as project
+    return project(rho, segment_groups(parameters))
 
 
 # ------------------------------------------------------------------------------------------------

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from framework.errors import ConfigError
-from framework.optim import check_algorithm, minimize
+from framework.optim import check_algorithm, minimize, project_feasible
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.gram import GramSystem
 
@@ -74,16 +74,6 @@ def hessian(system: GramSystem, basis: MonomialBasis, rho: np.ndarray) -> np.nda
         r = system.G[c] @ mu - system.b[c]
         out[c] = 2.0 * J.T @ system.G[c] @ J + 2.0 * np.einsum("m,mkl->kl", r, Hm)
     return out
-
-
-def _project(x: np.ndarray, segments_params) -> np.ndarray:
-    """Clip to [0, 1] and scale down any segment whose weights sum above 1."""
-    x = np.clip(np.asarray(x, dtype=float), 0.0, 1.0)
-    for ps in segments_params:
-        s = x[ps].sum()
-        if s > 1.0:
-            x[ps] = x[ps] / s * (1.0 - 1e-12)
-    return x
 
 
 def _random_start(rng, D, segments_params) -> np.ndarray:
@@ -147,7 +137,7 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
     history, times = [], []
     estimate = np.empty((D, C))
     best_cost = np.empty(C)
-    ref_cost = np.array([channel_cost_grad(system, basis, c, _project(x0[:, c], segs))[0]
+    ref_cost = np.array([channel_cost_grad(system, basis, c, project_feasible(x0[:, c], segs))[0]
                          for c in range(C)])
     n_evals = 0
 
@@ -162,7 +152,7 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
 
         best = None
         for k in range(int(starts)):
-            start = _project(x0[:, c], segs) if k == 0 else _random_start(rng, D, segs)
+            start = project_feasible(x0[:, c], segs) if k == 0 else _random_start(rng, D, segs)
             run = minimize(cost_grad, start, lower=0.0, upper=1.0, inequality_groups=segs,
                            algorithm=algorithm, max_eval=int(max_eval), xtol_rel=float(xtol_rel),
                            ftol_rel=1e-15, constraint_tol=1e-12)
