@@ -53,12 +53,11 @@ def observed_images(scene: Scene, cameras: list[Camera], settings, *, cache: Cac
     if not todo:
         return out, 0.0
     t0 = time.perf_counter()
-    if todo:
-        log.info("rendering %d observed view(s) at %d spp", len(todo), obs.spp)
-        for c, img in zip(todo, render_references(scene, todo, spp=obs.spp, max_depth=obs.max_depth,
-                                                    seed=obs.seed, noise=obs.noise)):
-            cache.store("observed", _key(scene, c, obs, settings.variant_resolved), {"image": img})
-            out[c.name] = img
+    log.info("rendering %d observed view(s) at %d spp", len(todo), obs.spp)
+    for c, img in zip(todo, render_references(scene, todo, spp=obs.spp, max_depth=obs.max_depth,
+                                                seed=obs.seed, noise=obs.noise)):
+        cache.store("observed", _key(scene, c, obs, settings.variant_resolved), {"image": img})
+        out[c.name] = img
     return out, time.perf_counter() - t0
 
 

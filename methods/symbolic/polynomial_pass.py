@@ -95,7 +95,7 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
     views, cached, todo = {}, [], []
     total = GramSystem.zeros(basis.size, C)
     for i, cam in enumerate(problem.cameras):
-        key = _key(problem, cam, parameters, guesses, spp, seed, prob_floor, basis, view=i) | {"cross_gram": cross_gram}
+        key = _key(problem, cam, parameters, guesses, spp, seed, prob_floor, basis, view=i, cross_gram=cross_gram)
         hit = cache.load("polynomial_pass", key)
         if hit is None:
             todo.append((i, cam, key))
@@ -200,13 +200,14 @@ def _render_view(integrator, ms, i, cam, observed, basis, spp, seed, cross=True)
     return system, [sp.vstack(p, format="csr") for p in parts]
 
 
-def _key(problem, cam, parameters, guesses, spp, seed, prob_floor, basis, *, view: int) -> dict:
+def _key(problem, cam, parameters, guesses, spp, seed, prob_floor, basis, *, view: int, cross_gram: bool) -> dict:
     return {"scene": problem.scene.content_hash, "view": cam.name, "view_index": view, "spp": int(spp),
             "seed": int(seed), "max_bounces": int(basis.max_degree),
             "parameters": [[p.segment, p.kernel] for p in parameters],
             "guesses": np.round(np.asarray(guesses, float), 9).tolist(), "prob_floor": float(prob_floor),
             "observed": _digest(problem.observed[cam.name]),
-            "variant": str(problem.settings.get("variant_resolved", "")), "version": 1}
+            "variant": str(problem.settings.get("variant_resolved", "")), "cross_gram": bool(cross_gram),
+            "version": 1}
 
 
 def _digest(a: np.ndarray) -> str:
