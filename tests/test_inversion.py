@@ -37,13 +37,13 @@ def small_canyon(tmp_path_factory):
 
 
 def test_symbolic_recovers_cornell_box(tmp_path):
-    """64x64, 64 spp, 512-spp observations: measured max |error| 0.006; tolerance 0.02.
+    """64x64, 64 spp, 512-spp observations: measured max |error| 0.010; tolerance 0.02.
     Regression values (this seed) are stored to 1e-4."""
     r = _run(tmp_path, "a", ["method=symbolic", "scene=cornell_box", "render.spp=64", "observe.spp=512"])
     assert r["renders"] == 1
     assert _errors(r).max() < 0.02
     white = next(p for p in r["parameters"] if p["segment"] == "white")
-    np.testing.assert_allclose(white["estimate"], [0.8879, 0.7019, 0.6688], atol=2e-4)
+    np.testing.assert_allclose(white["estimate"], [0.8939, 0.7081, 0.6765], atol=2e-4)
     again = _run(tmp_path, "b", ["method=symbolic", "scene=cornell_box", "render.spp=64", "observe.spp=512",
                                  f"cache.dir={tmp_path / 'other-cache'}"])
     assert [p["estimate"] for p in again["parameters"]] == [p["estimate"] for p in r["parameters"]]

@@ -188,6 +188,38 @@ def test_pixel_range_and_tiles():
     np.testing.assert_array_equal(tiled[:50], full[:50])
 
 
+def test_halves_split_the_samples():
+    """coefficients_halves: Γ is the full-sample estimate at the same seed (same events), A and B
+    differ (different samples) and Γ = (A + B) / 2 at even spp."""
+    scene, ss = cornell(np.full((5, 3), 0.3), res=16)
+    integ = PolynomialPathIntegrator.create(ss, SEGMENTS, 5, np.full((5, 3), 0.3), max_bounces=2)
+    A, B, G = integ.coefficients_halves(scene, spp=4, seed=3)
+    full = integ.coefficients_sparse(scene, spp=4, seed=3)
+    for c in range(3):
+        np.testing.assert_allclose(G[c].toarray(), full[c].toarray(), rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(G[c].toarray(), (A[c] + B[c]).toarray() / 2, rtol=1e-6, atol=1e-9)
+        assert abs(A[c] - B[c]).max() > 0
+    with pytest.raises(ConfigError, match="spp=1"):
+        integ.coefficients_halves(scene, spp=1)
+
+
+def test_event_csr_matches_scipy_coo():
+    """_csr (one within-row sort shared by the channels) equals scipy's COO -> CSR conversion,
+    duplicates summed, on random events with sorted rows."""
+    from methods.symbolic.integrator import _csr
+    import scipy.sparse as sp
+    rng = np.random.default_rng(0)
+    rows = np.sort(rng.integers(0, 50, 2000))
+    cols = rng.integers(0, 7, 2000)
+    vals = rng.normal(size=(2, 2000))
+    mats = _csr(rows, cols, vals, (60, 7))
+    for c in range(2):
+        ref = sp.coo_matrix((vals[c], (rows, cols)), shape=(60, 7)).toarray()
+        np.testing.assert_allclose(mats[c].toarray(), ref, rtol=1e-12, atol=1e-12)
+        assert mats[c].nnz == np.count_nonzero(ref) and np.all(np.diff(mats[c].indptr) >= 0)
+    assert all(m.nnz == 0 and m.shape == (60, 7) for m in _csr(rows[:0], cols[:0], vals[:, :0], (60, 7)))
+
+
 def test_config_errors():
     with pytest.raises(ConfigError, match=r"max_bounces=0.*\[1"):
         PolynomialPathIntegrator.create([], [[("diffuse", 0)]], 1, np.ones((1, 3)), max_bounces=0)

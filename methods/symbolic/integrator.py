@@ -412,8 +412,27 @@ def _define_class():
             Returns
             -------
             list of scipy.sparse.csr_matrix
-                ``C`` matrices of shape ``(stop - start, N_e)``, float64.
+                ``C`` matrices of shape ``(stop - start, N_e)``, float64, canonical (sorted indices,
+                no duplicates).
             """
+            return self._tiled(scene, sensor, spp, seed, pixel_range, halves=False)[0]
+
+        def coefficients_halves(self, scene: mi.Scene, sensor=0, *, spp: int, seed: int = 0,
+                                pixel_range: tuple[int, int] | None = None) -> tuple[list, list, list]:
+            """``(A, B, Γ)``: two independent estimates of the coefficients and their mean, from one render.
+
+            ``A`` uses the samples ``0 .. spp//2 - 1`` of every pixel, ``B`` the others, ``Γ`` all
+            of them (``Γ = (spp//2 · A + (spp - spp//2) · B) / spp``, :meth:`coefficients_sparse` at the
+            same seed). The sampler is ``independent``, so ``A`` and ``B`` are independent and
+            ``E[AᵀB] = E[A]ᵀE[B]`` (:meth:`GramSystem.accumulate_sparse`). Arguments as
+            :meth:`coefficients_sparse`, with ``spp >= 2``.
+            """
+            if int(spp) < 2:
+                raise ConfigError(f"spp={spp}: two independent halves need spp >= 2")
+            return self._tiled(scene, sensor, spp, seed, pixel_range, halves=True)
+
+        def _tiled(self, scene, sensor, spp, seed, pixel_range, halves: bool) -> tuple:
+            """Checks, then the tiles of ``tile_pixels`` pixels stacked: ``(Γ,)`` or ``(A, B, Γ)``."""
             import scipy.sparse as sp
             self._check()
             if isinstance(sensor, int):
@@ -430,17 +449,37 @@ def _define_class():
             start, stop = (0, n_pix) if pixel_range is None else (int(pixel_range[0]), int(pixel_range[1]))
             if not 0 <= start <= stop <= n_pix:
                 raise ConfigError(f"pixel_range=({start}, {stop}) outside [0, {n_pix}]")
-            tiles = [self._coefficients_tile(scene, sensor, spp, seed, t0, min(stop, t0 + self.tile_pixels))
+            tiles = [self._tile_matrices(scene, sensor, spp, seed, t0, min(stop, t0 + self.tile_pixels), halves)
                      for t0 in range(start, stop, self.tile_pixels)]
+            n_out, C = (3 if halves else 1), self.n_channels
             if not tiles:
-                return [sp.csr_matrix((0, self.basis.size)) for _ in range(self.n_channels)]
-            return [sp.vstack([t[c] for t in tiles], format="csr") for c in range(self.n_channels)]
+                return tuple([sp.csr_matrix((0, self.basis.size)) for _ in range(C)] for _ in range(n_out))
+            if len(tiles) == 1:
+                return tiles[0]
+            return tuple([sp.vstack([t[k][c] for t in tiles], format="csr") for c in range(C)]
+                         for k in range(n_out))
 
-        def _coefficients_tile(self, scene, sensor, spp, seed, start, stop):
-            """Trace one tile; every contribution is an event (pixel, monomial, value) summed on the
-            host into sparse matrices: no dense pixels x N_e buffer (coefficients are ~1-3 % non-zero)."""
-            import scipy.sparse as sp
-            N_e, C = self.basis.size, self.n_channels
+        def _tile_matrices(self, scene, sensor, spp, seed, start, stop, halves: bool) -> tuple:
+            """The events of one tile as sparse matrices: ``(Γ,)``, or ``(A, B, Γ)`` with ``halves``."""
+            N_e, n = self.basis.size, stop - start
+            rows, sample, cols, vals = self._tile_events(scene, sensor, spp, seed, start, stop)
+            if not halves:
+                return (_csr(rows, cols, vals, (n, N_e)),)
+            half = spp // 2
+            in_a = sample < half
+            A = _csr(rows[in_a], cols[in_a], vals[:, in_a] * (spp / half), (n, N_e))
+            B = _csr(rows[~in_a], cols[~in_a], vals[:, ~in_a] * (spp / (spp - half)), (n, N_e))
+            gamma = [(half * a + (spp - half) * b) / spp for a, b in zip(A, B)]
+            return A, B, gamma
+
+        def _tile_events(self, scene, sensor, spp, seed, start, stop):
+            """Trace one tile; every contribution is an event (pixel, monomial, value), summed later
+            into sparse matrices: no dense pixels x N_e buffer (coefficients are ~1-3 % non-zero).
+
+            Returns ``(rows, sample, cols, vals)``: tile pixel (non-decreasing), sample index in the
+            pixel, monomial index, and ``(C, m)`` float64 values (each already divided by ``spp``).
+            """
+            C = self.n_channels
             n = stop - start
             if n * spp >= 2 ** 32:
                 raise ConfigError(f"tile of {n} pixels x {spp} spp too large for 32-bit indices: lower tile_pixels")
@@ -490,17 +529,51 @@ def _define_class():
             self._trace(scene, sampler, mi.Ray3f(ray), beta, mi.Bool(True), store)
             dr.eval(ev_mono, ev_val)                                   # one kernel for the tile
 
-            rows = np.repeat(np.arange(n, dtype=np.int32), spp * slots)
-            cols = ev_mono.numpy()
-            vals = np.stack([v.numpy() for v in ev_val], axis=1)      # Floats copy fast; Color3f does not
-            keep = (cols != _EMPTY) & np.any(vals != 0, axis=1)   # occluded NEE etc. add zeros
-            rows, cols, vals = rows[keep], cols[keep], vals[keep].astype(np.float64)
-            return [sp.csr_matrix((vals[:, c], (rows, cols)), shape=(n, N_e)) for c in range(C)]
+            # -------- Compaction on the device: most slots are empty or zero (occluded NEE) ---------
+            keep = ev_mono != _EMPTY
+            nonzero = ev_val[0] != 0
+            for c in range(1, C):
+                nonzero |= ev_val[c] != 0
+            at = dr.compress(keep & nonzero)
+            lane = at // dr.opaque(mi.UInt32, slots)
+            rows = (lane // dr.opaque(mi.UInt32, spp)).numpy().astype(np.int64)
+            sample = (lane % dr.opaque(mi.UInt32, spp)).numpy()
+            cols = dr.gather(mi.UInt32, ev_mono, at).numpy().astype(np.int64)
+            vals = np.stack([dr.gather(mi.Float, v, at).numpy() for v in ev_val]).astype(np.float64)
+            return rows, sample, cols, vals
 
     return PolynomialPathIntegrator
 
 
 _EMPTY = 0xFFFFFFFF   # monomial index of an event slot that received no contribution
+
+
+def _csr(rows, cols, vals, shape) -> list:
+    """Canonical ``csr_matrix`` (sorted indices, duplicates summed), one per row of ``vals``
+    (channels), from events whose ``rows`` are non-decreasing.
+
+    The channels share their sparsity, so the within-row sort runs once: scipy sorts the event
+    numbers as data along with the columns, which gives the permutation for every channel.
+    """
+    import scipy.sparse as sp
+    n, m = shape[0], len(cols)
+    if m == 0:
+        return [sp.csr_matrix(shape) for _ in vals]
+    indptr = np.searchsorted(rows, np.arange(n + 1))
+    perm = sp.csr_matrix((np.arange(m, dtype=np.float64), cols, indptr), shape=shape)
+    perm.sort_indices()
+    order, cols = perm.data.astype(np.int64), perm.indices
+    first = np.empty(m, bool)                  # first event of each (row, column)
+    first[0] = True
+    first[1:] = (cols[1:] != cols[:-1]) | (rows[1:] != rows[:-1])
+    starts = np.flatnonzero(first)
+    indptr = np.searchsorted(rows[starts], np.arange(n + 1))
+    out = []
+    for v in vals:
+        mat = sp.csr_matrix((np.add.reduceat(v[order], starts), cols[starts], indptr), shape=shape)
+        mat.has_canonical_format = True
+        out.append(mat)
+    return out
 
 
 def _tile_seed(seed: int, start: int) -> int:

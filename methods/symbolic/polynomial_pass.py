@@ -144,9 +144,8 @@ def render_view_task(task: dict, *, variant: str, threads: int | None = None
     from framework.executor import init_worker
     init_worker(variant, threads)
     ms, integrator = _scene_and_integrator(task, variant)
-    basis = MonomialBasis(task["n_params"], task["max_bounces"])
     cam = task["cameras"][task["view"]]
-    return _render_view(integrator, ms, task["view"], cam, task["observed"], basis, task["spp"], task["seed"],
+    return _render_view(integrator, ms, task["view"], cam, task["observed"], task["spp"], task["seed"],
                         cross=task.get("cross_gram", True))
 
 
@@ -169,35 +168,33 @@ def _scene_and_integrator(task: dict, variant: str):
     return _WORKER_STATE["value"]
 
 
-def _render_view(integrator, ms, i, cam, observed, basis, spp, seed, cross=True):
+def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True):
     """Tile by tile: accumulate the Gram system and keep sparse coefficients.
 
-    ``cross``: the samples are split into two independent halves (seeds ``seed`` and
-    ``seed ^ 2**30``, both even) whose cross product makes G free of Monte Carlo noise
-    (:meth:`GramSystem.accumulate`); the kept coefficients are the mean of all samples.
+    ``cross``: the samples of each pixel are split into two independent halves
+    (:meth:`PolynomialPathIntegrator.coefficients_halves`, one render) whose cross product makes
+    G free of Monte Carlo noise (:meth:`GramSystem.accumulate_sparse`); the kept coefficients are
+    the mean of all samples.
     """
     from tqdm import tqdm
     C = observed.shape[-1]
     n_pix = cam.width * cam.height
     y = observed.reshape(n_pix, C)
-    system = GramSystem.zeros(basis.size, C)
+    system = GramSystem.zeros(integrator.basis.size, C)
     parts = [[] for _ in range(C)]
     tiles = range(0, n_pix, integrator.tile_pixels)
     for start in tqdm(tiles, desc=f"polynomial pass {cam.name}", unit="tile", leave=False):
         stop = min(n_pix, start + integrator.tile_pixels)
-        tile = dict(pixel_range=(start, stop))
+        tile = dict(spp=spp, seed=seed, pixel_range=(start, stop))
         if cross and spp >= 2:
-            half = spp // 2
-            a = integrator.coefficients_sparse(ms.scene, i, spp=half, seed=seed, **tile)
-            b = integrator.coefficients_sparse(ms.scene, i, spp=spp - half, seed=seed ^ 2**30, **tile)
+            a, b, gamma = integrator.coefficients_halves(ms.scene, i, **tile)
             system.accumulate_sparse(a, y[start:stop], b)
-            gamma = [(half * a[c] + (spp - half) * b[c]) / spp for c in range(C)]
         else:
-            gamma = integrator.coefficients_sparse(ms.scene, i, spp=spp, seed=seed, **tile)
+            gamma = integrator.coefficients_sparse(ms.scene, i, **tile)
             system.accumulate_sparse(gamma, y[start:stop])
         for c in range(C):
-            parts[c].append(gamma[c].tocsr())
-    return system, [sp.vstack(p, format="csr") for p in parts]
+            parts[c].append(gamma[c])
+    return system, [sp.vstack(p, format="csr") if len(p) > 1 else p[0] for p in parts]
 
 
 def _key(problem, cam, parameters, guesses, spp, seed, prob_floor, basis, *, view: int, cross_gram: bool) -> dict:
@@ -207,7 +204,7 @@ def _key(problem, cam, parameters, guesses, spp, seed, prob_floor, basis, *, vie
             "guesses": np.round(np.asarray(guesses, float), 9).tolist(), "prob_floor": float(prob_floor),
             "observed": _digest(problem.observed[cam.name]),
             "variant": str(problem.settings.get("variant_resolved", "")), "cross_gram": bool(cross_gram),
-            "version": 1}
+            "version": 2}
 
 
 def _digest(a: np.ndarray) -> str:
