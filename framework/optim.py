@@ -107,6 +107,7 @@ def minimize(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndarray 
 
     best = OptimResult(x=np.clip(x0, lo, hi), f=np.inf)
     stop = []
+    M = _group_matrix(groups, n)
 
     def objective(x, grad):
         need = grad.size > 0
@@ -120,15 +121,15 @@ def minimize(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndarray 
         best.n_eval += 1
         if need:
             grad[:] = np.asarray(g, dtype=float).ravel()
-        if f < best.f and _feasible(x, lo, hi, groups, 1e-9):
+        if f < best.f and _feasible(x, lo, hi, M, 1e-9):
             best.x, best.f = np.array(x), f
         return f
 
     opt = nlopt.opt(getattr(nlopt, algorithm), n)
     opt.set_lower_bounds(lo)
     opt.set_upper_bounds(hi)
-    for g in groups:
-        opt.add_inequality_constraint(_sum_constraint(g), constraint_tol)
+    if groups:
+        opt.add_inequality_mconstraint(_sum_constraints(M), [float(constraint_tol)] * len(groups))
     opt.set_min_objective(objective)
     opt.set_xtol_rel(float(xtol_rel))
     opt.set_ftol_rel(float(ftol_rel))
@@ -170,20 +171,26 @@ def _run(opt, x0: np.ndarray, stopped) -> str:
     return "FORCED_STOP" if stopped() else _STATUS.get(opt.last_optimize_result(), str(opt.last_optimize_result()))
 
 
-def _sum_constraint(g: np.ndarray):
-    def c(x, grad):
+def _group_matrix(groups: list[np.ndarray], n: int) -> np.ndarray:
+    """``(len(groups), n)`` 0/1 matrix ``M`` with ``(M x)_i = Σ x[groups[i]]``."""
+    M = np.zeros((len(groups), n))
+    for i, g in enumerate(groups):
+        M[i, g] = 1.0
+    return M
+
+
+def _sum_constraints(M: np.ndarray):
+    """All ``Σ x[g] - 1 <= 0`` in one nlopt vector constraint (one callback per evaluation)."""
+    def c(result, x, grad):
         if grad.size > 0:
-            grad[:] = 0.0
-            grad[g] = 1.0
-        return float(np.sum(x[g]) - 1.0)
+            grad[:] = M
+        result[:] = M @ x - 1.0
     return c
 
 
-def _feasible(x, lo, hi, groups, tol: float) -> bool:
+def _feasible(x, lo, hi, M: np.ndarray, tol: float) -> bool:
     x = np.asarray(x)
-    if np.any(x < lo - tol) or np.any(x > hi + tol):
-        return False
-    return all(np.sum(x[g]) <= 1.0 + tol for g in groups)
+    return bool(np.all(x >= lo - tol) and np.all(x <= hi + tol) and np.all(M @ x <= 1.0 + tol))
 
 
 def project_feasible(x: np.ndarray, groups: Sequence[Sequence[int]]) -> np.ndarray:

@@ -64,3 +64,17 @@ def test_evaluate_jacobian_hessian_vs_finite_differences():
     J0 = b.jacobian(np.zeros(4))
     assert J0[1, 0] == 1.0 and J0[b.index([0, 0]), 0] == 0.0
     assert b.evaluate(np.zeros(4))[0] == 1.0
+    # the Hessian is symmetric, exact at zero: d²(ρ0ρ1)/dρ0dρ1 = 1
+    assert np.array_equal(H, H.transpose(0, 2, 1))
+    assert b.hessian(np.zeros(4))[b.index([0, 1]), 0, 1] == 1.0
+
+
+def test_jacobian_t_dot_and_batched_evaluate():
+    """jacobian_t_dot(μ, r) = J(ρ)ᵀ r (dense J as reference); batched evaluate = row by row."""
+    rng = np.random.default_rng(4)
+    b = MonomialBasis(5, 3)
+    rho = rng.uniform(0, 1, (3, 5))
+    r = rng.normal(size=b.size)
+    for x in rho:
+        np.testing.assert_allclose(b.jacobian_t_dot(b.evaluate(x), r), b.jacobian(x).T @ r, rtol=1e-12)
+    np.testing.assert_array_equal(b.evaluate(rho), np.stack([b.evaluate(x) for x in rho]))

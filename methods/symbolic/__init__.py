@@ -100,6 +100,7 @@ class SymbolicMethod(Method):
         recon = {cam.name: result.image(cam.name, mu, (cam.height, cam.width)) for cam in problem.cameras}
         sol = fit["solve"]
         extras = {"n_monomials": basis.size, "solver_evaluations": sol.n_evals if sol else 0,
+                  "solver_evaluations_from_guess": sol.guess_evals if sol else 0,
                   "initial_guess": x0.tolist(), "views_from_cache": result.from_cache,
                   "correlation": fit["correlation"], "residual_variance": fit["sigma2"],
                   "executor": str((settings.get("executor") or {}).get("name", "serial"))}

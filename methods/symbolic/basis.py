@@ -89,6 +89,16 @@ class MonomialBasis:
                     e[k] += 1
         self._lowered = lowered
 
+        # μ_m = μ_parent(m) · ρ_var(m) (var: the first variable of m): one product per monomial,
+        # degree by degree (monomials are ordered by degree, so each degree is a slice).
+        self._var = np.argmax(exps > 0, axis=1)
+        self._parent = lowered[np.arange(self.size), self._var]
+        bounds = np.searchsorted(self.degrees, np.arange(N + 2))
+        self._levels = [slice(int(bounds[d]), int(bounds[d + 1])) for d in range(1, N + 1)]
+        # Non-zeros of the Jacobian: (monomial, variable, exponent, lowered monomial).
+        jm, jk = np.nonzero(exps)
+        self._jac = (jm, jk, exps[jm, jk].astype(float), lowered[jm, jk])
+
     # ------------------------------------------------------------------------------------------
     def key(self, params) -> int:
         """Ordered key ``Σ_i (p_i + 1)(D + 1)^i`` of the parameter sequence ``params``."""
@@ -112,7 +122,11 @@ class MonomialBasis:
             ``(N_e,)`` (or ``(B, N_e)``): ``∏_j ρ_j^{e_{j,m}}`` for every monomial ``m`` (eq. 7).
         """
         rho = np.asarray(rho, dtype=float)
-        return np.prod(rho[..., None, :] ** self.exponents, axis=-1)
+        mu = np.empty(rho.shape[:-1] + (self.size,))
+        mu[..., 0] = 1.0
+        for level in self._levels:
+            mu[..., level] = mu[..., self._parent[level]] * rho[..., self._var[level]]
+        return mu
 
     def jacobian(self, rho: np.ndarray, mu: np.ndarray | None = None) -> np.ndarray:
         """Derivatives ``∂(∏_j ρ_j^{e_{j,m}})/∂ρ_k``.
@@ -130,26 +144,40 @@ class MonomialBasis:
             ``(N_e, D)`` Jacobian ``e_mk μ_{m - 1_k}``; exact, also at ``ρ_k = 0``.
         """
         mu = self.evaluate(rho) if mu is None else mu
-        return self.exponents * mu[self._lowered]
+        jm, jk, je, jl = self._jac
+        J = np.zeros((self.size, self.n_params))
+        J[jm, jk] = je * mu[jl]
+        return J
+
+    def jacobian_t_dot(self, mu: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """``J(ρ)ᵀ r`` without forming ``J`` (it has at most ``N_max`` non-zeros per row).
+
+        Parameters
+        ----------
+        mu : numpy.ndarray
+            ``(N_e,)`` monomials at ρ (:meth:`evaluate`).
+        r : numpy.ndarray
+            ``(N_e,)`` vector, e.g. the residual ``Gμ - b`` of the cost.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(D,)``: ``Σ_m e_mk μ_{m - 1_k} r_m`` for every ``k``.
+        """
+        jm, jk, je, jl = self._jac
+        return np.bincount(jk, weights=je * mu[jl] * r[jm], minlength=self.n_params)
 
     def hessian(self, rho: np.ndarray) -> np.ndarray:
-        """Second derivatives ``∂²(∏_j ρ_j^{e_{j,m}})/∂ρ_k∂ρ_l``, shape ``(N_e, D, D)``."""
-        rho = np.asarray(rho, dtype=float)
+        """Second derivatives ``∂²(∏_j ρ_j^{e_{j,m}})/∂ρ_k∂ρ_l``, shape ``(N_e, D, D)``.
+
+        Lowering twice: ``∂²μ_m/∂ρ_k∂ρ_l = e_mk · e_{m', l} · μ_{m' - 1_l}`` with ``m' = m - 1_k``.
+        """
+        mu = self.evaluate(rho)
+        jm, jk, je, jl = self._jac
         E = self.exponents
-        D = self.n_params
-        out = np.zeros((self.size, D, D))
-        for k in range(D):
-            for l in range(k, D):
-                e = E.copy()
-                coef = e[:, k].astype(float)
-                e[:, k] -= 1
-                coef = coef * np.where(e[:, k] >= 0, 1.0, 0.0)
-                coef = coef * e[:, l]
-                e[:, l] -= 1
-                ok = (e >= 0).all(axis=1)
-                val = np.where(ok, coef * np.prod(rho[None, :] ** np.maximum(e, 0), axis=1), 0.0)
-                out[:, k, l] = val
-                out[:, l, k] = val
+        out = np.zeros((self.size, self.n_params, self.n_params))
+        coef = je[:, None] * E[jl]                                  # (nnz, D): e_mk · e_{m', l}
+        out[jm, jk, :] = coef * mu[self._lowered[jl]]
         return out
 
     def __repr__(self) -> str:

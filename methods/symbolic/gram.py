@@ -115,6 +115,12 @@ class GramSystem:
         self.n_pixels += n
         return self
 
+    def used_monomials(self) -> np.ndarray:
+        """Indices of the monomials some pixel depends on (a non-zero row of G or entry of b, any
+        channel). The others do not change the cost: a solver may leave them out (a single street
+        view holds about 40 % of the N_e monomials)."""
+        return np.flatnonzero(np.any(self.G != 0, axis=(0, 2)) | np.any(self.b != 0, axis=0))
+
     def __add__(self, other: "GramSystem") -> "GramSystem":
         if not isinstance(other, GramSystem):
             return NotImplemented

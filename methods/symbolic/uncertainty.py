@@ -123,9 +123,12 @@ def restrict_system(system: GramSystem, basis: MonomialBasis, keep: np.ndarray
     (GramSystem, MonomialBasis, numpy.ndarray)
         The restricted system, its basis (``sum(keep)`` parameters, same maximal degree) and
         the full-basis index of each restricted monomial. Exact when the dropped parameters are
-        unobservable (their monomials have zero rows/columns in ``G`` and zero ``b``).
+        unobservable (their monomials have zero rows/columns in ``G`` and zero ``b``). With
+        every parameter kept, ``system`` and ``basis`` themselves.
     """
     kept = np.flatnonzero(keep)
+    if len(kept) == basis.n_params:
+        return system, basis, np.arange(basis.size)
     sub = MonomialBasis(len(kept), basis.max_degree)
     idx = np.array([basis.index(np.repeat(kept, e)) for e in sub.exponents], dtype=np.int64)
     G = system.G[:, idx][:, :, idx]
