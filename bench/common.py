@@ -19,19 +19,26 @@ def compose(overrides: list[str]):
         return hydra_compose("config", overrides=list(overrides))
 
 
-def view_names(scene_name: str) -> list[str]:
-    """All camera names of a bundled scene, its default view first."""
+def view_names(scene_name: str, folder: Path | None = None) -> list[str]:
+    """All camera names of a scene, the default view of config ``scene=<scene_name>`` first.
+
+    ``folder``: the scene folder to read the cameras from (a ``scene.dir``); default the bundled
+    folder ``scenes/<scene_name>``.
+    """
     from framework.scene import load_scene
     from scenes import BUNDLED_DIR
     cfg = compose([f"scene={scene_name}"])
-    names = [c.name for c in load_scene(Path(BUNDLED_DIR) / scene_name).cameras]
+    names = [c.name for c in load_scene(Path(folder) if folder else Path(BUNDLED_DIR) / scene_name).cameras]
     first = [v for v in cfg.scene.views if v in names]
     return first + [n for n in names if n not in first]
 
 
-def views_override(scene_name: str, n: int) -> str:
-    """``views=...`` override for the first ``n`` views (default view first); ``n = 0``: all."""
-    names = view_names(scene_name)
+def views_override(scene_name: str, n: int, folder: Path | None = None) -> str:
+    """``views=...`` override for the first ``n`` views (default view first); ``n = 0``: all.
+
+    ``folder`` as in :func:`view_names`.
+    """
+    names = view_names(scene_name, folder)
     if n <= 0 or n >= len(names):
         return "views=all"
     return "views=[" + ",".join(names[:n]) + "]"

@@ -1,4 +1,9 @@
-"""Section 2: peak memory and time of the symbolic method at 1, 4 and all views.
+"""Section 2: peak memory and time of the symbolic method against the number of views and image size.
+
+The bundled ``urban_canyon`` has nine 200x200 views; the runs here use variants of it with 15
+street views and the aerial one (16 views) at each image size, built by
+:func:`scenes.urban_canyon.build` into ``<work>/scenes/urban_canyon_v16_s<size>/`` and given as
+``scene.dir``; a run on ``n`` views takes the first ``n`` (the default view first).
 
 Each configuration runs in its own subprocess (:mod:`bench.child` around
 ``python -m framework.run``), with a fresh empty ``cache.dir`` so nothing comes from a cache
@@ -7,11 +12,14 @@ Each configuration runs in its own subprocess (:mod:`bench.child` around
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
-from bench.common import ROOT, view_names, views_override
+from bench.common import ROOT, views_override
+
+SCENE = "urban_canyon"
 
 
 def run_child(overrides: list[str], timeout: float = 1800) -> dict:
@@ -24,33 +32,54 @@ def run_child(overrides: list[str], timeout: float = 1800) -> dict:
     raise RuntimeError(f"bench.child failed (rc {proc.returncode}): {proc.stderr[-2000:]}")
 
 
-def measure(sizes, work: Path, n_views: int, executor: str = "serial") -> dict:
-    """One symbolic run on ``n_views`` views (0: all) in a fresh subprocess and fresh cache."""
-    tag = f"{executor}_{n_views or 'all'}"
-    overrides = ["method=symbolic", "scene=urban_canyon", views_override("urban_canyon", n_views),
+def scene_variant(work: Path, n_views: int, image: int) -> Path:
+    """The ``urban_canyon`` variant with ``n_views`` views (``n_views - 1`` street + aerial) of
+    ``image`` x ``image`` pixels under ``work/scenes``, built once (reused if complete)."""
+    from scenes import urban_canyon
+    folder = work / "scenes" / f"{SCENE}_v{n_views}_s{image}"
+    if not (folder / "scene.yaml").is_file():
+        if folder.exists():
+            shutil.rmtree(folder)
+        urban_canyon.build(folder, "rgb", n_street=n_views - 1, image=image)
+    return folder
+
+
+def measure(sizes, work: Path, n_views: int, image: int, executor: str = "serial") -> dict:
+    """One symbolic run on the first ``n_views`` views (0: all) of the ``image``-pixel variant,
+    in a fresh subprocess and fresh cache."""
+    folder = scene_variant(work, sizes.mem_scene_views, image)
+    n = n_views if 0 < n_views <= sizes.mem_scene_views else sizes.mem_scene_views
+    tag = f"{executor}_v{n}_s{image}"
+    cache, run_dir = work / "cache" / tag, work / "runs" / tag
+    for old in (cache, run_dir):          # fresh and empty even when ``work`` is reused
+        if old.exists():
+            shutil.rmtree(old)
+    overrides = ["method=symbolic", f"scene={SCENE}", f"scene.dir={folder}", views_override(SCENE, n, folder),
                  f"render.spp={sizes.mem_spp}", f"observe.spp={sizes.mem_observe_spp}", "report=false",
-                 f"cache.dir={work / 'cache' / tag}", f"hydra.run.dir={work / 'runs' / tag}",
+                 f"cache.dir={cache}", f"hydra.run.dir={run_dir}",
                  f"executor={executor}", *sizes.extra]
     if executor == "dask":
         overrides += ["executor.n_workers=2", "executor.threads_per_worker=1"]
     out = run_child(overrides)
-    res_path = work / "runs" / tag / "results.json"
+    res_path = run_dir / "results.json"
     res = json.loads(res_path.read_text()) if res_path.is_file() else {}
-    n = n_views if n_views > 0 else len(view_names("urban_canyon"))
-    return {"views": n, "executor": executor, "rc": out["rc"], "wall_s": out["wall_s"],
-            "maxrss_mib": out["maxrss_mib"], "tree_peak_mib": out["tree_peak_mib"],
+    return {"views": n, "image": image, "executor": executor, "scene_dir": str(folder), "rc": out["rc"],
+            "wall_s": out["wall_s"], "maxrss_mib": out["maxrss_mib"], "tree_peak_mib": out["tree_peak_mib"],
             "timings_s": res.get("timings_s", {}), "error": None if out["rc"] == 0 else out["stderr_tail"]}
 
 
+def plan(sizes) -> list[tuple[int, int, str]]:
+    """``(views, image, executor)`` of every run: serial at each image size and view count, then Dask."""
+    runs = [(n, s, "serial") for s in sizes.mem_images for n in sizes.mem_views]
+    return runs + [(n, sizes.mem_dask_image, "dask") for n in sizes.mem_dask_views]
+
+
 def run(sizes, work: Path, log=print) -> list[dict]:
-    """All memory rows (serial at each ``sizes.mem_views``, then Dask if configured)."""
+    """All memory rows, in :func:`plan` order."""
     rows = []
-    plan = [(n, "serial") for n in sizes.mem_views]
-    if sizes.mem_dask_views:
-        plan.append((sizes.mem_dask_views, "dask"))
-    for n, executor in plan:
-        rows.append(measure(sizes, work, n, executor))
+    for n, image, executor in plan(sizes):
+        rows.append(measure(sizes, work, n, image, executor))
         r = rows[-1]
-        log(f"[memory] {executor} {r['views']} view(s): rc {r['rc']}, {r['wall_s']:.1f} s, "
+        log(f"[memory] {executor} {r['views']} view(s) {image}x{image}: rc {r['rc']}, {r['wall_s']:.1f} s, "
             f"peak RSS {r['maxrss_mib']:.0f} MiB, tree {r['tree_peak_mib']:.0f} MiB")
     return rows

@@ -17,9 +17,16 @@ class Sizes:
     ratio_reps : int
         Timed repetitions (median) after one warm-up.
     mem_views : tuple of int
-        Numbers of views of the memory runs (section 2); 0 means all views.
-    mem_dask_views : int
-        Views of the ``executor=dask`` memory run (0: skipped).
+        Numbers of views of the serial memory runs (section 2); 0 means all views.
+    mem_images : tuple of int
+        Image sizes (square, pixels) of the serial memory runs; each with every ``mem_views``.
+    mem_dask_views : tuple of int
+        Numbers of views of the ``executor=dask`` memory runs (2 workers; empty: skipped).
+    mem_dask_image : int
+        Image size of the Dask memory runs.
+    mem_scene_views : int
+        Views of the ``urban_canyon`` variant the memory runs use (street views + the aerial one);
+        at least the largest view count.
     mem_spp, mem_observe_spp : int
         ``render.spp`` and ``observe.spp`` of the memory runs.
     cmp_spp, cmp_observe_spp, cmp_budget : int
@@ -35,8 +42,11 @@ class Sizes:
     name: str = "default"
     ratio_spps: tuple = (16, 64)
     ratio_reps: int = 3
-    mem_views: tuple = (1, 4, 0)
-    mem_dask_views: int = 4
+    mem_views: tuple = (1, 4, 16)
+    mem_images: tuple = (100, 200)
+    mem_dask_views: tuple = (4, 16)
+    mem_dask_image: int = 200
+    mem_scene_views: int = 16
     mem_spp: int = 32
     mem_observe_spp: int = 128
     cmp_spp: int = 32
@@ -48,6 +58,7 @@ class Sizes:
 
 
 DEFAULT = Sizes()
-QUICK = Sizes(name="quick", ratio_spps=(4,), ratio_reps=1, mem_views=(1, 2), mem_dask_views=2,
+QUICK = Sizes(name="quick", ratio_spps=(4,), ratio_reps=1, mem_views=(1, 2), mem_images=(32,),
+              mem_dask_views=(2,), mem_dask_image=32,
               mem_spp=4, mem_observe_spp=8, cmp_spp=4, cmp_observe_spp=16, cmp_budget=20,
               cmp_budget_all=14, all_views=2, extra=("method.solver.starts=1",))

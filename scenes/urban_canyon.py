@@ -153,15 +153,30 @@ def meshes() -> dict[str, list[tuple[str, g.Mesh]]]:
     return out
 
 
-def cameras() -> list[PinholeCamera]:
-    """Eight street views from a mapping vehicle 2.5 m up, alternating facades, and one aerial view."""
-    focal = focal_from_fov(IMAGE, FOV)
-    views = []
-    for i in range(8):
-        x, side, ahead = -14.0 + 4.0 * i, 1 if i % 2 == 0 else -1, 6.0 if i < 4 else -6.0
-        pose = look_at([x, 0.0, 2.5], [x + ahead, side * HALF_WIDTH, 4.5])
-        views.append(PinholeCamera(f"street_{i:03d}.png", IMAGE, IMAGE, focal, pose))
-    views.append(PinholeCamera("aerial_000.png", IMAGE, IMAGE, focal,
+def street_view(i: int, n_street: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """(eye, target) of street view ``i`` of ``n_street``: a mapping vehicle 2.5 m up on the centre line.
+
+    The views are evenly spaced along x in [-14, 14] m (every 4 m for the bundled eight),
+    alternate facades (even ``i``: north), and look 6 m ahead (+x) in the first half, 6 m back
+    in the second, at 4.5 m up on the facade: eye and target stay within the facades' extent.
+    """
+    step = 28.0 / (n_street - 1) if n_street > 1 else 0.0
+    x, side, ahead = -14.0 + step * i, 1 if i % 2 == 0 else -1, 6.0 if i < n_street / 2 else -6.0
+    return np.array([x, 0.0, 2.5]), np.array([x + ahead, side * HALF_WIDTH, 4.5])
+
+
+def cameras(n_street: int = 8, image: int = IMAGE) -> list[PinholeCamera]:
+    """``n_street`` street views (:func:`street_view`) and one aerial view, ``image`` x ``image`` pixels.
+
+    The defaults give the bundled scene's nine views; more street views (e.g. 15, for 16 views in
+    all) continue the same pattern at a closer spacing.
+    """
+    if n_street < 1:
+        raise ValueError(f"n_street={n_street}: use at least one street view")
+    focal = focal_from_fov(image, FOV)
+    views = [PinholeCamera(f"street_{i:03d}.png", image, image, focal, look_at(*street_view(i, n_street)))
+             for i in range(n_street)]
+    views.append(PinholeCamera("aerial_000.png", image, image, focal,
                                look_at([-6.0, -24.0, 38.0], [0.0, 3.0, 2.0])))
     return views
 
@@ -180,15 +195,19 @@ def segments(channels: str, files: dict[str, list[str]]) -> list[dict]:
     return out
 
 
-def build(folder: Path, channels: str = "rgb") -> Path:
-    """Write the scene folder (``channels``: ``rgb`` or ``mono``, the 550 nm band)."""
+def build(folder: Path, channels: str = "rgb", *, n_street: int = 8, image: int = IMAGE) -> Path:
+    """Write the scene folder (``channels``: ``rgb`` or ``mono``, the 550 nm band).
+
+    ``n_street`` and ``image`` give a variant with other street views or image size (see
+    :func:`cameras`; the benchmark's 16-view scenes); the defaults write the bundled scene.
+    """
     folder = Path(folder)
     files = {seg: [str(write_mesh(folder / "meshes" / f"{stem}.ply", *m).relative_to(folder))
                    for stem, m in parts] for seg, parts in meshes().items()}
     sun = sun_vector(SUN_ELEVATION, SUN_AZIMUTH)
     write_exr(folder / "sky.exr", bake_sky(sun, *SKY_SIZE, channels, TURBIDITY), ("R", "G", "B") if channels == "rgb" else ("Y",))
     e_sun = sun_irradiance(sun, channels, TURBIDITY)
-    write_colmap(folder / "sparse", cameras(), landmarks())
+    write_colmap(folder / "sparse", cameras(n_street, image), landmarks())
     scene = {"name": folder.name, "channels": channels, "segments": segments(channels, files),
              "emitters": [{"type": "envmap", "file": "sky.exr", "scale": 1.0},
                           {"type": "directional", "direction": (-sun).tolist(),

@@ -44,8 +44,9 @@ def test_markdown_renders_from_fake_numbers():
                        "solve_share": 0.1, "solve_share_pass": 0.005, "n_monomials": 455, "n_params": 12}],
              "view": "v", "size": "8x8", "max_bounces": 3, "reps": 1, "segments": 6,
              "kernels": ["diffuse", "specular"], "channels": ["Y"], "observe_spp": 8}
-    mem = [{"views": n, "executor": "serial", "rc": 0, "wall_s": 1.0, "maxrss_mib": 100.0 + n,
-            "tree_peak_mib": 100.0, "timings_s": {"render": 1.0, "solve": 0.1}} for n in (1, 2)]
+    mem = [{"views": n, "image": s, "executor": ex, "rc": 0, "wall_s": 1.0, "maxrss_mib": 100.0 + n + s,
+            "tree_peak_mib": 100.0, "timings_s": {"render": 1.0, "solve": 0.1}}
+           for s in (32, 64) for n, ex in ((4, "serial"), (1, "serial"), (4, "dask"))]
     rows = [{"label": lab, "scene": "urban_canyon", "views": v, "n_views": 1, "budget": 20, "run_dir": "x",
              "results": _fake_results(0.01)} for v in ("single", "all")
             for lab in ("symbolic", "iterative (noise fresh)", "differentiable")]
@@ -56,3 +57,5 @@ def test_markdown_renders_from_fake_numbers():
                "python": "p", "platform": "x", "date": "today", "git": "g"}
     text = markdown.render(machine, "python -m bench --quick", 60.0, sizes, ratio, mem, rows, mono, "r.md")
     assert "python -m bench --quick" in text and "Table 2" in text and "**not met**" in text
+    assert "| 4 | 64x64 | dask |" in text
+    assert "32x32: +2 % (133 MiB at 1 view to 136 MiB at 4); 64x64: +2 % (165 MiB at 1 view to 168 MiB at 4)" in text

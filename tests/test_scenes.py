@@ -156,6 +156,24 @@ def test_urban_canyon_segment_visibility():
         assert vis[view] == segments - {"roof"}
 
 
+
+def test_urban_canyon_variant_more_views_other_size(tmp_path):
+    """``build(n_street=15, image=48)``: 16 views of 48x48 continuing the street pattern, all in the street."""
+    from scenes.preview import segment_ids
+
+    folder = urban_canyon.build(tmp_path / "urban_canyon_v16", n_street=15, image=48)
+    cams = read_colmap(folder / "sparse")
+    assert sorted(c.name for c in cams) == ["aerial_000.png"] + [f"street_{i:03d}.png" for i in range(15)]
+    assert all((c.width, c.height) == (48, 48) for c in cams)
+    names = [s["name"] for s in yaml.safe_load((folder / "scene.yaml").read_text())["segments"]]
+    for cam in cams:
+        if not cam.name.startswith("street"):
+            continue
+        eye = -cam.cam_from_world[:, :3].T @ cam.cam_from_world[:, 3]
+        assert abs(eye[0]) < urban_canyon.LENGTH / 2 and abs(eye[1]) < urban_canyon.HALF_WIDTH
+        seen = {names[k] for k in np.unique(segment_ids(folder, cam)) if k >= 0}
+        assert {"wall", "window", "asphalt"} <= seen, cam.name
+
 def test_sun_matches_sky():
     """The directional sun and the baked sky's bright horizon share an azimuth; ground is uniform."""
     from framework.envmap import texel_directions
