@@ -64,8 +64,9 @@ def section_memory(rows: list[dict], sizes) -> list[str]:
              f"with {sizes.mem_scene_views - 1} street views and the aerial one ({sizes.mem_scene_views} views; "
              "`scenes.urban_canyon.build(folder, n_street=..., image=...)`, same geometry and light) at each "
              "image size, built into the benchmark's work folder; a run on n views takes the first n: the "
-             "default view street_002, then in name order (aerial_000, street_000, ...). Each run is in a fresh subprocess (`bench.child`) with a fresh "
-             "empty cache.dir (observations rendered inside the job). "
+             "default view street_002, then in name order (aerial_000, street_000, ...). Each run is in a "
+             "fresh subprocess (`bench.child`) with a fresh empty cache.dir (observations rendered inside the "
+             "job). "
              "Peak RSS: `getrusage(RUSAGE_CHILDREN).ru_maxrss` of the wrapper after the job exits (the "
              "largest single process); tree peak: the largest sampled sum of RSS over the job and its "
              "descendants (Dask workers included; sampled every 0.1 s). Target: flat in the number of views.", ""]
