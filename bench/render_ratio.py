@@ -65,7 +65,8 @@ def _render_fn(problem, spp: int, rho):
     """A no-argument function rendering view 0 with ``path`` (max_depth N_max + 1, box filter)
     at the weights ``rho`` (the pass's guesses: a render of the iterative method's loop)."""
     from framework.mitsuba_scene import MitsubaScene, max_depth_for
-    depth = max_depth_for(int(problem.settings.render.max_bounces))
+    render = problem.settings.render
+    depth = max_depth_for(int(render.max_bounces) + int(render.get("tail_bounces", 0)))
     ms = MitsubaScene(problem.scene, problem.cameras[:1], spp=spp, integrator={"type": "path", "max_depth": depth})
     ms.set_weights(rho, problem.parameters)    # weights start at 0: a black scene renders too fast
     return lambda: ms.render(0, spp=spp, seed=2)

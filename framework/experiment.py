@@ -28,6 +28,7 @@ def scene_dir(cfg: DictConfig) -> Path:
 def check_settings(cfg: DictConfig) -> None:
     """Reject settings outside their range, naming the key and the allowed range."""
     checks = [("render.spp", cfg.render.spp, 1, None), ("render.max_bounces", cfg.render.max_bounces, 1, 8),
+              ("render.tail_bounces", cfg.render.get("tail_bounces", 0), 0, 16),
               ("budget.renders", cfg.budget.renders, 1, None), ("observe.spp", cfg.observe.spp, 1, None)]
     for key, value, lo, hi in checks:
         if not isinstance(value, int) or value < lo or (hi is not None and value > hi):

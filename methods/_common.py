@@ -189,9 +189,11 @@ def render_pass(ms, *, spp: int, seeds: list[int], ledger: RenderLedger) -> list
 
 
 def max_depth(problem) -> int:
-    """Mitsuba ``max_depth`` for the run's ``render.max_bounces`` (N_max + 1)."""
+    """Mitsuba ``max_depth`` for the run's ``render.max_bounces`` and ``render.tail_bounces``
+    (N_max + T + 1: a baseline renders every reflection the symbolic pass traces)."""
     from framework.mitsuba_scene import max_depth_for
-    return max_depth_for(int(problem.settings.render.max_bounces))
+    render = problem.settings.render
+    return max_depth_for(int(render.max_bounces) + int(render.get("tail_bounces", 0)))
 
 
 def loop_result(problem, ledger: RenderLedger, *, started: float, rho: np.ndarray, costs: list[float],

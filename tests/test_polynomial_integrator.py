@@ -173,6 +173,32 @@ def test_cornell_matches_path(guess):
         assert np.all(np.abs(_z(ig.mean((1, 2)), rg.mean((1, 2)))) < 4)
 
 
+def test_tail_is_exact_at_the_guesses():
+    """tail_bounces T: at ρ = guesses the polynomial equals path with max_depth = N_max + T + 1
+    (|z| < 4 on image and quadrant means, R = 4 x 32 spp), and holds visibly more light than the
+    truncated path (max_depth = N_max + 1): the test has power."""
+    rho = np.full((5, 3), 0.6) * [[1], [0.5], [1], [1], [1]]
+    N, T, R, spp, res = 1, 3, 4, 32, 32
+    scene, shape_segments = cornell(rho)
+    integ = PolynomialPathIntegrator.create(shape_segments, SEGMENTS, 5, rho, max_bounces=N, tail_bounces=T)
+    deep = mi.load_dict({"type": "path", "max_depth": N + T + 1, "rr_depth": 1000})
+    short = mi.load_dict({"type": "path", "max_depth": N + 1, "rr_depth": 1000})
+    poly, ref, trunc = [], [], []
+    for r in range(R):
+        c = integ.coefficients(scene, spp=spp, seed=10 + r)
+        img = np.stack([c[:, :, ch] @ integ.basis.evaluate(rho[:, ch]) for ch in range(3)], -1)
+        poly.append(img.reshape(res, res, 3))
+        ref.append(np.asarray(mi.render(scene, integrator=deep, spp=spp, seed=100 + r)))
+        trunc.append(np.asarray(mi.render(scene, integrator=short, spp=spp, seed=100 + r)))
+    poly, ref, trunc = np.array(poly), np.array(ref), np.array(trunc)
+    quads = lambda x: x.reshape(R, 2, res // 2, 2, res // 2, 3).mean((2, 4))
+    assert np.all(np.abs(_z(poly.mean((1, 2)), ref.mean((1, 2)))) < 4)
+    assert np.all(np.abs(_z(quads(poly), quads(ref))) < 4)
+    assert np.all(_z(poly.mean((1, 2)), trunc.mean((1, 2))) > 8)
+    with pytest.raises(ConfigError, match="tail_bounces=-1"):
+        PolynomialPathIntegrator.create(shape_segments, SEGMENTS, 5, rho, tail_bounces=-1)
+
+
 def test_pixel_range_and_tiles():
     """pixel_range / tile_pixels return the same pixels (first tile shares the seed, exact; later
     tiles have their own seed, so only the shape and the deterministic constant monomial match)."""

@@ -53,7 +53,9 @@ class SymbolicMethod(Method):
         ``<view>.reflectance`` (shadow-free albedo) (H, W, C) arrays (:mod:`framework.relight`);
         not counted in ``renders`` (post-inversion), timed as ``timings_s["relight"]``.
 
-    Uses ``render.spp``, ``render.max_bounces`` (N_max), ``seed`` and ``executor`` (views rendered
+    Uses ``render.spp``, ``render.max_bounces`` (N_max), ``render.tail_bounces`` (T: light beyond
+    N_max reflections, linearised at the guesses, see :class:`PolynomialPathIntegrator`; 0 is the
+    paper's truncation), ``seed`` and ``executor`` (views rendered
     in Dask workers, :mod:`framework.executor`) of the main config.
 
     Uncertainty (:mod:`methods.symbolic.uncertainty`): parameters no pixel depends on are
@@ -89,6 +91,7 @@ class SymbolicMethod(Method):
         basis = MonomialBasis(len(params), int(settings.render.max_bounces))
         with make_executor(settings.get("executor")) as executor:
             result = polynomial_pass(sub, params, x0, basis, spp=int(settings.render.spp),
+                                     tail_bounces=int(settings.render.get("tail_bounces", 0)),
                                      seed=int(problem.seed) + 7777 * renders,
                                      prob_floor=float(self.cfg.prob_floor), memory_mb=float(self.cfg.memory_mb),
                                      cache=Cache(settings.cache.dir), executor=executor,

@@ -82,6 +82,15 @@ def _define_class():
           chosen kernel at unit weight in place of the segment's BSDF, and the division by ``q_k``.
         * No Russian roulette; paths stop after ``N_max`` reflections. A ray leaving the scene or
           hitting a shape of segment ``-1`` (emit-only, or a shape not configured) ends the path.
+        * Tail (``tail_bounces = T > 0``, not in the paper): light reflected more than ``N_max``
+          times is not dropped but linearised at the guesses. Vertices ``N_max .. N_max + T - 1``
+          choose a kernel the same way but multiply the path by its guess ``ρ̂_{p}`` instead of
+          joining the monomial, and their contributions go to the monomial of the path's first
+          ``N_max`` vertices: a path of ``d > N_max`` reflections adds
+          ``α ∏_{i<N_max} ρ_{p_i} ∏_{i>=N_max} ρ̂_{p_i}``. The polynomial is then exact at
+          ``ρ = ρ̂`` for paths up to ``N_max + T`` reflections (Mitsuba ``path`` with
+          ``max_depth = N_max + T + 1``) and its error elsewhere is of the order of
+          ``ρ - ρ̂`` times the light beyond ``N_max`` reflections, instead of all of that light.
 
         Each sample has weight ``1/spp`` (box pixel filter: samples are uniform inside their pixel
         and never spread to a neighbour). The coefficients are accumulated per (pixel, monomial,
@@ -99,6 +108,9 @@ def _define_class():
             ``path`` with ``max_depth = N_max + 1`` estimates the same image.
         prob_floor : float, default 0.1
             Lower bound of the kernel selection probabilities, in [0, 1].
+        tail_bounces : int, default 0
+            ``T``, reflections traced beyond ``N_max`` with the guesses as weights (>= 0; 0: the
+            paper's truncation).
         tile_pixels : int, default 4096
             Pixels per wavefront in :meth:`coefficients`.
         reduce_mode : str, default ``"auto"``
@@ -129,6 +141,7 @@ def _define_class():
             mi.SamplingIntegrator.__init__(self, props)
             max_bounces = props.get("max_bounces", 3)
             prob_floor = props.get("prob_floor", 0.1)
+            tail_bounces = props.get("tail_bounces", 0)
             self.tile_pixels = int(props.get("tile_pixels", 4096))
             mode = str(props.get("reduce_mode", "auto")).lower()
             if mode not in _REDUCE_MODES:
@@ -136,30 +149,35 @@ def _define_class():
             self.reduce_mode = getattr(dr.ReduceMode, _REDUCE_MODES[mode])
             if self.tile_pixels < 1:
                 raise ConfigError(f"tile_pixels={self.tile_pixels}: must be >= 1")
-            self._set_scalars(max_bounces, prob_floor)
+            self._set_scalars(max_bounces, prob_floor, tail_bounces)
             self._configured = False
             self._shape_tables: dict[int, mi.Int32] = {}
 
-        def _set_scalars(self, max_bounces, prob_floor):
+        def _set_scalars(self, max_bounces, prob_floor, tail_bounces=0):
             if int(max_bounces) != max_bounces or int(max_bounces) < 1:
                 raise ConfigError(f"max_bounces={max_bounces}: N_max must be an integer in [1, ∞) "
                                   "(1 = direct lighting only)")
             if not (0.0 <= float(prob_floor) <= 1.0):
                 raise ConfigError(f"prob_floor={prob_floor}: must be in [0, 1]")
+            if int(tail_bounces) != tail_bounces or int(tail_bounces) < 0:
+                raise ConfigError(f"tail_bounces={tail_bounces}: must be an integer in [0, ∞) "
+                                  "(0 = no light beyond max_bounces reflections)")
             self.max_bounces = int(max_bounces)
             self.prob_floor = float(prob_floor)
+            self.tail_bounces = int(tail_bounces)
 
         # ------------------------------------------------------------------------------------------
         @classmethod
         def create(cls, shape_segments, segment_kernels, n_params, guesses, *, max_bounces: int = 3,
-                   prob_floor: float = 0.1, tile_pixels: int = 4096,
-                   reduce_mode: str = "auto") -> "PolynomialPathIntegrator":
+                   prob_floor: float = 0.1, tile_pixels: int = 4096, reduce_mode: str = "auto",
+                   tail_bounces: int = 0) -> "PolynomialPathIntegrator":
             """Build and :meth:`configure` an integrator in one call (arguments as there)."""
             props = mi.Properties("polynomial_path")
             props["max_bounces"] = int(max_bounces)
             props["prob_floor"] = float(prob_floor)
             props["tile_pixels"] = int(tile_pixels)
             props["reduce_mode"] = str(reduce_mode)
+            props["tail_bounces"] = int(tail_bounces)
             integ = cls(props)
             integ.configure(shape_segments, segment_kernels, n_params, guesses)
             return integ
@@ -278,7 +296,7 @@ def _define_class():
             Spectrum already multiplied by β, the MIS weight and 1/q): slot 0 for emitters seen
             from the camera, slot d + 1 for the contributions of path vertex d.
             """
-            D = self.n_params
+            D, N_max = self.n_params, self.max_bounces
             seg_table = self._segment_table(scene)
             n_tab = dr.width(seg_table)
             ctx = mi.BSDFContext()
@@ -299,7 +317,7 @@ def _define_class():
             store(mi.UInt32(0), mi.UInt32(0), Le, active)
             L = dr.select(active, Le, 0.0)
 
-            while dr.hint(active, max_iterations=self.max_bounces, label="Polynomial path"):
+            while dr.hint(active, max_iterations=N_max + self.tail_bounces, label="Polynomial path"):
                 # ------------------------- Segment and kernel choice ---------------------------
                 sid = dr.reinterpret_array(mi.UInt32, si.shape)
                 valid = active & si.is_valid() & (sid < n_tab)
@@ -318,10 +336,13 @@ def _define_class():
                 kt = dr.gather(mi.UInt32, self._ktype, idx, active)
                 is_delta = dr.gather(mi.UInt32, self._delta, kt, active) != 0
                 bsdf = dr.reinterpret_array(mi.BSDFPtr, dr.gather(mi.UInt32, self._bsdf_ids, kt, active))
-                key = dr.select(active, key + (p + 1) * stride, key)
+                exact = depth < N_max            # joins the monomial; beyond N_max: the tail
+                key = dr.select(active & exact, key + (p + 1) * stride, key)
                 mono = dr.gather(mi.UInt32, self._key_table, key, active)
                 inv_q = dr.select(active & (q > 0), dr.rcp(q), 0)
-                rho_prod = rho_prod * self._guess(p, active)
+                rho_hat = self._guess(p, active)
+                w = dr.select(exact, mi.Spectrum(inv_q), rho_hat * inv_q)     # kernel choice weight
+                rho_prod = dr.select(exact, rho_prod * rho_hat, rho_prod)
 
                 # ---------------------------- Emitter sampling ---------------------------------
                 active_em = active & ~is_delta
@@ -330,13 +351,13 @@ def _define_class():
                 wo = si.to_local(ds.d)
                 bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, wo, active_em)
                 mis_em = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, bsdf_pdf))
-                contrib = dr.select(active_em, beta * bsdf_val * em_weight * (mis_em * inv_q), 0.0)
+                contrib = dr.select(active_em, beta * bsdf_val * em_weight * mis_em * w, 0.0)
 
                 # ------------------------------ BSDF sampling -----------------------------------
                 bs, bsdf_weight = bsdf.sample(ctx, si, sampler.next_1d(active), sampler.next_2d(active),
                                               active)
                 active &= bs.pdf > 0
-                beta = dr.select(active, beta * bsdf_weight * inv_q, 0.0)
+                beta = dr.select(active, beta * bsdf_weight * w, 0.0)
                 ray = si.spawn_ray(si.to_world(bs.wo))
                 prev_si = mi.Interaction3f(si)
                 prev_pdf = bs.pdf
@@ -355,9 +376,9 @@ def _define_class():
                 # ------------------ Both contributions: monomial of this path -------------------
                 store(depth + 1, mono, contrib, active | active_em)
                 L += dr.select(active | active_em, contrib * rho_prod, 0.0)
+                stride = dr.select(exact, stride * (D + 1), stride)
                 depth += 1
-                stride *= D + 1
-                active &= depth < self.max_bounces
+                active &= depth < N_max + self.tail_bounces
             return L
 
         def _guess(self, p, active):
@@ -379,7 +400,7 @@ def _define_class():
 
         def to_string(self):
             return (f"PolynomialPathIntegrator[max_bounces={self.max_bounces}, "
-                    f"prob_floor={self.prob_floor}]")
+                    f"tail_bounces={self.tail_bounces}, prob_floor={self.prob_floor}]")
 
         # ------------------------------------------------------------------------------------------
         def coefficients(self, scene: mi.Scene, sensor=0, *, spp: int, seed: int = 0,
@@ -514,7 +535,7 @@ def _define_class():
                                                          sample2=pos_adjusted, sample3=aperture)
 
             # -------- Events: slot k of lane l holds its path's k-th (monomial, value) -------------
-            lanes, slots = n * spp, self.max_bounces + 1
+            lanes, slots = n * spp, self.max_bounces + self.tail_bounces + 1
             ev_mono = dr.full(mi.UInt32, _EMPTY, lanes * slots)     # slots no contribution reached
             ev_val = [dr.zeros(mi.Float, lanes * slots) for _ in range(C)]
             lane_base = dr.arange(mi.UInt32, lanes) * slots

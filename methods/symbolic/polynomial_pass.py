@@ -50,19 +50,19 @@ class PassResult:
         return np.stack(chans, axis=-1).reshape(*shape, len(mu)).astype(np.float32)
 
 
-def tile_pixels_for(memory_mb: float, spp: int, max_bounces: int, n_channels: int) -> int:
+def tile_pixels_for(memory_mb: float, spp: int, max_bounces: int, n_channels: int, tail_bounces: int = 0) -> int:
     """Largest tile whose event buffers fit in ``memory_mb`` (at least 64 pixels).
 
-    A pixel holds ``spp × (N_max + 1)`` event slots of one monomial index and ``C`` values
+    A pixel holds ``spp × (N_max + T + 1)`` event slots of one monomial index and ``C`` values
     (4 bytes each), held about three times (Dr.Jit buffers, their numpy copies, the COO arrays).
     """
-    per_pixel = spp * (max_bounces + 1) * 4 * (1 + n_channels) * BYTES_COPIES
+    per_pixel = spp * (max_bounces + tail_bounces + 1) * 4 * (1 + n_channels) * BYTES_COPIES
     return max(64, int(memory_mb * 2**20 // per_pixel))
 
 
 def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBasis, *, spp: int,
                     seed: int, prob_floor: float, memory_mb: float, cache: Cache, executor=None,
-                    cross_gram: bool = True) -> PassResult:
+                    cross_gram: bool = True, tail_bounces: int = 0) -> PassResult:
     """Gram systems and coefficients of every view of ``problem`` (one render in total).
 
     Parameters
@@ -77,6 +77,8 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
         Pass settings; view ``i`` uses the Mitsuba seed ``inversion_seed(seed, i)``.
     cross_gram : bool
         Build G from two independent half-sample estimates (unbiased by Monte Carlo noise).
+    tail_bounces : int
+        Reflections traced beyond N_max at the guesses (:class:`PolynomialPathIntegrator`).
     cache : Cache
         Per-view results are read from and written to it by this (driver) process.
     executor : framework.executor.SerialExecutor or DaskExecutor, optional
@@ -95,7 +97,8 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
     views, cached, todo = {}, [], []
     total = GramSystem.zeros(basis.size, C)
     for i, cam in enumerate(problem.cameras):
-        key = _key(problem, cam, parameters, guesses, spp, seed, prob_floor, basis, view=i, cross_gram=cross_gram)
+        key = _key(problem, cam, parameters, guesses, spp, seed, prob_floor, basis, view=i, cross_gram=cross_gram,
+                   tail_bounces=tail_bounces)
         hit = cache.load("polynomial_pass", key)
         if hit is None:
             todo.append((i, cam, key))
@@ -105,8 +108,9 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
         cached.append(cam.name)
     t0 = time.perf_counter()
     if todo:
+        tile = tile_pixels_for(memory_mb, spp, basis.max_degree, C, tail_bounces)
         tasks = [view_task(problem, parameters, guesses, basis, i, spp=spp, seed=seed, prob_floor=prob_floor,
-                           tile_pixels=tile_pixels_for(memory_mb, spp, basis.max_degree, C), cross_gram=cross_gram)
+                           tile_pixels=tile, cross_gram=cross_gram, tail_bounces=tail_bounces)
                  for i, _, _ in todo]
         variant = str(problem.settings.get("variant_resolved") or problem.settings.get("variant", "auto"))
         results = executor.imap(render_view_task, tasks, variant=variant, threads=executor.threads_per_worker)
@@ -121,14 +125,15 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
 
 
 def view_task(problem, parameters, guesses, basis, i: int, *, spp: int, seed: int, prob_floor: float,
-              tile_pixels: int, cross_gram: bool = True) -> dict:
+              tile_pixels: int, cross_gram: bool = True, tail_bounces: int = 0) -> dict:
     """Everything a worker needs to render view ``i``: plain picklable data (numpy Scene model)."""
     cam = problem.cameras[i]
     return {"scene": problem.scene, "cameras": list(problem.cameras), "view": int(i),
             "parameters": list(parameters), "guesses": np.asarray(guesses, float),
             "n_params": basis.n_params, "max_bounces": basis.max_degree, "spp": int(spp),
             "seed": inversion_seed(seed, i), "prob_floor": float(prob_floor), "tile_pixels": int(tile_pixels),
-            "observed": np.asarray(problem.observed[cam.name]), "cross_gram": bool(cross_gram)}
+            "observed": np.asarray(problem.observed[cam.name]), "cross_gram": bool(cross_gram),
+            "tail_bounces": int(tail_bounces)}
 
 
 _WORKER_STATE: dict = {}    # per process: the last (MitsubaScene, integrator), reused across views
@@ -155,6 +160,7 @@ def _scene_and_integrator(task: dict, variant: str):
     scene, params = task["scene"], task["parameters"]
     key = (variant, scene.content_hash, scene.root, tuple(c.name for c in task["cameras"]), task["spp"],
            task["guesses"].tobytes(), task["prob_floor"], task["max_bounces"], task["tile_pixels"],
+           task.get("tail_bounces", 0),
            tuple((p.segment, p.kernel) for p in params))
     if _WORKER_STATE.get("key") != key:
         _WORKER_STATE.clear()
@@ -163,7 +169,8 @@ def _scene_and_integrator(task: dict, variant: str):
                            for s in range(len(scene.segments))]
         integrator = PolynomialPathIntegrator.create(
             ms.shape_segments, segment_kernels, len(params), task["guesses"],
-            max_bounces=task["max_bounces"], prob_floor=task["prob_floor"], tile_pixels=task["tile_pixels"])
+            max_bounces=task["max_bounces"], prob_floor=task["prob_floor"], tile_pixels=task["tile_pixels"],
+            tail_bounces=task.get("tail_bounces", 0))
         _WORKER_STATE.update(key=key, value=(ms, integrator))
     return _WORKER_STATE["value"]
 
@@ -197,14 +204,15 @@ def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True):
     return system, [sp.vstack(p, format="csr") if len(p) > 1 else p[0] for p in parts]
 
 
-def _key(problem, cam, parameters, guesses, spp, seed, prob_floor, basis, *, view: int, cross_gram: bool) -> dict:
+def _key(problem, cam, parameters, guesses, spp, seed, prob_floor, basis, *, view: int, cross_gram: bool,
+         tail_bounces: int) -> dict:
     return {"scene": problem.scene.content_hash, "view": cam.name, "view_index": view, "spp": int(spp),
             "seed": int(seed), "max_bounces": int(basis.max_degree),
             "parameters": [[p.segment, p.kernel] for p in parameters],
             "guesses": np.round(np.asarray(guesses, float), 9).tolist(), "prob_floor": float(prob_floor),
             "observed": _digest(problem.observed[cam.name]),
             "variant": str(problem.settings.get("variant_resolved", "")), "cross_gram": bool(cross_gram),
-            "version": 2}
+            "tail_bounces": int(tail_bounces), "version": 2}
 
 
 def _digest(a: np.ndarray) -> str:
