@@ -22,6 +22,8 @@ METHODS = [
     # the same estimator on observations holding only N_max = 3 reflections (like the model):
     # separates the paper's truncation of longer paths from the estimator's own error
     ("symbolic (observations at N_max)", ["method=symbolic", "observe.max_depth=4"], False),
+    # light beyond N_max linearised at the guesses, then re-rendered at the first estimate
+    ("symbolic (tail 4, refine 1)", ["method=symbolic", "render.tail_bounces=4", "method.refine=1"], False),
 ]
 
 

@@ -23,7 +23,8 @@ PAPER_TOTAL_MIN = 20.0     # "about 20 min" for symbolic ray tracing + minimisat
 TARGET = {"diffuse": 0.02, "specular": 0.03}   # multi-view target on |error|
 
 RUNS = [("lambertian_prior", ["method=lambertian_prior"], 1), ("symbolic", ["method=symbolic"], 1),
-        ("symbolic", ["method=symbolic"], 0)]
+        ("symbolic", ["method=symbolic"], 0),
+        ("symbolic (tail 4, refine 1)", ["method=symbolic", "render.tail_bounces=4", "method.refine=1"], 0)]
 
 
 def run(sizes, root: Path, log=print) -> list[dict]:

@@ -41,6 +41,11 @@ class SymbolicMethod(Method):
         ``cross`` splits the samples into two independent halves and builds G = ½(AᵀB + BᵀA):
         unbiased, whereas ``plain`` G = AᵀA adds the coefficients' Monte Carlo covariance to G,
         which shrinks the estimates at low spp (regression dilution).
+    refine : int in [0, 8], default 0
+        Further polynomial passes, each rendered with the previous estimate as guesses and
+        solved from it (one render each). With ``render.tail_bounces`` > 0 this moves the tail's
+        linearisation point to the estimate, so the light beyond N_max is weighted by nearly
+        the right ρ; it also makes the kernel selection match the estimate.
     memory_mb : float > 0, default 512
         Memory for the coefficient tiles of the pass; sets the tile size.
     solver.algorithm, solver.starts, solver.max_eval, solver.xtol_rel
@@ -79,6 +84,8 @@ class SymbolicMethod(Method):
         check_choice(self.cfg, "gram", ("cross", "plain"))
         check_number(self.cfg, "memory_mb", 0.0, lo_open=True)
         check_number(self.cfg.solver, "starts", 1, integer=True)
+        if "refine" in self.cfg:
+            check_number(self.cfg, "refine", 0, 8, integer=True)
         check_choice(self.cfg.solver, "algorithm", ("LD_SLSQP", "LD_MMA", "LD_CCSAQ"))
 
     def run(self, problem) -> MethodResult:
@@ -87,16 +94,18 @@ class SymbolicMethod(Method):
         params = self.parameters(problem)
         sub = dataclasses.replace(problem, parameters=params)
         x0, renders = initial_guess(self.cfg, sub)
+        guess0 = x0
         settings = problem.settings
         basis = MonomialBasis(len(params), int(settings.render.max_bounces))
-        with make_executor(settings.get("executor")) as executor:
-            result = polynomial_pass(sub, params, x0, basis, spp=int(settings.render.spp),
-                                     tail_bounces=int(settings.render.get("tail_bounces", 0)),
-                                     seed=int(problem.seed) + 7777 * renders,
-                                     prob_floor=float(self.cfg.prob_floor), memory_mb=float(self.cfg.memory_mb),
-                                     cache=Cache(settings.cache.dir), executor=executor,
-                                     cross_gram=self.cfg.get("gram", "cross") == "cross")
-        fit = self._solve(result.system, basis, params, x0, problem)
+        render_s = solve_s = 0.0
+        for k in range(1 + int(self.cfg.get("refine", 0))):
+            if k:      # re-render at the estimate: better kernel selection, and a tail at the estimate
+                x0 = np.where(np.isnan(fit["estimate"]), x0, fit["estimate"])
+            result = self._pass(sub, params, x0, basis, seed=int(problem.seed) + 7777 * renders)
+            renders += 1
+            fit = self._solve(result.system, basis, params, x0, problem)
+            render_s += result.render_s
+            solve_s += fit["solve"].solve_s if fit["solve"] else 0.0
         estimate = fit["estimate"]
         filled = np.nan_to_num(estimate)           # unobservable weights: their monomials are all 0
         mu = np.stack([basis.evaluate(filled[:, c]) for c in range(problem.n_channels)])
@@ -104,19 +113,29 @@ class SymbolicMethod(Method):
         sol = fit["solve"]
         extras = {"n_monomials": basis.size, "solver_evaluations": sol.n_evals if sol else 0,
                   "solver_evaluations_from_guess": sol.guess_evals if sol else 0,
-                  "initial_guess": x0.tolist(), "views_from_cache": result.from_cache,
+                  "initial_guess": guess0.tolist(), "views_from_cache": result.from_cache,
                   "correlation": fit["correlation"], "residual_variance": fit["sigma2"],
                   "executor": str((settings.get("executor") or {}).get("name", "serial"))}
-        timings = {"render": result.render_s, "solve": sol.solve_s if sol else 0.0}
+        timings = {"render": render_s, "solve": solve_s}
         relit = self._relight(sub, params, estimate)
         if relit is not None:
             extras["relit_images"], timings["relight"] = relit
         timings["method"] = time.perf_counter() - t0
         return MethodResult(
-            estimate=estimate, renders=renders + 1, parameters=params, reconstructions=recon,
+            estimate=estimate, renders=renders, parameters=params, reconstructions=recon,
             timings_s=timings, std=fit["std"], observable=fit["observable"],
             cost_history=list(sol.cost_history) if sol else [],
             cost_times_s=list(sol.eval_times_s) if sol else [], extras=extras)
+
+    def _pass(self, problem, params, x0, basis, *, seed: int):
+        """The polynomial pass of every view with guesses ``x0`` (one render)."""
+        settings = problem.settings
+        with make_executor(settings.get("executor")) as executor:
+            return polynomial_pass(problem, params, x0, basis, spp=int(settings.render.spp),
+                                   tail_bounces=int(settings.render.get("tail_bounces", 0)), seed=seed,
+                                   prob_floor=float(self.cfg.prob_floor), memory_mb=float(self.cfg.memory_mb),
+                                   cache=Cache(settings.cache.dir), executor=executor,
+                                   cross_gram=self.cfg.get("gram", "cross") == "cross")
 
     def _solve(self, system, basis, params, x0, problem) -> dict:
         """Solve on the observable parameters; NaN estimate and std for the others.
