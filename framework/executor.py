@@ -14,7 +14,8 @@ Configuration (``framework/conf/executor/*.yaml``, CONTRACT section 2):
     workers do not oversubscribe the cores.
 
 Both executors expose :meth:`imap`: the values of one task per item, in item order, one at a
-time (the caller sums the views' Gram systems in that order, so both give the same result).
+time. The caller reduces them with :class:`TreeSum` in that order, so both executors give the
+same result, summed as a balanced tree while holding only O(log n) partial sums.
 """
 from __future__ import annotations
 
@@ -32,6 +33,33 @@ def init_worker(variant: str, threads: int | None) -> None:
         import drjit as dr
         if dr.thread_count() != int(threads):
             dr.set_thread_count(int(threads))
+
+
+class TreeSum:
+    """Pairwise (tree) sum of values arriving one at a time, e.g. the views' Gram systems.
+
+    Values are combined like the carries of a binary counter: the i-th value joins partial sums
+    of 1, 2, 4... earlier values, so the association depends only on the arrival order (serial
+    and Dask give the same bits), the rounding error grows as O(log n) rather than O(n), and at
+    most ``log2(n) + 1`` partial sums are held (memory stays flat in the number of views).
+    """
+
+    def __init__(self):
+        self._partial: list[tuple[int, object]] = []      # (number of values, their sum)
+
+    def add(self, value) -> None:
+        count = 1
+        while self._partial and self._partial[-1][0] == count:
+            n, older = self._partial.pop()
+            value, count = older + value, count + n
+        self._partial.append((count, value))
+
+    def total(self, empty=None):
+        """The sum of every value added (``empty`` when none was)."""
+        out = None
+        for _, value in reversed(self._partial):
+            out = value if out is None else value + out
+        return empty if out is None else out
 
 
 class SerialExecutor:

@@ -36,3 +36,27 @@ def test_dask_local_cluster_equals_serial_and_fills_cache(tmp_path):
     again = run_symbolic(make_problem(root, None, cache))
     assert sorted(again.extras["views_from_cache"]) == ["view_0.png", "view_1.png"]
     np.testing.assert_allclose(again.estimate, serial.estimate, rtol=1e-6)
+
+
+def test_tree_sum_association_and_memory():
+    """TreeSum adds like a binary counter: ((a+b)+(c+d))+e for five values, checked on strings
+    (their '+' shows the association), at most log2(n) + 1 partial sums held, exact on numbers."""
+    from framework.executor import TreeSum
+
+    class Expr(str):
+        def __add__(self, other):
+            return Expr(f"({self}+{other})")
+
+    t = TreeSum()
+    assert t.total(empty="none") == "none"
+    held = []
+    for v in "abcde":
+        t.add(Expr(v))
+        held.append(len(t._partial))
+    assert t.total() == "(((a+b)+(c+d))+e)"
+    assert held == [1, 1, 2, 1, 2]
+    t = TreeSum()
+    for v in range(1, 101):
+        t.add(v)
+        assert len(t._partial) <= int(np.log2(v)) + 1
+    assert t.total() == 5050

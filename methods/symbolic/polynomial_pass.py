@@ -34,7 +34,7 @@ class PassResult:
     cache, a function reloading them from it: memory then stays flat in the number of views.
     """
 
-    system: GramSystem                                   # summed over views, in view order
+    system: GramSystem                                   # summed over views as a tree, in view order
     views: dict[str, object]
     render_s: float = 0.0
     from_cache: list[str] = field(default_factory=list)  # views read from the cache
@@ -83,19 +83,19 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
         Per-view results are read from and written to it by this (driver) process.
     executor : framework.executor.SerialExecutor or DaskExecutor, optional
         Where views are rendered (default: this process); their results arrive one at a time,
-        are cached at once and added to the total in the same order for both executors, so Dask
-        and serial runs give the same estimates.
+        are cached at once and summed as a tree (:class:`framework.executor.TreeSum`) in the same
+        order for both executors, so Dask and serial runs give the same estimates.
 
     Returns
     -------
     PassResult
     """
-    from framework.executor import SerialExecutor
+    from framework.executor import SerialExecutor, TreeSum
 
     executor = executor or SerialExecutor()
     C = problem.n_channels
     views, cached, todo = {}, [], []
-    total = GramSystem.zeros(basis.size, C)
+    total = TreeSum()
     for i, cam in enumerate(problem.cameras):
         key = _key(problem, cam, parameters, guesses, spp, seed, prob_floor, basis, view=i, cross_gram=cross_gram,
                    tail_bounces=tail_bounces)
@@ -103,7 +103,7 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
         if hit is None:
             todo.append((i, cam, key))
             continue
-        total = total + _unpack(hit, C)[0]
+        total.add(_unpack(hit, C)[0])
         views[cam.name] = _loader(cache, key, C)
         cached.append(cam.name)
     t0 = time.perf_counter()
@@ -116,12 +116,12 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
         results = executor.imap(render_view_task, tasks, variant=variant, threads=executor.threads_per_worker)
         for (i, cam, key), (system, mats) in zip(todo, results):
             cache.store("polynomial_pass", key, _pack(system, mats))
-            total = total + system
+            total.add(system)
             # with a cache, each view waits on disk: memory stays flat in the number of views
             views[cam.name] = _loader(cache, key, C) if cache.dir is not None else (system, mats)
     render_s = time.perf_counter() - t0
     ordered = {c.name: views[c.name] for c in problem.cameras}
-    return PassResult(total, ordered, render_s, cached)
+    return PassResult(total.total(GramSystem.zeros(basis.size, C)), ordered, render_s, cached)
 
 
 def view_task(problem, parameters, guesses, basis, i: int, *, spp: int, seed: int, prob_floor: float,
