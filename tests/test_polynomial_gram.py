@@ -71,3 +71,21 @@ def test_cross_gram_removes_monte_carlo_bias():
     np.testing.assert_allclose(np.diag(plain.G[0] - exact), n * sigma**2, rtol=0.1)
     assert np.abs(cross.G[0] - exact).max() < 10.0
     np.testing.assert_allclose(cross.b[0], 0.5 * (a[:, :, 0] + b[:, :, 0]).T @ y[:, 0])
+
+
+def test_psd_projection():
+    """GramSystem.psd: PSD result, a PSD input unchanged (1e-10), and on a noisy symmetric
+    estimate of a rank-2 PSD matrix the Frobenius distance to it shrinks (projection onto a
+    convex set holding the truth is non-expansive); b and yy untouched."""
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(2, 6))
+    truth = X.T @ X
+    noise = rng.normal(scale=0.5, size=(6, 6))
+    noisy = truth + 0.5 * (noise + noise.T)
+    s = GramSystem(np.stack([truth, noisy]), rng.normal(size=(2, 6)), np.array([1.0, 2.0]), 10)
+    p = s.psd()
+    assert np.linalg.eigvalsh(p.G[1]).min() > -1e-10
+    np.testing.assert_allclose(p.G[0], truth, atol=1e-10)
+    assert np.linalg.norm(p.G[1] - truth) < np.linalg.norm(noisy - truth)
+    np.testing.assert_array_equal(p.b, s.b)
+    np.testing.assert_array_equal(p.yy, s.yy)

@@ -153,7 +153,7 @@ def test_degenerate_direction_gives_nan_std():
 # Multi-view inversion on rendered scenes
 # ------------------------------------------------------------------------------------------------
 def test_joint_inversion_equals_solve_of_summed_gram_systems(tmp_path):
-    """Joint inversion of two views = the solve of the sum of the two views' Gram systems (the
+    """Joint inversion of two views = the solve of the sum of the two views' Gram systems (PSD-projected, the
     per-view systems are those of the pass; the solver is deterministic: identical to 1e-12)."""
     from factory import make_tiny_scene
     from methods._common import segment_groups
@@ -170,7 +170,7 @@ def test_joint_inversion_equals_solve_of_summed_gram_systems(tmp_path):
     v0, v1 = (passed.view(c.name)[0] for c in problem.cameras)
     summed = v0 + v1
     np.testing.assert_allclose(summed.G, passed.system.G, rtol=1e-12)
-    sol = solve_polynomial(summed, basis, segments_params=segment_groups(params), x0=x0, starts=4, seed=0)
+    sol = solve_polynomial(summed.psd(), basis, segments_params=segment_groups(params), x0=x0, starts=4, seed=0)
     np.testing.assert_allclose(result.estimate, sol.estimate, rtol=1e-9, atol=1e-12)
     single = solve_polynomial(v0, basis, segments_params=segment_groups(params), x0=x0, starts=4, seed=0)
     assert not np.allclose(single.estimate, sol.estimate, atol=1e-6)     # the second view matters

@@ -41,6 +41,10 @@ class SymbolicMethod(Method):
         ``cross`` splits the samples into two independent halves and builds G = ½(AᵀB + BᵀA):
         unbiased, whereas ``plain`` G = AᵀA adds the coefficients' Monte Carlo covariance to G,
         which shrinks the estimates at low spp (regression dilution).
+    psd : bool, default true
+        Project each channel's G onto the positive semi-definite matrices before the solve
+        (:meth:`GramSystem.psd`): the cross Gram is unbiased but not PSD, and along directions
+        the pixels barely constrain its negative eigenvalues pull the solve to the constraints.
     refine : int in [0, 8], default 0
         Further polynomial passes, each rendered with the previous estimate as guesses and
         solved from it (one render each). With ``render.tail_bounces`` > 0 this moves the tail's
@@ -82,6 +86,7 @@ class SymbolicMethod(Method):
     def check(self):
         check_number(self.cfg, "prob_floor", 0.0, 1.0)
         check_choice(self.cfg, "gram", ("cross", "plain"))
+        check_choice(self.cfg, "psd", ("True", "False"))
         check_number(self.cfg, "memory_mb", 0.0, lo_open=True)
         check_number(self.cfg.solver, "starts", 1, integer=True)
         if "refine" in self.cfg:
@@ -103,7 +108,8 @@ class SymbolicMethod(Method):
                 x0 = np.where(np.isnan(fit["estimate"]), x0, fit["estimate"])
             result = self._pass(sub, params, x0, basis, seed=int(problem.seed) + 7777 * renders)
             renders += 1
-            fit = self._solve(result.system, basis, params, x0, problem)
+            system = result.system.psd() if self.cfg.get("psd", True) else result.system
+            fit = self._solve(system, basis, params, x0, problem)
             render_s += result.render_s
             solve_s += fit["solve"].solve_s if fit["solve"] else 0.0
         estimate = fit["estimate"]

@@ -115,6 +115,23 @@ class GramSystem:
         self.n_pixels += n
         return self
 
+    def psd(self) -> "GramSystem":
+        """This system with each ``G_c`` projected onto the positive semi-definite matrices
+        (negative eigenvalues set to 0, on the monomials in use).
+
+        The cross Gram ½(AᵀB + BᵀA) is unbiased but, being a difference of noisy products, not
+        PSD: along directions the pixels barely constrain, its negative eigenvalues let the cost
+        decrease without bound and the solve runs to the constraints. ΓᵀΓ is PSD, and the
+        projection onto that convex set moves the estimate closer to it in Frobenius norm.
+        """
+        used = self.used_monomials()
+        G = self.G.copy()
+        for c in range(self.n_channels):
+            sub = G[c][np.ix_(used, used)]
+            w, V = np.linalg.eigh(0.5 * (sub + sub.T))
+            G[c][np.ix_(used, used)] = (V * np.maximum(w, 0.0)) @ V.T
+        return GramSystem(G, self.b.copy(), self.yy.copy(), self.n_pixels)
+
     def used_monomials(self) -> np.ndarray:
         """Indices of the monomials some pixel depends on (a non-zero row of G or entry of b, any
         channel). The others do not change the cost: a solver may leave them out (a single street

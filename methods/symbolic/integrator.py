@@ -301,6 +301,7 @@ def _define_class():
             n_tab = dr.width(seg_table)
             ctx = mi.BSDFContext()
             K_max = self._K_max
+            track = store is None                # the radiance at the guesses is wanted (sample())
             store = store or (lambda slot, mono, value, act: None)
 
             ray = mi.Ray3f(ray)
@@ -340,9 +341,7 @@ def _define_class():
                 key = dr.select(active & exact, key + (p + 1) * stride, key)
                 mono = dr.gather(mi.UInt32, self._key_table, key, active)
                 inv_q = dr.select(active & (q > 0), dr.rcp(q), 0)
-                rho_hat = self._guess(p, active)
-                w = dr.select(exact, mi.Spectrum(inv_q), rho_hat * inv_q)     # kernel choice weight
-                rho_prod = dr.select(exact, rho_prod * rho_hat, rho_prod)
+                w, rho_prod = self._choice_weight(p, inv_q, exact, rho_prod, active, track)
 
                 # ---------------------------- Emitter sampling ---------------------------------
                 active_em = active & ~is_delta
@@ -375,11 +374,25 @@ def _define_class():
 
                 # ------------------ Both contributions: monomial of this path -------------------
                 store(depth + 1, mono, contrib, active | active_em)
-                L += dr.select(active | active_em, contrib * rho_prod, 0.0)
+                L = self._add_radiance(L, contrib * rho_prod, active | active_em, track)
                 stride = dr.select(exact, stride * (D + 1), stride)
                 depth += 1
                 active &= depth < N_max + self.tail_bounces
             return L
+
+        def _choice_weight(self, p, inv_q, exact, rho_prod, active, track: bool):
+            """Factor of β for the chosen kernel (1/q; beyond N_max also its guess ρ̂_p) and the
+            product of the guesses along the path (kept only when ``track``: it only serves the
+            radiance at the guesses). Plain Python branches: outside the recorded loop's syntax."""
+            if not track and self.tail_bounces == 0:
+                return mi.Spectrum(inv_q), rho_prod
+            rho_hat = self._guess(p, active)
+            w = dr.select(exact, mi.Spectrum(inv_q), rho_hat * inv_q)
+            return w, (dr.select(exact, rho_prod * rho_hat, rho_prod) if track else rho_prod)
+
+        @staticmethod
+        def _add_radiance(L, value, mask, track: bool):
+            return L + dr.select(mask, value, 0.0) if track else L
 
         def _guess(self, p, active):
             """The guesses of parameter ``p``, one per channel (for the radiance at the guesses)."""
@@ -482,23 +495,25 @@ def _define_class():
 
         def _tile_matrices(self, scene, sensor, spp, seed, start, stop, halves: bool) -> tuple:
             """The events of one tile as sparse matrices: ``(Γ,)``, or ``(A, B, Γ)`` with ``halves``."""
-            N_e, n = self.basis.size, stop - start
-            rows, sample, cols, vals = self._tile_events(scene, sensor, spp, seed, start, stop)
+            shape = (stop - start, self.basis.size)
+            half = spp // 2 if halves else spp
+            (rows, cols, vals), first_b = self._tile_events(scene, sensor, spp, seed, start, stop, half)
             if not halves:
-                return (_csr(rows, cols, vals, (n, N_e)),)
-            half = spp // 2
-            in_a = sample < half
-            A = _csr(rows[in_a], cols[in_a], vals[:, in_a] * (spp / half), (n, N_e))
-            B = _csr(rows[~in_a], cols[~in_a], vals[:, ~in_a] * (spp / (spp - half)), (n, N_e))
-            gamma = [(half * a + (spp - half) * b) / spp for a, b in zip(A, B)]
-            return A, B, gamma
+                return (_csr(rows, cols, vals, shape),)
+            a, b = slice(0, first_b), slice(first_b, len(rows))
+            A = _csr(rows[a], cols[a], [v[a] for v in vals], shape, weight=spp / half)
+            B = _csr(rows[b], cols[b], [v[b] for v in vals], shape, weight=spp / (spp - half))
+            return A, B, [(half * a + (spp - half) * b) / spp for a, b in zip(A, B)]
 
-        def _tile_events(self, scene, sensor, spp, seed, start, stop):
+        def _tile_events(self, scene, sensor, spp, seed, start, stop, split):
             """Trace one tile; every contribution is an event (pixel, monomial, value), summed later
             into sparse matrices: no dense pixels x N_e buffer (coefficients are ~1-3 % non-zero).
 
-            Returns ``(rows, sample, cols, vals)``: tile pixel (non-decreasing), sample index in the
-            pixel, monomial index, and ``(C, m)`` float64 values (each already divided by ``spp``).
+            Lanes come in two blocks: samples ``0 .. split - 1`` of every pixel, then the others
+            (``split = spp``: one block). Returns ``((rows, cols, vals), first_b)``: the events in
+            lane order (tile pixel, non-decreasing within a block, int32; monomial index, int32;
+            ``C`` float32 arrays of values divided by ``spp``) and the index of the first event of
+            the second block.
             """
             C = self.n_channels
             n = stop - start
@@ -516,8 +531,7 @@ def _define_class():
 
             # -------- Camera rays (as ADIntegrator.sample_rays, box filter, no border) -----------
             idx = dr.arange(mi.UInt32, n * spp)
-            local_pix = idx // dr.opaque(mi.UInt32, spp)
-            pix = local_pix + dr.opaque(mi.UInt32, start)
+            pix = self._lane_pixel(idx, n, spp, split) + dr.opaque(mi.UInt32, start)
             pos = mi.Vector2i()
             pos.y = mi.Int32(pix // dr.opaque(mi.UInt32, W))
             pos.x = mi.Int32(pix) - pos.y * dr.opaque(mi.Int32, W)
@@ -551,17 +565,27 @@ def _define_class():
             dr.eval(ev_mono, ev_val)                                   # one kernel for the tile
 
             # -------- Compaction on the device: most slots are empty or zero (occluded NEE) ---------
-            keep = ev_mono != _EMPTY
             nonzero = ev_val[0] != 0
             for c in range(1, C):
                 nonzero |= ev_val[c] != 0
-            at = dr.compress(keep & nonzero)
-            lane = at // dr.opaque(mi.UInt32, slots)
-            rows = (lane // dr.opaque(mi.UInt32, spp)).numpy().astype(np.int64)
-            sample = (lane % dr.opaque(mi.UInt32, spp)).numpy()
-            cols = dr.gather(mi.UInt32, ev_mono, at).numpy().astype(np.int64)
-            vals = np.stack([dr.gather(mi.Float, v, at).numpy() for v in ev_val]).astype(np.float64)
-            return rows, sample, cols, vals
+            keep = (ev_mono != _EMPTY) & nonzero
+            at = dr.compress(keep)
+            rows = self._lane_pixel(at // dr.opaque(mi.UInt32, slots), n, spp, split).numpy().view(np.int32)
+            cols = dr.gather(mi.UInt32, ev_mono, at).numpy().view(np.int32)
+            vals = [dr.gather(mi.Float, v, at).numpy() for v in ev_val]
+            first_b = int(np.searchsorted(at.numpy(), n * split * slots))
+            return (rows, cols, vals), first_b
+
+        @staticmethod
+        def _lane_pixel(lane, n: int, spp: int, split: int):
+            """Tile pixel of each lane: ``n × split`` lanes (``split`` samples per pixel), then
+            ``n × (spp - split)`` lanes."""
+            if split == spp:
+                return lane // dr.opaque(mi.UInt32, spp)
+            first = dr.opaque(mi.UInt32, n * split)
+            in_b = lane >= first
+            return dr.select(in_b, (lane - dr.select(in_b, first, 0)) // dr.opaque(mi.UInt32, spp - split),
+                             lane // dr.opaque(mi.UInt32, split))
 
     return PolynomialPathIntegrator
 
@@ -569,9 +593,9 @@ def _define_class():
 _EMPTY = 0xFFFFFFFF   # monomial index of an event slot that received no contribution
 
 
-def _csr(rows, cols, vals, shape) -> list:
-    """Canonical ``csr_matrix`` (sorted indices, duplicates summed), one per row of ``vals``
-    (channels), from events whose ``rows`` are non-decreasing.
+def _csr(rows, cols, vals, shape, weight: float = 1.0) -> list:
+    """Canonical ``csr_matrix`` (sorted indices, duplicates summed, times ``weight``), one per
+    entry of ``vals`` (channels), from events whose ``rows`` are non-decreasing.
 
     The channels share their sparsity, so the within-row sort runs once: scipy sorts the event
     numbers as data along with the columns, which gives the permutation for every channel.
@@ -583,7 +607,7 @@ def _csr(rows, cols, vals, shape) -> list:
     indptr = np.searchsorted(rows, np.arange(n + 1))
     perm = sp.csr_matrix((np.arange(m, dtype=np.float64), cols, indptr), shape=shape)
     perm.sort_indices()
-    order, cols = perm.data.astype(np.int64), perm.indices
+    order, cols = perm.data.astype(np.intp), perm.indices
     first = np.empty(m, bool)                  # first event of each (row, column)
     first[0] = True
     first[1:] = (cols[1:] != cols[:-1]) | (rows[1:] != rows[:-1])
@@ -591,7 +615,10 @@ def _csr(rows, cols, vals, shape) -> list:
     indptr = np.searchsorted(rows[starts], np.arange(n + 1))
     out = []
     for v in vals:
-        mat = sp.csr_matrix((np.add.reduceat(v[order], starts), cols[starts], indptr), shape=shape)
+        data = np.add.reduceat(v[order], starts, dtype=np.float64)
+        if weight != 1.0:
+            data *= weight
+        mat = sp.csr_matrix((data, cols[starts], indptr), shape=shape)
         mat.has_canonical_format = True
         out.append(mat)
     return out
