@@ -107,7 +107,7 @@ def test_image_errors(tiny_scene):
     with pytest.raises(SceneError, match="image is 12x16, its camera is 16x16"):
         load_scene(tiny_scene)
     _images(tiny_scene, shape=(16, 16, 1), names=("Y",))
-    with pytest.raises(SceneError, match="1 channel\(s\); this scene needs R,G,B"):
+    with pytest.raises(SceneError, match=r"1 channel\(s\); this scene needs R,G,B"):
         load_scene(tiny_scene)
     _images(tiny_scene, value=np.nan)
     with pytest.raises(SceneError, match="NaN/Inf/negative values"):

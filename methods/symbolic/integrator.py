@@ -336,7 +336,6 @@ def _define_class():
                 p = dr.gather(mi.UInt32, self._param, idx, active)
                 kt = dr.gather(mi.UInt32, self._ktype, idx, active)
                 is_delta = dr.gather(mi.UInt32, self._delta, kt, active) != 0
-                bsdf = dr.reinterpret_array(mi.BSDFPtr, dr.gather(mi.UInt32, self._bsdf_ids, kt, active))
                 exact = depth < N_max            # joins the monomial; beyond N_max: the tail
                 key = dr.select(active & exact, key + (p + 1) * stride, key)
                 mono = dr.gather(mi.UInt32, self._key_table, key, active)
@@ -348,12 +347,12 @@ def _define_class():
                 ds, em_weight = scene.sample_emitter_direction(si, sampler.next_2d(active), True, active_em)
                 active_em &= ds.pdf != 0
                 wo = si.to_local(ds.d)
-                bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, wo, active_em)
+                bsdf_val, bsdf_pdf = self._kernel_eval_pdf(kt, ctx, si, wo, active_em)
                 mis_em = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, bsdf_pdf))
                 contrib = dr.select(active_em, beta * bsdf_val * em_weight * mis_em * w, 0.0)
 
                 # ------------------------------ BSDF sampling -----------------------------------
-                bs, bsdf_weight = bsdf.sample(ctx, si, sampler.next_1d(active), sampler.next_2d(active),
+                bs, bsdf_weight = self._kernel_sample(kt, ctx, si, sampler.next_1d(active), sampler.next_2d(active),
                                               active)
                 active &= bs.pdf > 0
                 beta = dr.select(active, beta * bsdf_weight * w, 0.0)
@@ -379,6 +378,25 @@ def _define_class():
                 depth += 1
                 active &= depth < N_max + self.tail_bounces
             return L
+
+        # The chosen kernel is called directly, one masked call per kernel type: a vectorised call
+        # through a BSDFPtr array would trace every BSDF in Mitsuba's registry (the scene's own
+        # Python kernel sums included) into the kernel.
+        def _kernel_eval_pdf(self, kt, ctx, si, wo, active):
+            val, pdf = mi.Spectrum(0.0), mi.Float(0.0)
+            for t, bsdf in enumerate(self._unit_bsdfs):
+                on = active & (kt == t)
+                v, q = bsdf.eval_pdf(ctx, si, wo, on)
+                val, pdf = dr.select(on, v, val), dr.select(on, q, pdf)
+            return val, pdf
+
+        def _kernel_sample(self, kt, ctx, si, u1, u2, active):
+            bs, weight = dr.zeros(mi.BSDFSample3f), mi.Spectrum(0.0)
+            for t, bsdf in enumerate(self._unit_bsdfs):
+                on = active & (kt == t)
+                b, w = bsdf.sample(ctx, si, u1, u2, on)
+                bs, weight = dr.select(on, b, bs), dr.select(on, w, weight)
+            return bs, weight
 
         def _choice_weight(self, p, inv_q, exact, rho_prod, active, track: bool):
             """Factor of β for the chosen kernel (1/q; beyond N_max also its guess ρ̂_p) and the
@@ -503,7 +521,8 @@ def _define_class():
             a, b = slice(0, first_b), slice(first_b, len(rows))
             A = _csr(rows[a], cols[a], [v[a] for v in vals], shape, weight=spp / half)
             B = _csr(rows[b], cols[b], [v[b] for v in vals], shape, weight=spp / (spp - half))
-            return A, B, [(half * a + (spp - half) * b) / spp for a, b in zip(A, B)]
+            wa, wb = half / spp, (spp - half) / spp
+            return A, B, [(a + b) * 0.5 if wa == wb else a * wa + b * wb for a, b in zip(A, B)]
 
         def _tile_events(self, scene, sensor, spp, seed, start, stop, split):
             """Trace one tile; every contribution is an event (pixel, monomial, value), summed later
