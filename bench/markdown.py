@@ -47,7 +47,8 @@ def section_ratio(r: dict) -> list[str]:
              f"channels {','.join(r['channels'])}. Pass = the method's per-view pass (coefficients, Gram "
              f"accumulation, sparse coefficients); render = Mitsuba `path`, max_depth = N_max + 1, box "
              f"filter, same view and spp. Median of {r['reps']} after one warm-up. Solve = the method's "
-             f"nlopt solve on that pass's Gram system (one run).", ""]
+             f"solve on that pass's Gram system (PSD projection, nlopt multi-start, uncertainty), median "
+             f"the same way.", ""]
     rows = [[x["spp"], f(x["pass_s"], 2), f(x["render_s"], 3), f(x["ratio"], 1),
              yes(x["ratio"] <= RATIO_TARGET), f(x["solve_s"], 3), f"{100 * x['solve_share']:.1f} %",
              f"{100 * x['solve_share_pass']:.1f} %", yes(x["solve_share"] <= SOLVE_TARGET)] for x in r["rows"]]

@@ -40,7 +40,7 @@ class Sizes:
     """
 
     name: str = "default"
-    ratio_spps: tuple = (16, 64)
+    ratio_spps: tuple = (16, 64, 256)
     ratio_reps: int = 3
     mem_views: tuple = (1, 4, 16)
     mem_images: tuple = (100, 200)
