@@ -6,6 +6,7 @@ are not part of its time) and computes everything else afresh.
 """
 from __future__ import annotations
 
+import re
 import time
 from pathlib import Path
 
@@ -38,7 +39,7 @@ def run_one(sizes, root: Path, label: str, scene: str, n_views: int, overrides: 
     """One in-process run into ``root/<scene>/<views>/<label>``; returns a row dict with its results."""
     from framework.experiment import run_experiment
     vtag = "single" if n_views == 1 else "all"
-    slug = label.replace(" ", "_").replace("(", "").replace(")", "").replace("+", "_").replace("=", "-")
+    slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", label.replace("=", "-")).strip("_")
     run_dir, cache = root / scene / vtag / slug, root / "cache" / scene / vtag / slug
     seed_cache(root / "cache" / "observed" / scene / vtag, cache)
     views = "views=default" if n_views == 1 else views_override(scene, sizes.all_views)
