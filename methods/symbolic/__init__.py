@@ -108,10 +108,10 @@ class SymbolicMethod(Method):
                 x0 = np.where(np.isnan(fit["estimate"]), x0, fit["estimate"])
             result = self._pass(sub, params, x0, basis, seed=int(problem.seed) + 7777 * renders)
             renders += 1
-            system = result.system.psd() if self.cfg.get("psd", True) else result.system
-            fit = self._solve(system, basis, params, x0, problem)
+            t_solve = time.perf_counter()
+            fit = self._solve(result.system, basis, params, x0, problem)
             render_s += result.render_s
-            solve_s += fit["solve"].solve_s if fit["solve"] else 0.0
+            solve_s += time.perf_counter() - t_solve     # PSD projection, nlopt and uncertainty
         estimate = fit["estimate"]
         filled = np.nan_to_num(estimate)           # unobservable weights: their monomials are all 0
         mu = np.stack([basis.evaluate(filled[:, c]) for c in range(problem.n_channels)])
@@ -151,6 +151,8 @@ class SymbolicMethod(Method):
         ``extras["correlation"]``) and ``sigma2`` (residual variance per channel, a list).
         """
         P, C = len(params), problem.n_channels
+        if self.cfg.get("psd", True):
+            system = system.psd()
         observable = observable_parameters(system, basis)
         estimate, std = np.full((P, C), np.nan), np.full((P, C), np.nan)
         if not observable.any():
