@@ -126,8 +126,10 @@ def _speedup_verdicts(rows: list[dict], keys: set) -> list[str]:
 def section_compare(rows: list[dict], sizes, report_path) -> list[str]:
     lines = ["## 3. Method comparison at equal spp", "",
              f"urban_canyon, render.spp = {sizes.cmp_spp}, observe.spp = {sizes.cmp_observe_spp}, "
-             f"budget.renders = {sizes.cmp_budget} (iterative and differentiable on all views: "
-             f"{sizes.cmp_budget_all}, reduced to keep the benchmark short), in this process with "
+             f"budget.renders = {sizes.cmp_budget}"
+             + (f" (iterative and differentiable on all views: {sizes.cmp_budget_all}, reduced to keep the "
+                "benchmark short)" if sizes.cmp_budget_all != sizes.cmp_budget else " on one view and on all")
+             + ", in this process with "
              "`run_experiment`. Observations come from a shared observation cache (rendered once per "
              "view set, copied into each run's otherwise empty cache), so totals exclude them. Errors: "
              "over the parameters and channels the symbolic run on the same views reports observable.",

@@ -52,7 +52,7 @@ class Sizes:
     cmp_spp: int = 32
     cmp_observe_spp: int = 256
     cmp_budget: int = 200
-    cmp_budget_all: int = 30
+    cmp_budget_all: int = 200
     all_views: int = 0
     extra: tuple = field(default_factory=tuple)
 
