@@ -12,8 +12,6 @@ from framework import kernels as kernel_registry
 from framework.errors import ConfigError
 from methods.symbolic.basis import MonomialBasis
 
-_REDUCE_MODES = {"auto": "Auto", "direct": "Direct", "local": "Local", "expand": "Expand",
-                 "noconflicts": "NoConflicts"}
 
 
 def mis_weight(pdf_a, pdf_b):
@@ -93,9 +91,10 @@ def _define_class():
           ``ρ - ρ̂`` times the light beyond ``N_max`` reflections, instead of all of that light.
 
         Each sample has weight ``1/spp`` (box pixel filter: samples are uniform inside their pixel
-        and never spread to a neighbour). The coefficients are accumulated per (pixel, monomial,
-        channel) with ``dr.scatter_reduce`` in tiles of ``tile_pixels`` pixels, so memory is
-        ``tile_pixels × N_e × C`` floats.
+        and never spread to a neighbour). Each path writes its contributions to ``N_max + T + 1``
+        event slots (monomial, value per channel); a tile of ``tile_pixels`` pixels is one kernel,
+        its non-empty events are compacted on the device and summed on the host into sparse
+        matrices, so memory is ``tile_pixels × spp × (N_max + T + 1)`` events, never pixels × N_e.
 
         Kernel selection probabilities: ``q_k ∝ mean_c guess[p_k, c]``, floored so that every kernel
         keeps ``q_k >= min(prob_floor, 1/K)`` (``K`` kernels on the segment), renormalised. The
@@ -113,8 +112,6 @@ def _define_class():
             paper's truncation).
         tile_pixels : int, default 4096
             Pixels per wavefront in :meth:`coefficients`.
-        reduce_mode : str, default ``"auto"``
-            ``dr.ReduceMode`` of the scatter-add: auto, direct, local, expand, noconflicts.
 
         The scene-dependent configuration is given with :meth:`configure` (or :meth:`create`):
         the shape -> segment map, the kernels of every segment, ``D`` and the guesses.
@@ -143,10 +140,6 @@ def _define_class():
             prob_floor = props.get("prob_floor", 0.1)
             tail_bounces = props.get("tail_bounces", 0)
             self.tile_pixels = int(props.get("tile_pixels", 4096))
-            mode = str(props.get("reduce_mode", "auto")).lower()
-            if mode not in _REDUCE_MODES:
-                raise ConfigError(f"reduce_mode={mode}: use one of {', '.join(_REDUCE_MODES)}")
-            self.reduce_mode = getattr(dr.ReduceMode, _REDUCE_MODES[mode])
             if self.tile_pixels < 1:
                 raise ConfigError(f"tile_pixels={self.tile_pixels}: must be >= 1")
             self._set_scalars(max_bounces, prob_floor, tail_bounces)
@@ -169,14 +162,12 @@ def _define_class():
         # ------------------------------------------------------------------------------------------
         @classmethod
         def create(cls, shape_segments, segment_kernels, n_params, guesses, *, max_bounces: int = 3,
-                   prob_floor: float = 0.1, tile_pixels: int = 4096, reduce_mode: str = "auto",
-                   tail_bounces: int = 0) -> "PolynomialPathIntegrator":
+                   prob_floor: float = 0.1, tile_pixels: int = 4096, tail_bounces: int = 0) -> "PolynomialPathIntegrator":
             """Build and :meth:`configure` an integrator in one call (arguments as there)."""
             props = mi.Properties("polynomial_path")
             props["max_bounces"] = int(max_bounces)
             props["prob_floor"] = float(prob_floor)
             props["tile_pixels"] = int(tile_pixels)
-            props["reduce_mode"] = str(reduce_mode)
             props["tail_bounces"] = int(tail_bounces)
             integ = cls(props)
             integ.configure(shape_segments, segment_kernels, n_params, guesses)
@@ -230,7 +221,6 @@ def _define_class():
             names = sorted({n for kl in self.segment_kernels for n, _ in kl})
             self._kernel_names = names
             self._unit_bsdfs = [mi.load_dict(kernel_registry.get(n).unit_bsdf()) for n in names]
-            bsdf_ids = [dr.reinterpret_array(mi.UInt32, mi.BSDFPtr(b))[0] for b in self._unit_bsdfs]
 
             # Per segment kernel slots (padded to K_max): cdf, q, parameter, kernel type.
             K_max = max(len(kl) for kl in self.segment_kernels)
@@ -253,7 +243,6 @@ def _define_class():
             self._prob = mi.Float(prob.ravel())
             self._param = mi.UInt32(param.ravel())
             self._ktype = mi.UInt32(ktype.ravel())
-            self._bsdf_ids = mi.UInt32(bsdf_ids)
             self._delta = mi.UInt32([int(kernel_registry.get(n).delta) for n in names])
             self._key_table = mi.UInt32(self.basis.key_table.astype(np.int64).clip(0).astype(np.uint32))
             self._guess_flat = mi.Float(g.ravel())          # index p*C + c
@@ -474,8 +463,9 @@ def _define_class():
             """``(A, B, Γ)``: two independent estimates of the coefficients and their mean, from one render.
 
             ``A`` uses the samples ``0 .. spp//2 - 1`` of every pixel, ``B`` the others, ``Γ`` all
-            of them (``Γ = (spp//2 · A + (spp - spp//2) · B) / spp``, :meth:`coefficients_sparse` at the
-            same seed). The sampler is ``independent``, so ``A`` and ``B`` are independent and
+            of them (``Γ = (spp//2 · A + (spp - spp//2) · B) / spp``; the lanes are laid out in two
+            sample blocks, so Γ is not :meth:`coefficients_sparse`'s result at the same seed, only
+            an estimate of the same coefficients). The sampler is ``independent``, so ``A`` and ``B`` are independent and
             ``E[AᵀB] = E[A]ᵀE[B]`` (:meth:`GramSystem.accumulate_sparse`). Arguments as
             :meth:`coefficients_sparse`, with ``spp >= 2``.
             """
@@ -518,9 +508,9 @@ def _define_class():
             (rows, cols, vals), first_b = self._tile_events(scene, sensor, spp, seed, start, stop, half)
             if not halves:
                 return (_csr(rows, cols, vals, shape),)
-            a, b = slice(0, first_b), slice(first_b, len(rows))
-            A = _csr(rows[a], cols[a], [v[a] for v in vals], shape, weight=spp / half)
-            B = _csr(rows[b], cols[b], [v[b] for v in vals], shape, weight=spp / (spp - half))
+            in_a, in_b = slice(0, first_b), slice(first_b, len(rows))
+            A = _csr(rows[in_a], cols[in_a], [v[in_a] for v in vals], shape, weight=spp / half)
+            B = _csr(rows[in_b], cols[in_b], [v[in_b] for v in vals], shape, weight=spp / (spp - half))
             wa, wb = half / spp, (spp - half) / spp
             return A, B, [(a + b) * 0.5 if wa == wb else a * wa + b * wb for a, b in zip(A, B)]
 

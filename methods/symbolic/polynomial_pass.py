@@ -23,7 +23,7 @@ from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.gram import GramSystem
 
 log = logging.getLogger(__name__)
-BYTES_COPIES = 3   # an event buffer lives in Dr.Jit, in numpy and in the COO arrays
+BYTES_COPIES = 3   # an event buffer lives in Dr.Jit, compacted on the device, and in numpy
 
 
 @dataclass
@@ -54,7 +54,7 @@ def tile_pixels_for(memory_mb: float, spp: int, max_bounces: int, n_channels: in
     """Largest tile whose event buffers fit in ``memory_mb`` (at least 64 pixels).
 
     A pixel holds ``spp × (N_max + T + 1)`` event slots of one monomial index and ``C`` values
-    (4 bytes each), held about three times (Dr.Jit buffers, their numpy copies, the COO arrays).
+    (4 bytes each), held about three times (Dr.Jit buffers, their compacted copy, numpy arrays).
     """
     per_pixel = spp * (max_bounces + tail_bounces + 1) * 4 * (1 + n_channels) * BYTES_COPIES
     return max(64, int(memory_mb * 2**20 // per_pixel))

@@ -154,7 +154,7 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
                 raise ConfigError(f"segments_params: index {p} outside [0, {D - 1}]")
     check_algorithm(algorithm, constrained=any(len(ps) > 1 for ps in segs))
     x0 = np.asarray(x0, dtype=float)
-    x0 = np.broadcast_to(x0.reshape(D, -1), (D, C))
+    x0 = project_feasible(np.broadcast_to(x0.reshape(D, -1), (D, C)), segs)
     rng = np.random.default_rng(seed)
 
     t_start = time.perf_counter()
@@ -163,7 +163,7 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
     best_cost = np.empty(C)
     used = system.used_monomials()
     costs = [ChannelCost(system, basis, c, used) for c in range(C)]
-    ref_cost = np.array([costs[c](project_feasible(x0[:, c], segs))[0] for c in range(C)])
+    ref_cost = np.array([costs[c](x0[:, c])[0] for c in range(C)])
     n_evals = guess_evals = 0
 
     for c in range(C):
@@ -177,7 +177,7 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
 
         best = None
         for k in range(int(starts)):
-            start = project_feasible(x0[:, c], segs) if k == 0 else _random_start(rng, D, segs)
+            start = x0[:, c] if k == 0 else _random_start(rng, D, segs)
             run = minimize(cost_grad, start, lower=0.0, upper=1.0, inequality_groups=segs,
                            algorithm=algorithm, max_eval=int(max_eval), xtol_rel=float(xtol_rel),
                            ftol_rel=1e-15, constraint_tol=1e-12)
