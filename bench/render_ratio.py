@@ -4,7 +4,8 @@ Both at the same spp on the same 200x200 view; ``path`` with ``max_depth = N_max
 box filter (as the pass). The pass is timed as the method runs it
 (:func:`methods.symbolic.polynomial_pass.render_view_task`: coefficients, Gram accumulation,
 sparse coefficients), and the solve (:meth:`SymbolicMethod._solve`: nlopt and the uncertainty)
-on its Gram system; each the median of ``reps`` runs after a warm-up.
+on its Gram system; each the median of ``reps`` runs after a warm-up (the solve's stages and
+evaluation count: of the last run).
 """
 from __future__ import annotations
 
@@ -77,9 +78,10 @@ def measure_spp(problem, method, spp: int, reps: int) -> dict:
     pass_fn, basis, x0 = _pass_fn(problem, method, spp)
     t_pass, (system, _) = _timed(pass_fn, reps)
     t_render, _ = _timed(_render_fn(problem, spp, x0), reps)
-    t_solve, _ = _timed(lambda: method._solve(system, basis, problem.parameters, x0, problem), reps)
+    t_solve, fit = _timed(lambda: method._solve(system, basis, problem.parameters, x0, problem), reps)
     return {"spp": spp, "pass_s": t_pass, "render_s": t_render, "ratio": t_pass / t_render,
             "solve_s": t_solve, "solve_share": t_solve / t_render, "solve_share_pass": t_solve / t_pass,
+            "solve_stages_s": fit["stages_s"], "solver_evaluations": fit["solve"].n_evals,
             "n_monomials": basis.size, "n_params": len(problem.parameters)}
 
 

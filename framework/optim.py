@@ -68,7 +68,7 @@ def minimize(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndarray 
              x0: np.ndarray, *, lower: float | np.ndarray = 0.0, upper: float | np.ndarray = 1.0,
              inequality_groups: Sequence[Sequence[int]] = (), algorithm: str = "LD_SLSQP",
              max_eval: int = 0, xtol_rel: float = 1e-6, ftol_rel: float = 1e-10,
-             constraint_tol: float = 1e-10) -> OptimResult:
+             constraint_tol: float = 1e-10, metric: np.ndarray | None = None) -> OptimResult:
     """Minimise ``f`` from ``x0`` under bounds and ``Σ x[g] <= 1`` for each group ``g``.
 
     Parameters
@@ -91,6 +91,14 @@ def minimize(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndarray 
         nlopt's relative stopping tolerances on ``x`` and ``f``.
     constraint_tol : float
         Tolerance of each inequality constraint.
+    metric : ndarray, optional
+        ``(n, n)`` symmetric positive semi-definite estimate of the Hessian of ``f`` near its
+        minimum (exact, or Gauss-Newton). When given, nlopt works in the coordinates ``z`` of
+        ``x = x0 + P z`` with ``P = V Λ^{-1/2}`` (``metric = V Λ Vᵀ``, eigenvalues floored at
+        :data:`METRIC_FLOOR` times the largest), where the Hessian is close to the identity that
+        quasi-Newton methods (SLSQP's BFGS) start from: on an ill-conditioned cost this cuts the
+        evaluations several-fold. The bounds become linear constraints on ``z``, and ``xtol_rel``
+        applies to ``z``.
 
     Returns
     -------
@@ -104,41 +112,49 @@ def minimize(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndarray 
     hi = np.broadcast_to(np.asarray(upper, dtype=float), (n,)).copy()
     groups = [np.asarray(g, dtype=int) for g in inequality_groups if len(g) > 1]
     check_algorithm(algorithm, constrained=bool(groups))
+    if metric is not None and algorithm not in CONSTRAINED_ALGORITHMS:
+        raise ConfigError(f"algorithm={algorithm} with a metric: the bounds become linear constraints, "
+                          f"which it refuses; use one of {', '.join(CONSTRAINED_ALGORITHMS)}")
 
     best = OptimResult(x=np.clip(x0, lo, hi), f=np.inf)
-    stop = []
+    stop, points = [], []
     M = _group_matrix(groups, n)
+    frame = _Frame(best.x, lo, hi, M, metric)
 
-    def objective(x, grad):
+    def objective(z, grad):
         need = grad.size > 0
+        x = frame.x(z)
         try:
-            f, g = fun_and_grad(np.array(x), need)
+            f, g = fun_and_grad(x, need)
         except StopOptimization:
             stop.append(True)
             raise nlopt.ForcedStop() from None
         f = float(f)
         best.history.append(f)
+        points.append(x)
         best.n_eval += 1
         if need:
-            grad[:] = np.asarray(g, dtype=float).ravel()
-        if f < best.f and _feasible(x, lo, hi, M, 1e-9):
-            best.x, best.f = np.array(x), f
+            grad[:] = frame.gradient(np.asarray(g, dtype=float).ravel())
         return f
 
     opt = nlopt.opt(getattr(nlopt, algorithm), n)
-    opt.set_lower_bounds(lo)
-    opt.set_upper_bounds(hi)
-    if groups:
-        opt.add_inequality_mconstraint(_sum_constraints(M), [float(constraint_tol)] * len(groups))
+    opt.set_lower_bounds(frame.lower)
+    opt.set_upper_bounds(frame.upper)
+    if len(frame.A):
+        opt.add_inequality_mconstraint(_linear_constraints(frame.A, frame.c),
+                                       [float(constraint_tol)] * len(frame.A))
     opt.set_min_objective(objective)
     opt.set_xtol_rel(float(xtol_rel))
     opt.set_ftol_rel(float(ftol_rel))
     if max_eval > 0:
         opt.set_maxeval(int(max_eval))
-    best.status = _run(opt, best.x.copy(), lambda: bool(stop))
-    if not np.isfinite(best.f):
-        raise OptimizationError(f"nlopt {algorithm} stopped ({best.status}) before any feasible evaluation")
-    return best
+    best.status = _run(opt, frame.z0.copy(), lambda: bool(stop))
+    # The best feasible point seen: checked from the lowest cost up (usually the first is).
+    for i in np.argsort(best.history, kind="stable"):
+        if _feasible(points[i], lo, hi, M, 1e-9):
+            best.x, best.f = points[i], best.history[i]
+            return best
+    raise OptimizationError(f"nlopt {algorithm} stopped ({best.status}) before any feasible evaluation")
 
 
 _STATUS = {1: "SUCCESS", 2: "STOPVAL_REACHED", 3: "FTOL_REACHED", 4: "XTOL_REACHED", 5: "MAXEVAL_REACHED",
@@ -179,13 +195,62 @@ def _group_matrix(groups: list[np.ndarray], n: int) -> np.ndarray:
     return M
 
 
-def _sum_constraints(M: np.ndarray):
-    """All ``Σ x[g] - 1 <= 0`` in one nlopt vector constraint (one callback per evaluation)."""
-    def c(result, x, grad):
+def _linear_constraints(A: np.ndarray, c: np.ndarray):
+    """All rows of ``A z - c <= 0`` in one nlopt vector constraint (one callback per evaluation)."""
+    def constraint(result, z, grad):
         if grad.size > 0:
-            grad[:] = M
-        result[:] = M @ x - 1.0
-    return c
+            grad[:] = A
+        result[:] = A @ z - c
+    return constraint
+
+
+#: Least eigenvalue of a ``metric`` relative to its largest (flat directions get this curvature).
+METRIC_FLOOR = 1e-9
+
+
+class _Frame:
+    """The coordinates nlopt works in: ``x`` itself, or ``z`` with ``x = x0 + P z`` (``metric``).
+
+    Attributes: ``z0`` (start), ``lower``/``upper`` (box on the coordinates) and the linear
+    constraints ``A z <= c``: the sums ``M x <= 1`` and, in ``z``, the bounds on ``x``. The box
+    on ``z`` is the image of the box on ``x`` (loose, never cutting a feasible point) so that
+    algorithms needing finite bounds (MMA, CCSAQ) get them.
+    """
+
+    def __init__(self, x0, lo, hi, M, metric):
+        n = x0.size
+        if metric is None:
+            self.x0, self.P = x0, None
+            self.z0, self.lower, self.upper = x0, lo, hi
+            self.A, self.c = M, np.ones(len(M))
+            return
+        metric = np.asarray(metric, dtype=float)
+        if metric.shape != (n, n) or not np.all(np.isfinite(metric)):
+            raise ConfigError(f"metric must be a finite ({n}, {n}) matrix, got shape {metric.shape}")
+        w, V = np.linalg.eigh(0.5 * (metric + metric.T))
+        if w[-1] <= 0.0:
+            raise ConfigError("metric has no positive eigenvalue: pass a positive semi-definite Hessian "
+                              "estimate, or metric=None")
+        w = np.maximum(w, METRIC_FLOOR * w[-1])
+        self.x0, self.P = x0, V / np.sqrt(w)
+        Q = np.sqrt(w)[:, None] * V.T                            # P⁻¹
+        self.z0 = np.zeros(n)
+        if np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)):
+            ends = np.stack([Q * (lo - x0), Q * (hi - x0)])      # z_i's terms at both ends of x_j
+            self.lower, self.upper = ends.min(axis=0).sum(axis=1), ends.max(axis=0).sum(axis=1)
+        else:
+            self.lower, self.upper = np.full(n, -np.inf), np.full(n, np.inf)
+        finite_lo, finite_hi = np.isfinite(lo), np.isfinite(hi)
+        self.A = np.vstack([-self.P[finite_lo], self.P[finite_hi], M @ self.P])
+        self.c = np.concatenate([x0[finite_lo] - lo[finite_lo], hi[finite_hi] - x0[finite_hi],
+                                 1.0 - M @ x0])
+
+    def x(self, z: np.ndarray) -> np.ndarray:
+        return np.array(z) if self.P is None else self.x0 + self.P @ z
+
+    def gradient(self, g: np.ndarray) -> np.ndarray:
+        """∇_z f from ∇_x f."""
+        return g if self.P is None else self.P.T @ g
 
 
 def _feasible(x, lo, hi, M: np.ndarray, tol: float) -> bool:

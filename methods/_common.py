@@ -21,17 +21,19 @@ from framework.errors import ConfigError
 # ------------------------------------------------------------------------------------------------
 # Option checks
 # ------------------------------------------------------------------------------------------------
-def check_choice(cfg, key: str, choices) -> str:
-    """``cfg[key]`` as a string, or :class:`ConfigError` listing ``choices``."""
+def check_choice(cfg, key: str, choices, *, section: str = "method") -> str:
+    """``cfg[key]`` as a string, or :class:`ConfigError` listing ``choices`` (the message names
+    the option ``<section>.<key>``, as a command line sets it)."""
     value = cfg.get(key)
     if str(value) not in choices:
-        raise ConfigError(f"method.{key}={value} is not allowed: use one of {', '.join(map(str, choices))}")
+        raise ConfigError(f"{section}.{key}={value} is not allowed: use one of {', '.join(map(str, choices))}")
     return str(value)
 
 
 def check_number(cfg, key: str, lo: float, hi: float | None = None, *, integer: bool = False,
-                 lo_open: bool = False) -> float | int:
-    """``cfg[key]`` if it is a number in ``[lo, hi]`` (``(lo, hi]`` when ``lo_open``); else ConfigError."""
+                 lo_open: bool = False, section: str = "method") -> float | int:
+    """``cfg[key]`` if it is a number in ``[lo, hi]`` (``(lo, hi]`` when ``lo_open``); else
+    ConfigError naming ``<section>.<key>``."""
     value = cfg.get(key)
     kinds = (int,) if integer else (int, float)
     ok = isinstance(value, kinds) and not isinstance(value, bool)
@@ -39,7 +41,7 @@ def check_number(cfg, key: str, lo: float, hi: float | None = None, *, integer: 
     if not ok:
         what = "an integer" if integer else "a number"
         rng = f"{'(' if lo_open else '['}{lo}, {hi if hi is not None else '∞'}{']' if hi is not None else ')'}"
-        raise ConfigError(f"method.{key}={value} is out of range: use {what} in {rng}")
+        raise ConfigError(f"{section}.{key}={value} is out of range: use {what} in {rng}")
     return value
 
 

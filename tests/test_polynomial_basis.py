@@ -78,3 +78,14 @@ def test_jacobian_t_dot_and_batched_evaluate():
     for x in rho:
         np.testing.assert_allclose(b.jacobian_t_dot(b.evaluate(x), r), b.jacobian(x).T @ r, rtol=1e-12)
     np.testing.assert_array_equal(b.evaluate(rho), np.stack([b.evaluate(x) for x in rho]))
+
+
+def test_indices_inverts_exponents():
+    """indices(exponents) is the row order itself; a row that is no monomial of the basis is refused."""
+    b = MonomialBasis(4, 3)
+    np.testing.assert_array_equal(b.indices(b.exponents), np.arange(b.size))
+    assert b.indices([[1, 0, 2, 0]])[0] == b.index([0, 2, 2])
+    with pytest.raises(ValueError, match="not a monomial"):
+        b.indices([[2, 2, 0, 0]])            # degree 4 > N_max
+    with pytest.raises(ValueError, match="not a monomial"):
+        b.indices([[-1, 0, 0, 0]])

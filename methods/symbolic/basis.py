@@ -55,11 +55,12 @@ class MonomialBasis:
         codes = np.zeros(self.size, dtype=np.int64)  # sorted multiset code, base D+1 digits
         m = 0
         for d in range(N + 1):
-            for combo in combinations_with_replacement(range(D), d):
-                for p in combo:
-                    exps[m, p] += 1
-                codes[m] = _code(np.asarray(combo, dtype=np.int64)[None, :], D)[0] if d else 0
-                m += 1
+            combos = list(combinations_with_replacement(range(D), d))
+            combos = np.array(combos, dtype=np.int64).reshape(len(combos), d)
+            rows = np.arange(m, m + len(combos))
+            np.add.at(exps, (np.repeat(rows, d), combos.ravel()), 1)
+            codes[rows] = _code(combos, D) if d else 0
+            m += len(combos)
         assert m == self.size
         self.exponents = exps
         self.degrees = exps.sum(axis=1)
@@ -78,15 +79,15 @@ class MonomialBasis:
             table[keys] = order[pos]
         self.key_table = table
 
+        # Exponent vectors as base-(N_max + 1) numbers, sorted, for :meth:`indices`.
+        self._exp_codes = exps @ (N + 1) ** np.arange(D, dtype=np.int64)
+        self._exp_order = np.argsort(self._exp_codes)
+
         # ∂μ_m/∂ρ_k = e_mk · μ_{m - 1_k}: the lowered monomial is in the basis too (degree - 1).
-        index = {tuple(e): i for i, e in enumerate(exps.tolist())}
         lowered = np.zeros_like(exps)
-        for m_, e in enumerate(exps.tolist()):
-            for k in range(D):
-                if e[k] > 0:
-                    e[k] -= 1
-                    lowered[m_, k] = index[tuple(e)]
-                    e[k] += 1
+        for k in range(D):
+            has = exps[:, k] > 0
+            lowered[has, k] = self.indices(exps[has] - np.eye(D, dtype=np.int64)[k])
         self._lowered = lowered
 
         # μ_m = μ_parent(m) · ρ_var(m) (var: the first variable of m): one product per monomial,
@@ -107,6 +108,17 @@ class MonomialBasis:
     def index(self, params) -> int:
         """Monomial index of the multiset ``params`` (any order)."""
         return int(self.key_table[self.key(sorted(params))])
+
+    def indices(self, exponents: np.ndarray) -> np.ndarray:
+        """Monomial indices of the rows of ``exponents`` (``(K, D)`` non-negative ints, each row of
+        total degree ``<= N_max``)."""
+        exponents = np.asarray(exponents, dtype=np.int64).reshape(-1, self.n_params)
+        codes = exponents @ (self.max_degree + 1) ** np.arange(self.n_params, dtype=np.int64)
+        sorted_codes = self._exp_codes[self._exp_order]
+        pos = np.minimum(np.searchsorted(sorted_codes, codes), self.size - 1)
+        if exponents.size and (np.any(exponents < 0) or np.any(sorted_codes[pos] != codes)):
+            raise ValueError("exponents: a row is not a monomial of this basis (negative, or degree > N_max)")
+        return self._exp_order[pos]
 
     def evaluate(self, rho: np.ndarray) -> np.ndarray:
         """Values of all monomials at ``rho``.

@@ -130,7 +130,9 @@ def restrict_system(system: GramSystem, basis: MonomialBasis, keep: np.ndarray
     if len(kept) == basis.n_params:
         return system, basis, np.arange(basis.size)
     sub = MonomialBasis(len(kept), basis.max_degree)
-    idx = np.array([basis.index(np.repeat(kept, e)) for e in sub.exponents], dtype=np.int64)
+    exponents = np.zeros((sub.size, basis.n_params), dtype=np.int64)
+    exponents[:, kept] = sub.exponents
+    idx = basis.indices(exponents)
     G = system.G[:, idx][:, :, idx]
     return GramSystem(G.copy(), system.b[:, idx].copy(), system.yy.copy(), system.n_pixels), sub, idx
 
