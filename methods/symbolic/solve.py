@@ -4,7 +4,10 @@ Per channel ``c`` the cost is ``ε²_c(ρ) = μ(ρ)ᵀ G_c μ(ρ) - 2 b_cᵀ μ(
 :mod:`methods.symbolic.gram`), with exact gradient ``2 J(ρ)ᵀ (G_c μ - b_c)`` from
 :meth:`MonomialBasis.jacobian`. Constraints: ``0 <= ρ_j <= 1`` and, per segment, energy
 conservation ``Σ_{j in segment} ρ_j <= 1``. The paper used a conjugate-gradient method (GSL,
-section 4.4); here nlopt's ``LD_SLSQP`` (default) handles the constraints.
+section 4.4); here nlopt's ``LD_SLSQP`` (default) handles the constraints, in coordinates where
+the exact Hessian (or its Gauss-Newton part) is the identity: the cost of a street spans orders
+of magnitude of curvature (a wall's ρ_d against a window's ρ_s), which SLSQP's BFGS otherwise
+learns one evaluation at a time (about 60 evaluations per start on urban_canyon, 10-30 with it).
 """
 from __future__ import annotations
 
