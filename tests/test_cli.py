@@ -49,6 +49,10 @@ def test_every_method_runs_on_a_tiny_scene(method, tiny_scene, tmp_path):
         assert len(p["estimate"]) == 3 and all(0.0 <= x <= 1.0 for x in p["estimate"])
     assert {"render", "solve", "total"} <= set(on_disk["timings_s"])
     assert results["image_rmse"] is not None
+    if method in ("symbolic", "lambertian_prior"):      # their solve split into stages
+        stages = on_disk["solve_stages_s"]
+        assert set(stages) == {"psd", "nlopt", "uncertainty"} and min(stages.values()) >= 0
+        assert sum(stages.values()) <= on_disk["timings_s"]["solve"]
 
 
 def _cli(args, cwd):
