@@ -15,6 +15,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from framework import optim
 from framework.errors import ConfigError
 
 
@@ -125,8 +126,7 @@ def flat_constraint_groups(parameters, n_channels: int) -> list[list[int]]:
 def project_feasible(rho: np.ndarray, parameters) -> np.ndarray:
     """ρ (P, C) projected per channel onto [0, 1] ∩ {Σ_segment kernels ρ <= 1}
     (:func:`framework.optim.project_feasible` with the segments' index groups)."""
-    from framework.optim import project_feasible as project
-    return project(rho, segment_groups(parameters))
+    return optim.project_feasible(rho, segment_groups(parameters))
 
 
 # ------------------------------------------------------------------------------------------------

@@ -127,7 +127,7 @@ class SymbolicMethod(Method):
             fit = self._solve(result.system, basis, params, x0, problem)
             render_s += result.render_s
             solve_s += time.perf_counter() - t_solve     # PSD projection, nlopt and uncertainty
-            stages = {k: stages.get(k, 0.0) + v for k, v in fit["stages_s"].items()}
+            stages = {name: stages.get(name, 0.0) + t for name, t in fit["stages_s"].items()}
         estimate = fit["estimate"]
         filled = np.nan_to_num(estimate)           # unobservable weights: their monomials are all 0
         mu = np.stack([basis.evaluate(filled[:, c]) for c in range(problem.n_channels)])

@@ -84,18 +84,22 @@ class ChannelCost:
         J = self.basis.jacobian(x)[self.used]
         return 2.0 * J.T @ self.G @ J
 
-    def hessian(self, x: np.ndarray) -> np.ndarray:
-        """``(D, D)`` exact Hessian ``2 Jᵀ G_c J + 2 Σ_m (G_c μ - b_c)_m ∇²μ_m``
+    def _residual_curvature(self, x: np.ndarray) -> np.ndarray:
+        """``(D, D)`` second-order part ``2 Σ_m (G_c μ - b_c)_m ∇²μ_m`` of the Hessian
         (:meth:`MonomialBasis.hessian` gives the monomial Hessians ``∇²μ_m``)."""
         r = self.G @ self.basis.evaluate(x)[self.used] - self.b
-        Hm = self.basis.hessian(x)[self.used]
-        return self.gauss_newton(x) + 2.0 * np.einsum("m,mkl->kl", r, Hm)
+        return 2.0 * np.einsum("m,mkl->kl", r, self.basis.hessian(x)[self.used])
+
+    def hessian(self, x: np.ndarray) -> np.ndarray:
+        """``(D, D)`` exact Hessian ``2 Jᵀ G_c J + 2 Σ_m (G_c μ - b_c)_m ∇²μ_m``."""
+        return self.gauss_newton(x) + self._residual_curvature(x)
 
     def metric(self, x: np.ndarray) -> np.ndarray:
         """Curvature for :func:`framework.optim.minimize`'s ``metric``: the exact Hessian at ``x``
         when it is positive definite, else its Gauss-Newton part."""
-        H = self.hessian(x)
-        return H if np.linalg.eigvalsh(H)[0] > 0.0 else self.gauss_newton(x)
+        gn = self.gauss_newton(x)
+        H = gn + self._residual_curvature(x)
+        return H if np.linalg.eigvalsh(H)[0] > 0.0 else gn
 
 
 def channel_cost_grad(system: GramSystem, basis: MonomialBasis, c: int, x: np.ndarray):
@@ -198,14 +202,14 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
             return f, g
 
         best = None
+        metric = costs[c].metric(x0[:, c]) if precondition else None
         for k in range(int(starts)):
             start = x0[:, c] if k == 0 else _random_start(rng, D, segs)
-            if precondition and k <= 1:     # at x0, then at the first start's minimum
-                metric = costs[c].metric(start if k == 0 else best.x)
+            if precondition and k == 1:     # the random starts: curvature at the first minimum
+                metric = costs[c].metric(best.x)
             run = minimize(cost_grad, start, lower=0.0, upper=1.0, inequality_groups=segs,
                            algorithm=algorithm, max_eval=int(max_eval), xtol_rel=float(xtol_rel),
-                           ftol_rel=float(ftol_rel), constraint_tol=1e-12,
-                           metric=metric if precondition else None)
+                           ftol_rel=float(ftol_rel), constraint_tol=1e-12, metric=metric)
             n_evals += run.n_eval
             guess_evals += run.n_eval if k == 0 else 0
             if best is None or run.f < best.f:
