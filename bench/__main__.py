@@ -30,8 +30,8 @@ def log(msg: str) -> None:
 
 
 def comparison_report(rows: list[dict], out: Path):
-    """framework.report's comparison of the run folders; its markdown path (or the error text)."""
-    from framework.report import write_comparison
+    """reports's comparison of the run folders; its markdown path (or the error text)."""
+    from reports import write_comparison
     try:
         md, _ = write_comparison([r["run_dir"] for r in rows], out=out)
         return md

@@ -42,7 +42,7 @@ def _git() -> str:
 
 def describe() -> dict:
     """CPU model, cores, RAM, Mitsuba variant and versions, Python, date, git revision."""
-    from framework import backend
+    from framework.render import backend
     variant = backend.set_variant("auto", channels=("R", "G", "B"))
     import drjit as dr
     import mitsuba as mi

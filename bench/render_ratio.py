@@ -19,10 +19,10 @@ from bench.common import compose
 
 def build_problem(cfg):
     """``(problem, method)`` as :func:`framework.experiment.run_experiment` builds them."""
-    from framework import backend
+    from framework.render import backend
     from framework.cache import Cache
     from framework.experiment import scene_dir, select_cameras
-    from framework.methods import Problem, get_method
+    from framework.registry import Problem, get_method
     from framework.observe import observed_images
     from framework.scene import load_scene
     from omegaconf import open_dict
@@ -65,7 +65,7 @@ def _pass_fn(problem, method, spp: int):
 def _render_fn(problem, spp: int, rho):
     """A no-argument function rendering view 0 with ``path`` (max_depth N_max + 1, box filter)
     at the weights ``rho`` (the pass's guesses: a render of the iterative method's loop)."""
-    from framework.mitsuba_scene import MitsubaScene, max_depth_for
+    from framework.render.mitsuba_scene import MitsubaScene, max_depth_for
     render = problem.settings.render
     depth = max_depth_for(int(render.max_bounces) + int(render.get("tail_bounces", 0)))
     ms = MitsubaScene(problem.scene, problem.cameras[:1], spp=spp, integrator={"type": "path", "max_depth": depth})

@@ -6,7 +6,7 @@ class UserError(Exception):
 
 
 class SceneError(UserError):
-    """A scene directory that does not follow the scene format (CONTRACT section 1)."""
+    """A scene directory that does not follow the scene format (docs/scene-format.md)."""
 
 
 class ConfigError(UserError):

@@ -1,6 +1,6 @@
 """Where per-view work runs: in this process (``executor=serial``) or in Dask workers (``dask``).
 
-Configuration (``framework/conf/executor/*.yaml``, CONTRACT section 2):
+Configuration (``framework/conf/executor/*.yaml``, ``docs/cli.md``):
 
 ``serial``
     Everything in the driver process (the default).
@@ -27,7 +27,7 @@ log = logging.getLogger(__name__)
 
 def init_worker(variant: str, threads: int | None) -> None:
     """Select ``variant`` (with a usable libLLVM) and cap Dr.Jit's thread pool in this process."""
-    from framework import backend
+    from framework.render import backend
     backend.set_variant(str(variant))
     if threads:
         import drjit as dr

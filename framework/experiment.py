@@ -51,9 +51,9 @@ def select_cameras(scene, cfg: DictConfig) -> list:
 
 def run_experiment(cfg: DictConfig, run_dir: str | Path) -> dict:
     """Run ``cfg.method`` on ``cfg.scene``; write the run folder; return the results dict."""
-    from framework import backend
+    from framework.render import backend
     from framework.cache import Cache
-    from framework.methods import Problem, get_method
+    from framework.registry import Problem, get_method
     from framework.observe import observed_images
     from framework.results import results_dict, write_relit_images, write_results, write_view_images
     from framework.scene import load_scene
@@ -91,7 +91,7 @@ def run_experiment(cfg: DictConfig, run_dir: str | Path) -> dict:
     results = results_dict(problem, result, method=str(cfg.method.name), settings=settings, views=views,
                            relit=relit)
     if cfg.get("report", True):
-        from framework.report import write_run_report
+        from reports import write_run_report
         t_report = time.perf_counter()
         write_run_report(run_dir, results)
         results["timings_s"]["report"] = time.perf_counter() - t_report
@@ -101,6 +101,6 @@ def run_experiment(cfg: DictConfig, run_dir: str | Path) -> dict:
 
 
 def _segment_maps(scene, cameras) -> dict:
-    from framework.mitsuba_scene import MitsubaScene
+    from framework.render.mitsuba_scene import MitsubaScene
     ms = MitsubaScene(scene, cameras, spp=1)
     return {c.name: ms.segment_map(i) for i, c in enumerate(cameras)}

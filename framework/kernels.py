@@ -4,7 +4,10 @@ A kernel is registered by name. It knows
 
 * its *unit-weight* BSDF (ρ = 1), which the polynomial integrator evaluates and samples, and
 * its one-sided Mitsuba BSDF at weight ρ (``weighted_bsdf``); a segment's kernel BRDF
-  Σ_i ρ_i f_i is one exact, two-sided Mitsuba BSDF for forward rendering (:func:`forward_bsdf`).
+  Σ_i ρ_i f_i is one exact, two-sided Mitsuba BSDF for forward rendering
+  (:func:`framework.render.kernel_bsdf.forward_bsdf`).
+
+This module imports no Mitsuba: the scene loader checks kernel names with it.
 
 Every BSDF is two-sided: scanned meshes have inconsistently wound faces and a one-sided BSDF
 is black from behind.
@@ -77,21 +80,3 @@ def get(name: str) -> Kernel:
         return KERNELS[name]
     except KeyError:
         raise SceneError(f"unknown kernel '{name}': use one of {', '.join(sorted(KERNELS))}") from None
-
-
-def forward_bsdf(kernels: list[str], channels: tuple[str, ...] | None = None) -> dict:
-    """Mitsuba dict of the exact kernel BRDF Σ_i ρ_i f_i of one segment (``kernel_sum`` plugin,
-    :mod:`framework.kernel_bsdf`); the weights start at 0 and are set by :func:`weight_values`
-    keys through ``mi.traverse``."""
-    from framework.kernel_bsdf import ensure_registered
-    ensure_registered()
-    return {"type": "kernel_sum", "kernels": ",".join(kernels)}
-
-
-def weight_values(kernels: list[str], rho: np.ndarray) -> list[tuple[str, np.ndarray]]:
-    """(traverse key relative to the shape's ``bsdf``, value ρ_i) for each kernel of a segment.
-
-    ``rho`` has shape (len(kernels), n_channels).
-    """
-    rho = np.asarray(rho, dtype=float).reshape(len(kernels), -1)
-    return [(f"rho_{i}", rho[i]) for i in range(len(kernels))]

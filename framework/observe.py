@@ -6,7 +6,7 @@ Gaussian sensor noise, and cached by everything that affects them, so a sweep re
 
 Seeds: observations use odd seeds and the inversions' own renders even ones
 (:func:`observation_seed`, :func:`inversion_seed`), so the two noises are never correlated
-(PITFALLS; the paper, section 5.1).
+(the paper, section 5.1: the noise of the observations must not be the noise of the inversion).
 """
 from __future__ import annotations
 
@@ -64,7 +64,7 @@ def observed_images(scene: Scene, cameras: list[Camera], settings, *, cache: Cac
 def render_references(scene: Scene, cameras: list[Camera], *, spp: int, max_depth: int, seed: int,
                       noise: float = 0.0) -> list[np.ndarray]:
     """Path-traced images of ``cameras`` at the scene's reference weights."""
-    from framework.mitsuba_scene import MitsubaScene
+    from framework.render.mitsuba_scene import MitsubaScene
     from tqdm import tqdm
     ms = MitsubaScene(scene, cameras, spp=spp, integrator={"type": "path", "max_depth": int(max_depth)})
     params = scene.parameters()

@@ -2,7 +2,7 @@
 
 Every method that solves ``min f(x)`` subject to ``lower <= x <= upper`` and, per group of
 indices ``g``, ``Σ_{i in g} x_i <= 1`` (a segment's kernel weights in one channel) goes
-through :func:`minimize`. It works around nlopt's pitfalls (``/work/shared/PITFALLS.md``):
+through :func:`minimize`. It works around nlopt's pitfalls (measured with nlopt 2.11):
 
 * errors are SWIG exceptions with empty messages: they become :class:`OptimizationError`
   (or :class:`~framework.errors.ConfigError` for a bad algorithm name / option) with a message;

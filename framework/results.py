@@ -1,4 +1,4 @@
-"""results.json (CONTRACT section 3) and the run folder's images."""
+"""results.json (``docs/results.md``) and the run folder's images."""
 from __future__ import annotations
 
 import json
@@ -8,7 +8,7 @@ import numpy as np
 
 from framework.cache import atomic_write_bytes
 from framework.images import write_exr
-from framework.methods import MethodResult, Problem
+from framework.registry import MethodResult, Problem
 
 
 def _listify(row: np.ndarray) -> list | None:

@@ -85,7 +85,7 @@ def _guess_from_config(guess, problem) -> np.ndarray:
 
 def _lambertian_prior(rho: np.ndarray, problem) -> tuple[np.ndarray, int]:
     """Diffuse weights from the ``lambertian_prior`` method (its renders count)."""
-    from framework.methods import get_method
+    from framework.registry import get_method
     try:
         prior_cls = get_method("lambertian_prior")
     except ConfigError:
@@ -193,16 +193,16 @@ def render_pass(ms, *, spp: int, seeds: list[int], ledger: RenderLedger) -> list
 def max_depth(problem) -> int:
     """Mitsuba ``max_depth`` for the run's ``render.max_bounces`` and ``render.tail_bounces``
     (N_max + T + 1: a baseline renders every reflection the symbolic pass traces)."""
-    from framework.mitsuba_scene import max_depth_for
+    from framework.render.mitsuba_scene import max_depth_for
     render = problem.settings.render
     return max_depth_for(int(render.max_bounces) + int(render.get("tail_bounces", 0)))
 
 
 def loop_result(problem, ledger: RenderLedger, *, started: float, rho: np.ndarray, costs: list[float],
                 times: list[float], reconstructions: list[np.ndarray], extras: dict):
-    """The :class:`~framework.methods.MethodResult` of a render-in-the-loop method: Mitsuba time
+    """The :class:`~framework.registry.MethodResult` of a render-in-the-loop method: Mitsuba time
     is ``render``, the rest of the wall time since ``started`` is ``solve``."""
-    from framework.methods import MethodResult
+    from framework.registry import MethodResult
     total = time.perf_counter() - started
     return MethodResult(
         estimate=rho, renders=ledger.used,

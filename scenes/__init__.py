@@ -1,4 +1,4 @@
-"""Bundled scenes in the scene-directory format (CONTRACT section 1).
+"""Bundled scenes in the scene-directory format (``docs/scene-format.md``).
 
 Each bundled scene is a sub-folder ``scenes/<name>/`` holding ``scene.yaml``, ``meshes/``,
 ``sparse/`` and optional environment maps. The folders are (re)written deterministically by

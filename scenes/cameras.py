@@ -35,14 +35,14 @@ def fov_from_focal(width: int, focal: float) -> float:
 def cam_from_mitsuba(to_world: np.ndarray) -> np.ndarray:
     """COLMAP ``cam_from_world`` (3, 4) of a Mitsuba sensor ``to_world`` (4, 4; x left, y up).
 
-    Inverse of PITFALLS' ``to_world = inv(T) @ diag(-1, -1, 1, 1)``.
+    Inverse of ``to_world = inv(T) @ diag(-1, -1, 1, 1)``.
     """
     world_from_cam = np.asarray(to_world, float) @ np.diag([-1.0, -1.0, 1.0, 1.0])
     return np.linalg.inv(world_from_cam)[:3]
 
 
 def mitsuba_to_world(cam: PinholeCamera) -> np.ndarray:
-    """Mitsuba sensor ``to_world`` (4, 4) of a COLMAP view (PITFALLS' relation)."""
+    """Mitsuba sensor ``to_world`` (4, 4) of a COLMAP view (the relation of :func:`framework.render.mitsuba_scene.sensor_dict`)."""
     t = np.eye(4)
     t[:3] = cam.cam_from_world
     return np.linalg.inv(t) @ np.diag([-1.0, -1.0, 1.0, 1.0])

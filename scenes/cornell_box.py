@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from framework.backend import set_variant
+from framework.render.backend import set_variant
 from scenes import geometry as g
 from scenes.cameras import cam_from_mitsuba, focal_from_fov
 from scenes.io import PinholeCamera, write_colmap, write_mesh, write_scene_yaml

@@ -133,7 +133,7 @@ def read_colmap(sparse_dir: Path) -> list[PinholeCamera]:
 
 
 def write_scene_yaml(path: Path, scene: dict, comment: str = "") -> Path:
-    """Write ``scene.yaml`` (CONTRACT section 1) with a leading comment block.
+    """Write ``scene.yaml`` (``docs/scene-format.md``) with a leading comment block.
 
     Parameters
     ----------

@@ -2,7 +2,7 @@
 
 Used to write ``preview.png`` and by the tests: shapes are ``ply`` files with the reference
 kernel BRDF (:func:`framework.kernels.forward_bsdf`), emitters as in ``scene.yaml``, and a
-``perspective`` sensor from the COLMAP view (PITFALLS' convention, box filter).
+``perspective`` sensor from the COLMAP view (box filter).
 """
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from framework.backend import set_variant
-from framework.envmap import TO_WORLD
+from framework.render.backend import set_variant
+from framework.render.envmap import TO_WORLD
 from framework.kernels import forward_bsdf, spectrum, weight_values
 from scenes.cameras import perspective_sensor
 from framework.images import read_exr

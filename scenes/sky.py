@@ -1,7 +1,7 @@
 """Clear-sky illumination baked from Mitsuba's ``sunsky`` emitter.
 
 The sky (``sun_scale: 0``) is baked into an equirectangular map in the convention of
-:mod:`framework.envmap` (image top = world +z): texel direction ``d`` gets ``emitter.eval`` of a
+:mod:`framework.render.envmap` (image top = world +z): texel direction ``d`` gets ``emitter.eval`` of a
 ``SurfaceInteraction3f`` with ``wi = -d``. The sun becomes a ``directional`` emitter whose
 irradiance is the sun disk's radiance integrated over its solid angle (``sky_scale: 0``).
 
@@ -17,14 +17,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from framework.backend import set_variant
-from framework.envmap import texel_directions, texel_solid_angles
+from framework.render.backend import set_variant
+from framework.render.envmap import texel_directions, texel_solid_angles
 
 SUN_HALF_APERTURE_DEG = 0.5358 / 2   # sunsky's default sun_aperture (degrees, full angle)
 
 
 def sun_vector(elevation_deg: float, azimuth_deg: float) -> np.ndarray:
-    """Unit direction towards the sun; azimuth from world +y towards +x (as framework.envmap)."""
+    """Unit direction towards the sun; azimuth from world +y towards +x (as framework.render.envmap)."""
     el, az = np.radians(elevation_deg), np.radians(azimuth_deg)
     return np.array([np.cos(el) * np.sin(az), np.cos(el) * np.cos(az), np.sin(el)])
 
@@ -81,7 +81,7 @@ def bake_sky(sun: np.ndarray, height: int, width: int, channels: str = "rgb",
     sun : ndarray (3,)
         Unit direction towards the sun.
     height, width : int
-        Map size (texel directions from :func:`framework.envmap.texel_directions`).
+        Map size (texel directions from :func:`framework.render.envmap.texel_directions`).
     channels : {'rgb', 'mono'}
         RGB, or the single 550 nm band.
     turbidity : float

@@ -31,3 +31,16 @@ if [ ! -f "$stamp" ]; then
   .venv/bin/python -m pip install -q -e ".[test]"
   rm -f .venv/.installed-*; touch "$stamp"
 fi
+
+# --- Dr.Jit's libLLVM for every interpreter of the venv ------------------------------------------
+# Dr.Jit 1.5 aborts the process with Debian's libLLVM 15; the karellen-llvm-core wheel ships a
+# newer one. A .pth file sets DRJIT_LIBLLVM_PATH at interpreter start (also when the venv is not
+# activated), and `activate` exports it for the shell, so a user's own script works too.
+llvm="$(ls "$root"/.venv/lib/libLLVM.so.* 2>/dev/null | sort -V | tail -n 1)"
+if [ -n "$llvm" ]; then
+  site="$(.venv/bin/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')"
+  printf "import os; os.environ.setdefault('DRJIT_LIBLLVM_PATH', %s)\n" "'$llvm'" > "$site/_sir_libllvm.pth"
+  if ! grep -q "DRJIT_LIBLLVM_PATH" .venv/bin/activate; then
+    printf '\n# symbolic-inverse-rendering: a libLLVM >= 16 for Dr.Jit\nexport DRJIT_LIBLLVM_PATH="%s"\n' "$llvm" >> .venv/bin/activate
+  fi
+fi

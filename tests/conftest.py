@@ -11,7 +11,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 @pytest.fixture(scope="session", autouse=True)
 def _variant():
-    from framework.backend import set_variant
+    from framework.render.backend import set_variant
     set_variant("llvm_ad_rgb")
 
 

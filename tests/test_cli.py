@@ -1,4 +1,4 @@
-"""The command line of CONTRACT §2-3: every registered method on a tiny scene, bad input, sweeps."""
+"""The command line of docs/cli.md and results.json of docs/results.md: every registered method on a tiny scene, bad input, sweeps."""
 from __future__ import annotations
 
 import hashlib
@@ -13,7 +13,7 @@ from hydra import compose, initialize_config_module
 
 import framework.run  # noqa: F401  (registers the scene_label resolver)
 from framework.experiment import run_experiment
-from framework.methods import available_methods
+from framework.registry import available_methods
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = ["render.spp=8", "observe.spp=32", "budget.renders=12", "report=false",
@@ -36,7 +36,7 @@ def _fast(method):
 
 @pytest.mark.parametrize("method", available_methods())
 def test_every_method_runs_on_a_tiny_scene(method, tiny_scene, tmp_path):
-    """Each registered method writes a CONTRACT-shaped results.json within its render budget."""
+    """Each registered method writes a results.json of the documented shape within its render budget."""
     cfg = _compose([f"method={method}", f"scene.dir={tiny_scene}", f"cache.dir={tmp_path / 'cache'}",
                     *_fast(method)])
     results = run_experiment(cfg, tmp_path / "run")

@@ -9,7 +9,7 @@ from test_iterative import method_config, tiny_problem
 
 
 def run_differentiable(problem, **overrides):
-    from framework.methods import get_method
+    from framework.registry import get_method
     return get_method("differentiable")(method_config("differentiable", **overrides)).run(problem)
 
 

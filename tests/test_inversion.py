@@ -169,8 +169,8 @@ def test_polynomial_matches_path_on_small_urban_canyon(small_canyon):
     from omegaconf import OmegaConf
 
     from framework.cache import Cache
-    from framework.methods import Problem
-    from framework.mitsuba_scene import MitsubaScene
+    from framework.registry import Problem
+    from framework.render.mitsuba_scene import MitsubaScene
     from framework.scene import load_scene
     from methods.symbolic.basis import MonomialBasis
     from methods.symbolic.polynomial_pass import polynomial_pass
@@ -206,7 +206,7 @@ def test_polynomial_matches_path_on_small_urban_canyon(small_canyon):
 def test_symbolic_errors(key, value):
     """Each bad symbolic option raises ConfigError naming it (before any rendering)."""
     from framework.errors import ConfigError
-    from framework.methods import get_method
+    from framework.registry import get_method
     with initialize_config_module("framework.conf", version_base=None):
         cfg = compose("config", overrides=["method=symbolic", f"method.{key}={value}"])
     with pytest.raises(ConfigError, match=f"method.{key}={value}"):

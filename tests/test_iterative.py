@@ -19,7 +19,7 @@ def tiny_problem(root, *, kernels=("diffuse",), spp=16, budget=100, n_views=1, o
     estimates are unbiased up to Monte-Carlo noise.
     """
     from factory import make_tiny_scene
-    from framework.methods import Problem
+    from framework.registry import Problem
     from framework.observe import render_references
     from framework.scene import load_scene
     scene = load_scene(make_tiny_scene(root, kernels=kernels, n_views=n_views))
@@ -41,7 +41,7 @@ def method_config(name: str, **overrides):
 
 
 def run_iterative(problem, **overrides):
-    from framework.methods import get_method
+    from framework.registry import get_method
     return get_method("iterative")(method_config("iterative", **overrides)).run(problem)
 
 
@@ -113,7 +113,7 @@ def test_iterative_errors(tmp_path, key, value):
 
 
 def test_iterative_errors_unconstrained_algorithm(tmp_path):
-    """LD_LBFGS refuses the Σρ <= 1 constraints of a segment with two kernels (PITFALLS)."""
+    """LD_LBFGS refuses the Σρ <= 1 constraints of a segment with two kernels (nlopt 2.11 raises)."""
     problem = tiny_problem(tmp_path / "s", kernels=("diffuse", "specular"), budget=5, obs_spp=16)
     with pytest.raises(ConfigError, match="method.algorithm=LD_LBFGS"):
         run_iterative(problem, algorithm="LD_LBFGS")
@@ -121,7 +121,7 @@ def test_iterative_errors_unconstrained_algorithm(tmp_path):
 
 def test_iterative_errors_missing_lambertian_prior(tmp_path, monkeypatch):
     """init: lambertian_prior without that method registered names the fix."""
-    from framework import methods
+    from framework import registry as methods
     registered = methods.get_method
 
     def unregistered(name):
@@ -208,7 +208,7 @@ def test_minimize_rejects_lbfgs_with_constraints():
 
 def test_project_feasible():
     """Clip to [0, 1]; a segment's sum > 1 goes to the nearest point of the simplex face."""
-    from framework.methods import Parameter
+    from framework.registry import Parameter
     from methods._common import project_feasible
     params = [Parameter(0, 0, "a", "diffuse"), Parameter(1, 0, "a", "specular"), Parameter(2, 1, "b", "diffuse")]
     rho = np.array([[0.9, 1.4], [0.5, -0.2], [1.3, 0.4]])
@@ -218,7 +218,7 @@ def test_project_feasible():
 
 def test_iterative_init_lambertian_prior(tmp_path):
     """init: lambertian_prior starts from that method's diffuse estimates; its renders count."""
-    from framework.methods import get_method
+    from framework.registry import get_method
     try:
         get_method("lambertian_prior")
     except ConfigError:

@@ -5,13 +5,14 @@ import numpy as np
 import pytest
 
 from framework import kernels as K
+from framework.render import kernel_bsdf as KB
 
 
 def _bsdf(kernels, rho):
     import mitsuba as mi
-    b = mi.load_dict(K.forward_bsdf(kernels, ("R", "G", "B")))
+    b = mi.load_dict(KB.forward_bsdf(kernels, ("R", "G", "B")))
     p = mi.traverse(b)
-    for key, v in K.weight_values(kernels, rho):
+    for key, v in KB.weight_values(kernels, rho):
         p[key] = mi.Color3f(*[float(x) for x in v])
     p.update()
     return b

@@ -7,15 +7,16 @@ import subprocess
 import sys
 import textwrap
 
-import framework.backend
+import framework.render.backend
 
-framework.backend.set_variant("llvm_ad_rgb")
+framework.render.backend.set_variant("llvm_ad_rgb")
 
 import mitsuba as mi  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from framework import kernels as K  # noqa: E402
+from framework.render import kernel_bsdf as KB  # noqa: E402
 from framework.errors import ConfigError  # noqa: E402
 from methods.symbolic.integrator import PolynomialPathIntegrator  # noqa: E402
 
@@ -104,7 +105,7 @@ SEGMENTS = [[("diffuse", 0), ("diffuse", 1)],   # 0 white: two kernels (exercise
 
 
 def cornell(rho, res=32):
-    """mi.cornell_box() with forward kernel BSDFs (framework.kernels.forward_bsdf + weight_values),
+    """mi.cornell_box() with forward kernel BSDFs (framework.render.kernel_bsdf.forward_bsdf + weight_values),
     box filter, black emit-only light (segment -1); the large box is a pure mirror segment."""
     d = mi.cornell_box()
     d["sensor"]["film"].update({"width": res, "height": res, "rfilter": {"type": "box"}})
@@ -114,15 +115,15 @@ def cornell(rho, res=32):
                                                          "red-wall", "small-box")}
     shape_seg["large-box"] = 3
     shape_seg["light"] = -1
-    d["white"] = K.forward_bsdf(["diffuse", "diffuse"], ("R", "G", "B"))
-    d["red"] = K.forward_bsdf(["diffuse"], ("R", "G", "B"))
-    d["green"] = K.forward_bsdf(["diffuse"], ("R", "G", "B"))
-    d["large-box"]["bsdf"] = K.forward_bsdf(["specular"], ("R", "G", "B"))
+    d["white"] = KB.forward_bsdf(["diffuse", "diffuse"], ("R", "G", "B"))
+    d["red"] = KB.forward_bsdf(["diffuse"], ("R", "G", "B"))
+    d["green"] = KB.forward_bsdf(["diffuse"], ("R", "G", "B"))
+    d["large-box"]["bsdf"] = KB.forward_bsdf(["specular"], ("R", "G", "B"))
     scene = mi.load_dict(d, optimize=False)
     params = mi.traverse(scene)
     for name, seg in (("white", 0), ("red", 1), ("green", 2), ("large-box.bsdf", 3)):
         kl = SEGMENTS[seg]
-        for key, val in K.weight_values([k for k, _ in kl], rho[[p for _, p in kl]]):
+        for key, val in KB.weight_values([k for k, _ in kl], rho[[p for _, p in kl]]):
             params[f"{name}.{key}"] = mi.Color3f(*[float(v) for v in val])
     params.update()
     return scene, [(s, shape_seg[s.id()]) for s in scene.shapes()]
@@ -269,7 +270,7 @@ def test_mono_variant_in_subprocess():
     """llvm_ad_mono (C = 1): the exact mirror-plane case, in a fresh process (a Mitsuba class is
     bound to the variant active when its module is imported)."""
     code = textwrap.dedent("""
-        import framework.backend; framework.backend.set_variant('llvm_ad_mono')
+        import framework.render.backend; framework.render.backend.set_variant('llvm_ad_mono')
         import mitsuba as mi, numpy as np
         from methods.symbolic.integrator import PolynomialPathIntegrator
         T = mi.ScalarTransform4f

@@ -59,7 +59,7 @@ def test_relit_matches_path_render_of_relit_scene_folder(tmp_path):
 
 def test_reflectance_image_is_segment_weight(tmp_path):
     """Each pixel holds the diffuse weight of the segment it sees; sky pixels 0; NaN weights stay NaN."""
-    from framework.mitsuba_scene import MitsubaScene
+    from framework.render.mitsuba_scene import MitsubaScene
     scene = _scene(tmp_path)
     params = scene.parameters()
     rho = np.array([[0.1, 0.2, 0.3], [np.nan, 0.5, 0.6]])

@@ -1,11 +1,12 @@
-"""framework.report: per-run report and comparison content, from fake run folders."""
+"""reports: per-run report and comparison content, from fake run folders."""
 import json
 import re
 import time
 from pathlib import Path
 
-from framework.report import main, write_comparison, write_run_report
-from framework.report_data import fmt_num
+from reports import write_comparison, write_run_report
+from reports.__main__ import main
+from reports.data import fmt_num
 from test_report_fakes import (REPORT_REFS, REPORT_SEEDS, fake_sweep,  # noqa: F401 (fixture)
                                make_fake_run, report_error_of)
 

@@ -11,7 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from framework.report import main, write_run_report
+from reports import write_run_report
+from reports.__main__ import main
 from test_report_fakes import fake_sweep, make_fake_run  # noqa: F401 (fixture)
 
 ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"

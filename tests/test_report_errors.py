@@ -1,9 +1,10 @@
-"""framework.report on bad input: one stderr line naming the path and the fix, exit 2, no output."""
+"""reports on bad input: one stderr line naming the path and the fix, exit 2, no output."""
 import json
 
 import pytest
 
-from framework.report import ReportError, main, write_run_report
+from reports import ReportError, write_run_report
+from reports.__main__ import main
 from test_report_fakes import make_fake_run
 
 

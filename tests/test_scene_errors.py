@@ -118,7 +118,7 @@ def test_image_errors(tiny_scene):
 
 
 def test_variant_errors():
-    from framework.backend import set_variant
+    from framework.render.backend import set_variant
     with pytest.raises(ConfigError, match="variant=llvm_ad_rgbx is not a Mitsuba variant"):
         set_variant("llvm_ad_rgbx")
     with pytest.raises(ConfigError, match="does not match the scene's channels Y"):
@@ -126,7 +126,7 @@ def test_variant_errors():
 
 
 def test_libllvm_errors(tmp_path, monkeypatch):
-    from framework.backend import ensure_libllvm
+    from framework.render.backend import ensure_libllvm
     old = tmp_path / "libLLVM-15.so.1"
     old.write_bytes(b"")
     monkeypatch.setenv("DRJIT_LIBLLVM_PATH", str(old))
@@ -136,6 +136,6 @@ def test_libllvm_errors(tmp_path, monkeypatch):
     with pytest.raises(EnvironmentSetupError, match="does not exist: install a libLLVM >= 16"):
         ensure_libllvm()
     monkeypatch.delenv("DRJIT_LIBLLVM_PATH")
-    monkeypatch.setattr("framework.backend.find_libllvm", lambda: None)
+    monkeypatch.setattr("framework.render.backend.find_libllvm", lambda: None)
     with pytest.raises(EnvironmentSetupError, match="no libLLVM >= 16 found"):
         ensure_libllvm()

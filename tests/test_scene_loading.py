@@ -36,7 +36,7 @@ def test_colmap_point_lies_on_mitsuba_ray(tiny_scene):
     import mitsuba as mi
     import pycolmap
 
-    from framework.mitsuba_scene import MitsubaScene
+    from framework.render.mitsuba_scene import MitsubaScene
     scene = load_scene(tiny_scene)
     rec = pycolmap.Reconstruction(str(tiny_scene / "sparse"))
     ms = MitsubaScene(scene, list(scene.cameras), spp=1)

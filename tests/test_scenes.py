@@ -1,7 +1,7 @@
 """The bundled scenes: files re-read, generator is up to date, cameras, visibility, closed forms.
 
-Rendering uses :mod:`scenes.preview` (a hand-built Mitsuba scene: only framework.backend,
-framework.envmap and framework.kernels from the framework), at low resolution and spp.
+Rendering uses :mod:`scenes.preview` (a hand-built Mitsuba scene: only framework.render.backend,
+framework.render.envmap and framework.kernels from the framework), at low resolution and spp.
 """
 from __future__ import annotations
 
@@ -176,7 +176,7 @@ def test_urban_canyon_variant_more_views_other_size(tmp_path):
 
 def test_sun_matches_sky():
     """The directional sun and the baked sky's bright horizon share an azimuth; ground is uniform."""
-    from framework.envmap import texel_directions
+    from framework.render.envmap import texel_directions
 
     scene = _yaml("urban_canyon")
     sun = next(e for e in scene["emitters"] if e["type"] == "directional")

@@ -37,7 +37,7 @@ def compose_config(scene_dir, *overrides):
 def make_problem(scene_dir, views=None, *overrides):
     """A :class:`Problem` of ``scene_dir`` (all views, or the named ones)."""
     from framework.cache import Cache
-    from framework.methods import Problem
+    from framework.registry import Problem
     from framework.observe import observed_images
     from framework.scene import load_scene
     cfg = compose_config(scene_dir, *overrides)
@@ -48,7 +48,7 @@ def make_problem(scene_dir, views=None, *overrides):
 
 
 def run_symbolic(problem):
-    from framework.methods import get_method
+    from framework.registry import get_method
     return get_method("symbolic")(problem.settings.method).run(problem)
 
 

@@ -7,7 +7,7 @@ import time
 import numpy as np
 
 from framework import kernels as K
-from framework.methods import Method, MethodResult, Problem, register
+from framework.registry import Method, MethodResult, Problem, register
 from methods import _common as C
 
 log = logging.getLogger(__name__)
@@ -118,7 +118,7 @@ class _Fit:
     """The Mitsuba scene with a ``prb`` integrator, its weight keys, and the optimisation loop."""
 
     def __init__(self, problem: Problem, ledger: C.RenderLedger, opts: dict):
-        from framework.mitsuba_scene import MitsubaScene
+        from framework.render.mitsuba_scene import MitsubaScene
         self.problem, self.ledger, self.opts = problem, ledger, opts
         self.ms = MitsubaScene(problem.scene, problem.cameras, spp=opts["spp"],
                                integrator={"type": "prb", "max_depth": C.max_depth(problem)})

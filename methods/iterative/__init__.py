@@ -5,7 +5,7 @@ import time
 
 import numpy as np
 
-from framework.methods import Method, MethodResult, Problem, register
+from framework.registry import Method, MethodResult, Problem, register
 from framework.optim import StopOptimization, check_algorithm, minimize
 from methods import _common as C
 
@@ -31,7 +31,7 @@ class IterativeMethod(Method):
     :math:`x = \mathrm{vec}(\rho)` (``P × C``), under bounds :math:`0 \le \rho \le 1` and, per
     segment and channel, :math:`\sum_\text{kernels} \rho \le 1` (:func:`framework.optim.minimize`).
 
-    One *render* is one full pass over the selected views (CONTRACT §3). The run stops before a
+    One *render* is one full pass over the selected views (``docs/results.md``). The run stops before a
     cost (and gradient) evaluation that would leave no render for the final reconstruction under
     ``budget.renders``, and returns the best ρ evaluated so far. A forward-difference run spends
     exactly ``evaluations × (D + 1) + 1`` renders (the ``+ 1`` is the final reconstruction).
@@ -120,7 +120,7 @@ class _Objective:
     """``(x, need_grad) -> (cost, gradient)`` by re-rendering; counts renders, records costs."""
 
     def __init__(self, problem: Problem, ledger: C.RenderLedger, opts: dict):
-        from framework.mitsuba_scene import MitsubaScene
+        from framework.render.mitsuba_scene import MitsubaScene
         self.problem, self.ledger, self.opts = problem, ledger, opts
         self.spp = int(problem.settings.render.spp)
         self.ms = MitsubaScene(problem.scene, problem.cameras, spp=self.spp,

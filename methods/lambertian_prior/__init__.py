@@ -6,7 +6,7 @@ The paper's Table 1 setting, and the initial guess of the kernel inversions (sec
 from __future__ import annotations
 
 from framework.errors import ConfigError
-from framework.methods import register
+from framework.registry import register
 from methods.symbolic import SymbolicMethod
 
 

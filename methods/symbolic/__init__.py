@@ -13,7 +13,7 @@ import numpy as np
 
 from framework.cache import Cache
 from framework.executor import make_executor
-from framework.methods import Method, MethodResult, register
+from framework.registry import Method, MethodResult, register
 from methods._common import check_choice, check_number, initial_guess, segment_groups
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.polynomial_pass import polynomial_pass

@@ -67,7 +67,7 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
 
     Parameters
     ----------
-    problem : framework.methods.Problem
+    problem : framework.registry.Problem
     parameters : list of Parameter
         The unknowns (``D = len(parameters)``).
     guesses : numpy.ndarray
@@ -161,7 +161,7 @@ def render_view_task(task: dict, *, variant: str, threads: int | None = None
 
 
 def _scene_and_integrator(task: dict, variant: str):
-    from framework.mitsuba_scene import MitsubaScene
+    from framework.render.mitsuba_scene import MitsubaScene
     from methods.symbolic.integrator import PolynomialPathIntegrator
     scene, params = task["scene"], task["parameters"]
     key = (variant, scene.content_hash, scene.root, tuple(c.name for c in task["cameras"]), task["spp"],

@@ -14,16 +14,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from framework.errors import ConfigError
-
-
-@dataclass(frozen=True)
-class Parameter:
-    """One unknown of the inversion: the weight of ``kernel`` on segment ``segment`` (per channel)."""
-
-    index: int          # position in the parameter vector ρ
-    segment: int        # index into Scene.segments
-    segment_name: str
-    kernel: str
+from framework.scene.model import Parameter
 
 
 @dataclass

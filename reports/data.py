@@ -1,4 +1,4 @@
-"""Reading and checking run folders for the reports (CONTRACT section 3)."""
+"""Reading and checking run folders for the reports (docs/results.md)."""
 
 from __future__ import annotations
 
@@ -49,7 +49,7 @@ def load_results(run_dir: str | os.PathLike) -> dict:
 
 
 def check_results(path: Path, data) -> dict:
-    """``data`` if it has the CONTRACT section 3 shape the report needs; ReportError naming
+    """``data`` if it has the shape of docs/results.md the report needs; ReportError naming
     ``path`` otherwise."""
     if not isinstance(data, dict):
         raise ReportError(f"{path}: expected a JSON object, got {type(data).__name__}; "
@@ -57,13 +57,13 @@ def check_results(path: Path, data) -> dict:
     missing = [k for k in REQUIRED_KEYS if k not in data]
     if missing:
         raise ReportError(f"{path}: missing key(s) {', '.join(missing)}; results.json must "
-                          "follow CONTRACT section 3 (re-run the method to rewrite it)")
+                          "follow docs/results.md (re-run the method to rewrite it)")
     if not isinstance(data["parameters"], list) or not isinstance(data["channels"], list):
-        raise ReportError(f"{path}: 'parameters' and 'channels' must be lists (CONTRACT section 3)")
+        raise ReportError(f"{path}: 'parameters' and 'channels' must be lists (docs/results.md)")
     for i, par in enumerate(data["parameters"]):
         if not isinstance(par, dict) or "segment" not in par or "kernel" not in par:
             raise ReportError(f"{path}: parameters[{i}] needs 'segment' and 'kernel' "
-                              "(CONTRACT section 3)")
+                              "(docs/results.md)")
     return data
 
 

@@ -1,4 +1,4 @@
-"""Equirectangular environment maps in the scene format: image top = world +z (CONTRACT section 1).
+"""Equirectangular environment maps in the scene format: image top = world +z (``docs/scene-format.md``).
 
 Mitsuba's ``envmap`` is +y up in its local frame and maps a local direction v to
 u = atan2(v_x, -v_z) / 2π, v = acos(v_y) / π. The scene format is +z up, so the emitter gets

@@ -1,9 +1,10 @@
 """From the scene model to a Mitsuba scene, keeping segment identity.
 
-Mitsuba merges meshes whose BSDFs are equal (PITFALLS), so the scene is loaded with
+Mitsuba merges meshes whose BSDFs are equal (seen with mitsuba 3.9: five segments with identical
+placeholder BSDFs became one shape), so the scene is loaded with
 ``optimize=False`` and every mesh stays its own shape with a known segment. Cameras become
 ``perspective`` sensors with a box filter (pixel-exact comparison); BSDFs are the exact kernel
-sums of :func:`framework.kernels.forward_bsdf`, whose weights :meth:`MitsubaScene.set_weights`
+sums of :func:`framework.render.kernel_bsdf.forward_bsdf`, whose weights :meth:`MitsubaScene.set_weights`
 writes in place through ``mi.traverse`` (no reload).
 """
 from __future__ import annotations
@@ -11,10 +12,11 @@ from __future__ import annotations
 import numpy as np
 
 from framework import kernels as K
-from framework.envmap import TO_WORLD
+from framework.render.kernel_bsdf import forward_bsdf, weight_values
+from framework.render.envmap import TO_WORLD
 from framework.scene import Camera, Scene
 
-#: Mitsuba renders the scene's N_max reflections with ``max_depth = N_max + 1`` (PITFALLS).
+#: Mitsuba renders the scene's N_max reflections with ``max_depth = N_max + 1`` (``max_depth = 1`` renders emitters only, ``2`` direct light).
 def max_depth_for(max_bounces: int) -> int:
     return -1 if max_bounces < 0 else max_bounces + 1
 
@@ -22,7 +24,7 @@ def max_depth_for(max_bounces: int) -> int:
 def sensor_dict(camera: Camera, *, spp: int, channels: tuple[str, ...]) -> dict:
     """A Mitsuba ``perspective`` sensor equivalent to a COLMAP pinhole camera (box filter).
 
-    Conversion verified in PITFALLS: ``to_world = inv([R|t]) @ diag(-1, -1, 1, 1)``,
+    Conversion checked to 1e-6 on rays and 0.04 px on a rendered sphere: ``to_world = inv([R|t]) @ diag(-1, -1, 1, 1)``,
     ``fov = 2 atan(w / 2f)`` along x, principal point offsets ``(w/2 - cx)/w``, ``(h/2 - cy)/h``.
     """
     import mitsuba as mi
@@ -67,7 +69,7 @@ def _mesh_shape(scene: Scene, i: int):
     if m.segment is None:
         bsdf = {"type": "diffuse", "reflectance": 0.0}          # emits only: absorbs what it gets
     else:
-        bsdf = K.forward_bsdf(list(scene.segments[m.segment].kernels), scene.channels)
+        bsdf = forward_bsdf(list(scene.segments[m.segment].kernels), scene.channels)
     props["bsdf"] = mi.load_dict(bsdf)
     if m.radiance is not None:
         props["emitter"] = mi.load_dict({"type": "area", "radiance": K.spectrum(m.radiance, scene.channels)})
@@ -126,7 +128,7 @@ class MitsubaScene:
                 continue
             kernels = self.model.segments[m.segment].kernels
             weights = np.array([value.get((m.segment, k), np.zeros(rho.shape[1])) for k in kernels])
-            for key, v in K.weight_values(list(kernels), weights):
+            for key, v in weight_values(list(kernels), weights):
                 full = f"mesh_{i}.bsdf.{key}"
                 cur = self.params[full]
                 self.params[full] = type(cur)(*[float(x) for x in v]) if len(v) > 1 else type(cur)(float(v[0]))

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from framework import kernels as K
 
@@ -148,3 +149,20 @@ def ensure_registered() -> None:
         cls = _make_class()
         mi.register_bsdf("kernel_sum", lambda props: cls(props))
         _registered.add(mi.variant())
+
+
+def forward_bsdf(kernels: list[str], channels: tuple[str, ...] | None = None) -> dict:
+    """Mitsuba dict of the exact kernel BRDF Σ_i ρ_i f_i of one segment (``kernel_sum`` plugin,
+    this module); the weights start at 0 and are set by :func:`weight_values`
+    keys through ``mi.traverse``."""
+    ensure_registered()
+    return {"type": "kernel_sum", "kernels": ",".join(kernels)}
+
+
+def weight_values(kernels: list[str], rho: np.ndarray) -> list[tuple[str, np.ndarray]]:
+    """(traverse key relative to the shape's ``bsdf``, value ρ_i) for each kernel of a segment.
+
+    ``rho`` has shape (len(kernels), n_channels).
+    """
+    rho = np.asarray(rho, dtype=float).reshape(len(kernels), -1)
+    return [(f"rho_{i}", rho[i]) for i in range(len(kernels))]

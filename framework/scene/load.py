@@ -1,133 +1,27 @@
-"""The scene model and its loader (CONTRACT section 1).
+"""The scene loader (``docs/scene-format.md``).
 
-:func:`load_scene` reads a scene directory — ``scene.yaml``, Open3D meshes, a COLMAP model
+:func:`load_scene` reads a scene folder — ``scene.yaml``, Open3D meshes, a COLMAP model
 (pycolmap), EXR images and environment maps — checks everything a user can get wrong, and
-returns an immutable :class:`Scene` of plain numpy arrays (picklable, so worker processes can
-build their own Mitsuba scenes). Every problem raises :class:`~framework.errors.SceneError`
-with one line naming the file and the fix; nothing in the directory is ever written.
+returns an immutable :class:`~framework.scene.model.Scene`. Every problem raises
+:class:`~framework.errors.SceneError` with one line naming the file and the fix; nothing in the
+folder is ever written.
 """
 from __future__ import annotations
 
 import hashlib
 import os
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import yaml
 
-from framework import kernels as kernel_registry
 from framework.errors import SceneError
+from framework import kernels as kernel_registry
+from framework.scene.exr import read_exr_checked
+from framework.scene.model import CHANNELS, Camera, Emitter, Mesh, Scene, Segment
 
-CHANNELS = {"rgb": ("R", "G", "B"), "mono": ("Y",)}
 EMITTER_TYPES = ("envmap", "constant", "directional", "area")
 PINHOLE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE")
-
-
-@dataclass(frozen=True)
-class Segment:
-    """A region of homogeneous reflectance: ``kernels`` weighted by one ρ per kernel and channel."""
-
-    name: str
-    meshes: tuple[str, ...]
-    kernels: tuple[str, ...]
-    reference: dict[str, np.ndarray] | None = None   # kernel -> (C,), where given
-
-
-@dataclass(frozen=True)
-class Mesh:
-    """A triangle mesh; ``segment`` is None for a mesh that only emits."""
-
-    path: str                      # relative to the scene directory
-    vertices: np.ndarray           # (V, 3) float64, metres, +z up
-    faces: np.ndarray              # (F, 3) int32
-    segment: int | None
-    radiance: np.ndarray | None = None   # (C,) if the mesh is an area emitter
-
-    @property
-    def area(self) -> float:
-        a, b, c = (self.vertices[self.faces[:, i]] for i in range(3))
-        return float(0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum())
-
-
-@dataclass(frozen=True)
-class Emitter:
-    """Known illumination: ``envmap`` (image (H,W,C), scale), ``constant`` (radiance),
-    ``directional`` (direction the light travels, irradiance) or ``area`` (its meshes carry it)."""
-
-    type: str
-    radiance: np.ndarray | None = None       # constant
-    image: np.ndarray | None = None          # envmap, (H, W, C)
-    scale: float = 1.0                       # envmap
-    direction: np.ndarray | None = None      # directional, unit
-    irradiance: np.ndarray | None = None     # directional
-    file: str | None = None                  # envmap source, relative
-
-
-@dataclass(frozen=True)
-class Camera:
-    """A pinhole camera of the COLMAP model: ``cam_from_world`` (3, 4), x right, y down, z forward."""
-
-    name: str
-    width: int
-    height: int
-    f: float
-    cx: float
-    cy: float
-    cam_from_world: np.ndarray
-
-    def project(self, points: np.ndarray) -> np.ndarray:
-        """Pixel coordinates (x right, y down, pixel centres at .5) of world points (N, 3)."""
-        pc = points @ self.cam_from_world[:, :3].T + self.cam_from_world[:, 3]
-        return np.stack([self.f * pc[:, 0] / pc[:, 2] + self.cx,
-                         self.f * pc[:, 1] / pc[:, 2] + self.cy], axis=1)
-
-
-@dataclass(frozen=True)
-class Scene:
-    name: str
-    root: Path
-    channels: tuple[str, ...]
-    segments: tuple[Segment, ...]
-    meshes: tuple[Mesh, ...]
-    emitters: tuple[Emitter, ...]
-    cameras: tuple[Camera, ...]               # sorted by name
-    images: dict[str, np.ndarray] | None      # camera name -> (H, W, C); None: synthesise
-    content_hash: str = field(default="", compare=False)
-
-    def parameters(self, *, kernels: tuple[str, ...] | None = None):
-        """The unknowns (segment, kernel) in segment order; ``kernels`` restricts the kernel set."""
-        from framework.methods import Parameter
-        out = []
-        for s, seg in enumerate(self.segments):
-            for k in seg.kernels:
-                if kernels is None or k in kernels:
-                    out.append(Parameter(len(out), s, seg.name, k))
-        return out
-
-    def reference(self, parameters) -> np.ndarray:
-        """(P, C) reference weights of ``parameters``; NaN where no reference is known.
-
-        A kernel the parameter list leaves out of a segment does not change the others'
-        references: the Lambertian setting compares ρ_d with the true ρ_d (paper Table 1).
-        """
-        ref = np.full((len(parameters), len(self.channels)), np.nan)
-        for i, p in enumerate(parameters):
-            r = self.segments[p.segment].reference
-            if r is not None and p.kernel in r:
-                ref[i] = r[p.kernel]
-        return ref
-
-    def camera(self, name: str) -> Camera:
-        for c in self.cameras:
-            if c.name == name:
-                return c
-        raise SceneError(f"view '{name}' is not an image of {self.root / 'sparse'}; "
-                         f"choose among: {', '.join(c.name for c in self.cameras)}")
-
-    @property
-    def has_all_references(self) -> bool:
-        return all(s.reference is not None and set(s.reference) >= set(s.kernels) for s in self.segments)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -135,7 +29,7 @@ class Scene:
 # ----------------------------------------------------------------------------------------------
 
 def load_scene(directory: str | os.PathLike) -> Scene:
-    """Load and check a scene directory (CONTRACT section 1).
+    """Load and check a scene folder (``docs/scene-format.md``).
 
     Parameters
     ----------
@@ -175,7 +69,7 @@ def _read_yaml(root: Path) -> dict:
     if not root.is_dir():
         raise SceneError(f"{root}: scene directory does not exist; pass scene.dir=<folder with scene.yaml>")
     if not path.is_file():
-        raise SceneError(f"{path}: missing; a scene folder needs scene.yaml (see CONTRACT.md section 1)")
+        raise SceneError(f"{path}: missing; a scene folder needs scene.yaml (docs/scene-format.md)")
     try:
         desc = yaml.safe_load(path.read_text())
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
@@ -258,7 +152,6 @@ def _emitters(desc: dict, root: Path, channels):
                 raise SceneError(f"{root / 'scene.yaml'}: emitter {i} direction must be 3 finite numbers")
             emitters.append(Emitter(t, direction=d / np.linalg.norm(d), irradiance=val("irradiance")))
         elif t == "envmap":
-            from framework.exr import read_exr_checked
             image = read_exr_checked(root / str(e.get("file")), channels=channels)
             emitters.append(Emitter(t, image=image, scale=float(e.get("scale", 1.0)), file=str(e.get("file"))))
         else:
@@ -336,7 +229,6 @@ def image_file(root: Path, camera_name: str) -> Path:
 def _images(root: Path, cameras, channels) -> dict[str, np.ndarray] | None:
     if not (root / "images").is_dir():
         return None
-    from framework.exr import read_exr_checked
     return {c.name: read_exr_checked(image_file(root, c.name), channels=channels,
                                      size=(c.height, c.width)) for c in cameras}
 

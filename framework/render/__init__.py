@@ -1,0 +1,4 @@
+"""Mitsuba rendering of the scene model: the variant and libLLVM set-up (:mod:`.backend`), the
+kernel registry (:mod:`.kernels`), the exact kernel-sum BSDF (:mod:`.kernel_bsdf`), environment
+map conventions (:mod:`.envmap`) and the one builder from a scene model and weights ρ to a
+Mitsuba scene (:mod:`.mitsuba_scene`)."""

@@ -1,0 +1,9 @@
+"""Scene folders: the model (:mod:`.model`), the reader (:mod:`.load`), the writer that scene
+builders use (:mod:`.write`), and checked image input (:mod:`.exr`).
+
+The format is documented in ``docs/scene-format.md``.
+"""
+from framework.scene.load import image_file, load_scene
+from framework.scene.model import CHANNELS, Camera, Emitter, Mesh, Parameter, Scene, Segment
+
+__all__ = ["CHANNELS", "Camera", "Emitter", "Mesh", "Parameter", "Scene", "Segment", "image_file", "load_scene"]
