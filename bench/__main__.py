@@ -13,6 +13,7 @@ from bench.common import ROOT
 from bench.machine import describe
 from bench.markdown import render
 from bench.sizes import DEFAULT, QUICK
+from reports import write_comparison
 
 
 def parse(argv=None) -> argparse.Namespace:
@@ -31,7 +32,6 @@ def log(msg: str) -> None:
 
 def comparison_report(rows: list[dict], out: Path):
     """reports's comparison of the run folders; its markdown path (or the error text)."""
-    from reports import write_comparison
     try:
         md, _ = write_comparison([r["run_dir"] for r in rows], out=out)
         return md

@@ -6,17 +6,10 @@ from pathlib import Path
 
 import numpy as np
 
+from framework.config import BUNDLED_SCENES, compose
+from framework.scene import load_scene
+
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def compose(overrides: list[str]):
-    """The Hydra config of ``framework/conf`` with ``overrides`` (as ``python -m framework.run``)."""
-    from hydra import compose as hydra_compose
-    from hydra import initialize_config_module
-
-    import framework.run  # noqa: F401  (registers the scene_label resolver)
-    with initialize_config_module("framework.conf", version_base=None):
-        return hydra_compose("config", overrides=list(overrides))
 
 
 def view_names(scene_name: str, folder: Path | None = None) -> list[str]:
@@ -25,10 +18,8 @@ def view_names(scene_name: str, folder: Path | None = None) -> list[str]:
     ``folder``: the scene folder to read the cameras from (a ``scene.dir``); default the bundled
     folder ``scenes/<scene_name>``.
     """
-    from framework.scene import load_scene
-    from scenes import BUNDLED_DIR
     cfg = compose([f"scene={scene_name}"])
-    names = [c.name for c in load_scene(Path(folder) if folder else Path(BUNDLED_DIR) / scene_name).cameras]
+    names = [c.name for c in load_scene(Path(folder) if folder else BUNDLED_SCENES / scene_name).cameras]
     first = [v for v in cfg.scene.views if v in names]
     return first + [n for n in names if n not in first]
 

@@ -11,6 +11,10 @@ import time
 from pathlib import Path
 
 from bench.common import compose, seed_cache, views_override
+from bench.render_ratio import build_problem
+from framework.cache import Cache
+from framework.experiment import run_experiment
+from framework.observe import observed_images
 
 #: (label, method overrides, iterative-type: budget reduced on all views)
 METHODS = [
@@ -37,7 +41,6 @@ def _extra(sizes, method_overrides: list[str]) -> list[str]:
 def run_one(sizes, root: Path, label: str, scene: str, n_views: int, overrides: list[str], budget: int,
             log=print) -> dict:
     """One in-process run into ``root/<scene>/<views>/<label>``; returns a row dict with its results."""
-    from framework.experiment import run_experiment
     vtag = "single" if n_views == 1 else "all"
     slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", label.replace("=", "-")).strip("_")
     run_dir, cache = root / scene / vtag / slug, root / "cache" / scene / vtag / slug
@@ -56,9 +59,6 @@ def run_one(sizes, root: Path, label: str, scene: str, n_views: int, overrides: 
 
 def warm_observations(sizes, root: Path, scene: str, n_views: int) -> float:
     """Render the observations of ``scene`` once into the shared observation cache; seconds spent."""
-    from framework.cache import Cache
-    from framework.observe import observed_images
-    from bench.render_ratio import build_problem
     vtag = "single" if n_views == 1 else "all"
     views = "views=default" if n_views == 1 else views_override(scene, sizes.all_views)
     cfg = compose([f"scene={scene}", views, f"observe.spp={sizes.cmp_observe_spp}",

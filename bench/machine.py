@@ -7,6 +7,7 @@ import platform
 import subprocess
 
 from bench.common import ROOT
+from framework.render import backend
 
 
 def _cpuinfo_model() -> str:
@@ -42,7 +43,6 @@ def _git() -> str:
 
 def describe() -> dict:
     """CPU model, cores, RAM, Mitsuba variant and versions, Python, date, git revision."""
-    from framework.render import backend
     variant = backend.set_variant("auto", channels=("R", "G", "B"))
     import drjit as dr
     import mitsuba as mi

@@ -4,6 +4,7 @@ from __future__ import annotations
 import math
 
 from bench.common import error_stats, observable_keys, param_errors
+from bench.compare import FAILED
 from bench.paper import PAPER_TOTAL_MIN, TABLE1, TABLE2, TARGET
 
 RATIO_TARGET, SOLVE_TARGET = 1.5, 0.05
@@ -152,7 +153,6 @@ def section_compare(rows: list[dict], sizes, report_path) -> list[str]:
         lines += table(["method", "views", "budget", "total (s)", "renders", "worst abs. error", "mean abs. error",
                         "time / symbolic"], [_cmp_row(r, base if r is not base else None, keys) for r in sub])
         lines += [""] + _speedup_verdicts(sub, keys) + [""]
-    from bench.compare import FAILED
     for scene, vtag, label, err in FAILED:
         lines.append(f"- FAILED: {scene} {vtag} {label}: `{err}` (no numbers)")
     return lines + ([""] if FAILED else [])

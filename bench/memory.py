@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 from bench.common import ROOT, views_override
+from scenes import urban_canyon
 
 SCENE = "urban_canyon"
 
@@ -35,7 +36,6 @@ def run_child(overrides: list[str], timeout: float = 1800) -> dict:
 def scene_variant(work: Path, n_views: int, image: int) -> Path:
     """The ``urban_canyon`` variant with ``n_views`` views (``n_views - 1`` street + aerial) of
     ``image`` x ``image`` pixels under ``work/scenes``, built once (reused if complete)."""
-    from scenes import urban_canyon
     folder = work / "scenes" / f"{SCENE}_v{n_views}_s{image}"
     if not (folder / "scene.yaml").is_file():
         if folder.exists():

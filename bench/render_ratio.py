@@ -12,28 +12,18 @@ from __future__ import annotations
 import statistics
 import time
 
-import numpy as np
-
-from bench.common import compose
+from framework.config import compose
+from framework.experiment import prepare
+from framework.render.mitsuba_scene import MitsubaScene, max_depth_for
+from methods._common import initial_guess
+from methods.symbolic.basis import MonomialBasis
+from methods.symbolic.polynomial_pass import render_view_task, tile_pixels_for, view_task
 
 
 def build_problem(cfg):
     """``(problem, method)`` as :func:`framework.experiment.run_experiment` builds them."""
-    from framework.render import backend
-    from framework.cache import Cache
-    from framework.experiment import scene_dir, select_cameras
-    from framework.registry import Problem, get_method
-    from framework.observe import observed_images
-    from framework.scene import load_scene
-    from omegaconf import open_dict
-    scene = load_scene(scene_dir(cfg))
-    with open_dict(cfg):
-        cfg.variant_resolved = backend.set_variant(str(cfg.variant), channels=scene.channels)
-    cameras = select_cameras(scene, cfg)
-    observed, _ = observed_images(scene, cameras, cfg, cache=Cache(cfg.cache.dir))
-    problem = Problem(scene=scene, cameras=cameras, observed=observed, parameters=scene.parameters(),
-                      settings=cfg, seed=int(cfg.seed))
-    return problem, get_method(str(cfg.method.name))(cfg.method)
+    problem, method, _ = prepare(cfg)
+    return problem, method
 
 
 def _timed(fn, reps: int) -> tuple[float, object]:
@@ -49,25 +39,20 @@ def _timed(fn, reps: int) -> tuple[float, object]:
 
 def _pass_fn(problem, method, spp: int):
     """A no-argument function running the method's polynomial pass of view 0 at ``spp``."""
-    from methods._common import initial_guess
-    from methods.symbolic.basis import MonomialBasis
-    from methods.symbolic.polynomial_pass import render_view_task, tile_pixels_for, view_task
     params = problem.parameters
     x0, _ = initial_guess(method.cfg, problem)
-    basis = MonomialBasis(len(params), int(problem.settings.render.max_bounces))
+    basis = MonomialBasis(len(params), problem.settings.max_bounces)
     tile = tile_pixels_for(float(method.cfg.memory_mb), spp, basis.max_degree, problem.n_channels)
     task = view_task(problem, params, x0, basis, 0, spp=spp, seed=int(problem.seed), prob_floor=float(
         method.cfg.prob_floor), tile_pixels=tile)
-    variant = str(problem.settings.variant_resolved)
+    variant = problem.settings.variant
     return (lambda: render_view_task(task, variant=variant)), basis, x0
 
 
 def _render_fn(problem, spp: int, rho):
     """A no-argument function rendering view 0 with ``path`` (max_depth N_max + 1, box filter)
     at the weights ``rho`` (the pass's guesses: a render of the iterative method's loop)."""
-    from framework.render.mitsuba_scene import MitsubaScene, max_depth_for
-    render = problem.settings.render
-    depth = max_depth_for(int(render.max_bounces) + int(render.get("tail_bounces", 0)))
+    depth = max_depth_for(problem.settings.max_bounces + problem.settings.tail_bounces)
     ms = MitsubaScene(problem.scene, problem.cameras[:1], spp=spp, integrator={"type": "path", "max_depth": depth})
     ms.set_weights(rho, problem.parameters)    # weights start at 0: a black scene renders too fast
     return lambda: ms.render(0, spp=spp, seed=2)

@@ -22,12 +22,14 @@ from __future__ import annotations
 import logging
 from typing import Callable
 
+from framework.errors import ConfigError
+from framework.render import backend
+
 log = logging.getLogger(__name__)
 
 
 def init_worker(variant: str, threads: int | None) -> None:
     """Select ``variant`` (with a usable libLLVM) and cap Dr.Jit's thread pool in this process."""
-    from framework.render import backend
     backend.set_variant(str(variant))
     if threads:
         import drjit as dr
@@ -135,7 +137,6 @@ def make_executor(cfg) -> SerialExecutor:
     framework.errors.ConfigError
         For an unknown ``executor.name`` or bad worker counts.
     """
-    from framework.errors import ConfigError
     name = "serial" if cfg is None else str(cfg.get("name", "serial"))
     if name == "serial":
         return SerialExecutor()

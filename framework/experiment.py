@@ -9,33 +9,20 @@ from __future__ import annotations
 import logging
 import time
 from pathlib import Path
+from typing import Callable
 
-from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf import DictConfig, OmegaConf
 
-from framework.errors import ConfigError
+from framework.cache import Cache
+from framework.config import RunSettings, scene_dir
+from framework.observe import observed_images
+from framework.registry import Method, Problem, get_method
+from framework.render import backend
+from framework.render.mitsuba_scene import MitsubaScene
+from framework.results import results_dict, write_relit_images, write_results, write_view_images
+from framework.scene import load_scene
 
 log = logging.getLogger(__name__)
-
-
-def scene_dir(cfg: DictConfig) -> Path:
-    """``scene.dir`` if given, else the bundled folder ``scenes/<scene.name>``."""
-    if cfg.scene.get("dir"):
-        return Path(str(cfg.scene.dir)).expanduser()
-    from scenes import BUNDLED_DIR
-    return Path(BUNDLED_DIR) / str(cfg.scene.name)
-
-
-def check_settings(cfg: DictConfig) -> None:
-    """Reject settings outside their range, naming the key and the allowed range."""
-    checks = [("render.spp", cfg.render.spp, 1, None), ("render.max_bounces", cfg.render.max_bounces, 1, 8),
-              ("render.tail_bounces", cfg.render.get("tail_bounces", 0), 0, 16),
-              ("budget.renders", cfg.budget.renders, 1, None), ("observe.spp", cfg.observe.spp, 1, None)]
-    for key, value, lo, hi in checks:
-        if not isinstance(value, int) or value < lo or (hi is not None and value > hi):
-            rng = f"[{lo}, {hi}]" if hi is not None else f">= {lo}"
-            raise ConfigError(f"{key}={value} is out of range: use an integer {rng}")
-    if cfg.observe.noise < 0:
-        raise ConfigError(f"observe.noise={cfg.observe.noise} is negative: use a value >= 0")
 
 
 def select_cameras(scene, cfg: DictConfig) -> list:
@@ -49,51 +36,54 @@ def select_cameras(scene, cfg: DictConfig) -> list:
     return [scene.camera(str(v)) for v in views]
 
 
-def run_experiment(cfg: DictConfig, run_dir: str | Path) -> dict:
-    """Run ``cfg.method`` on ``cfg.scene``; write the run folder; return the results dict."""
-    from framework.render import backend
-    from framework.cache import Cache
-    from framework.registry import Problem, get_method
-    from framework.observe import observed_images
-    from framework.results import results_dict, write_relit_images, write_results, write_view_images
-    from framework.scene import load_scene
-
-    t0 = time.perf_counter()
-    run_dir = Path(run_dir)
-    check_settings(cfg)
+def prepare(cfg: DictConfig) -> tuple[Problem, Method, float]:
+    """The problem and the method of a composed configuration, and the seconds spent rendering
+    observations (0 when cached): the settings checked, the scene loaded, the variant set, the
+    views selected, the observations read or rendered. ConfigError/SceneError on bad input."""
+    RunSettings.from_config(cfg)                # range checks before anything is loaded
     method_cls = get_method(str(cfg.method.name))
     scene = load_scene(scene_dir(cfg))
     variant = backend.set_variant(str(cfg.variant), channels=scene.channels)
-    with open_dict(cfg):
-        cfg.variant_resolved = variant
+    settings = RunSettings.from_config(cfg, variant=variant)
     cameras = select_cameras(scene, cfg)
-    cache = Cache(cfg.cache.dir)
-    observed, t_observe = observed_images(scene, cameras, cfg, cache=cache)
+    observed, t_observe = observed_images(scene, cameras, settings, cache=Cache(settings.cache_dir))
     problem = Problem(scene=scene, cameras=cameras, observed=observed, parameters=scene.parameters(),
-                      settings=cfg, seed=int(cfg.seed))
-    method = method_cls(cfg.method)
+                      settings=settings)
+    return problem, method_cls(cfg.method), t_observe
+
+
+def run_experiment(cfg: DictConfig, run_dir: str | Path, *,
+                   write_report: Callable[[Path, dict], object] | None = None) -> dict:
+    """Run ``cfg.method`` on ``cfg.scene``; write the run folder; return the results dict.
+
+    ``write_report(run_dir, results)`` writes the run's report (the command line passes
+    :func:`reports.write_run_report` when ``report=true``); results.json is written last.
+    """
+    t0 = time.perf_counter()
+    run_dir = Path(run_dir)
+    problem, method, t_observe = prepare(cfg)
+    scene, cameras, settings = problem.scene, problem.cameras, problem.settings
     log.info("method %s on %s (%d view(s), %d parameters)", cfg.method.name, scene.name,
              len(cameras), len(problem.parameters))
     result = method.run(problem)
-    if result.renders > cfg.budget.renders:
-        raise RuntimeError(f"{cfg.method.name} spent {result.renders} renders, budget {cfg.budget.renders}")
+    if result.renders > settings.budget_renders:
+        raise RuntimeError(f"{cfg.method.name} spent {result.renders} renders, budget {settings.budget_renders}")
 
     segment_maps = _segment_maps(scene, cameras)
     result.timings_s.setdefault("observe", t_observe)
     result.timings_s["total"] = time.perf_counter() - t0
-    settings = {"scene_dir": str(scene.root), "views": [c.name for c in cameras], "variant": variant,
-                "seed": int(cfg.seed), "spp": int(cfg.render.spp), "max_bounces": int(cfg.render.max_bounces),
-                "budget_renders": int(cfg.budget.renders), "executor": str(cfg.executor.name),
-                "observe": OmegaConf.to_container(cfg.observe),
-                "method_settings": OmegaConf.to_container(cfg.method, resolve=True)}
+    summary = {"scene_dir": str(scene.root), "views": [c.name for c in cameras], "variant": settings.variant,
+               "seed": settings.seed, "spp": settings.spp, "max_bounces": settings.max_bounces,
+               "budget_renders": settings.budget_renders, "executor": str(settings.executor.get("name")),
+               "observe": OmegaConf.to_container(cfg.observe),
+               "method_settings": OmegaConf.to_container(cfg.method, resolve=True)}
     views = write_view_images(run_dir, problem, result, segment_maps)
     relit = write_relit_images(run_dir, problem, result)
-    results = results_dict(problem, result, method=str(cfg.method.name), settings=settings, views=views,
+    results = results_dict(problem, result, method=str(cfg.method.name), settings=summary, views=views,
                            relit=relit)
-    if cfg.get("report", True):
-        from reports import write_run_report
+    if write_report is not None:
         t_report = time.perf_counter()
-        write_run_report(run_dir, results)
+        write_report(run_dir, results)
         results["timings_s"]["report"] = time.perf_counter() - t_report
     write_results(run_dir, results)           # last: a run that failed leaves no results.json
     log.info("wrote %s", run_dir / "results.json")
@@ -101,6 +91,5 @@ def run_experiment(cfg: DictConfig, run_dir: str | Path) -> dict:
 
 
 def _segment_maps(scene, cameras) -> dict:
-    from framework.render.mitsuba_scene import MitsubaScene
     ms = MitsubaScene(scene, cameras, spp=1)
     return {c.name: ms.segment_map(i) for i, c in enumerate(cameras)}

@@ -16,6 +16,7 @@ import time
 import numpy as np
 
 from framework.cache import Cache
+from framework.render.mitsuba_scene import MitsubaScene
 from framework.scene import Camera, Scene
 
 log = logging.getLogger(__name__)
@@ -36,15 +37,16 @@ def observed_images(scene: Scene, cameras: list[Camera], settings, *, cache: Cac
                     ) -> tuple[dict[str, np.ndarray], float]:
     """Observed (H, W, C) images of ``cameras`` and the seconds spent rendering them (0 if cached).
 
-    ``settings.observe`` holds ``spp``, ``max_depth``, ``noise`` (std of additive Gaussian
-    noise relative to the image mean) and ``seed``.
+    ``settings`` is the run's :class:`~framework.config.RunSettings`: its ``observe`` holds
+    ``spp``, ``max_depth``, ``noise`` (std of additive Gaussian noise relative to the image mean)
+    and ``seed``; the cache key includes its ``variant``.
     """
     if scene.images is not None:
         return {c.name: scene.images[c.name] for c in cameras}, 0.0
     obs = settings.observe
     out, todo = {}, []
     for c in cameras:
-        key = _key(scene, c, obs, settings.variant_resolved)
+        key = _key(scene, c, obs, settings.variant)
         hit = cache.load("observed", key)
         if hit is not None:
             out[c.name] = hit["image"]
@@ -56,7 +58,7 @@ def observed_images(scene: Scene, cameras: list[Camera], settings, *, cache: Cac
     log.info("rendering %d observed view(s) at %d spp", len(todo), obs.spp)
     for c, img in zip(todo, render_references(scene, todo, spp=obs.spp, max_depth=obs.max_depth,
                                                 seed=obs.seed, noise=obs.noise)):
-        cache.store("observed", _key(scene, c, obs, settings.variant_resolved), {"image": img})
+        cache.store("observed", _key(scene, c, obs, settings.variant), {"image": img})
         out[c.name] = img
     return out, time.perf_counter() - t0
 
@@ -64,7 +66,6 @@ def observed_images(scene: Scene, cameras: list[Camera], settings, *, cache: Cac
 def render_references(scene: Scene, cameras: list[Camera], *, spp: int, max_depth: int, seed: int,
                       noise: float = 0.0) -> list[np.ndarray]:
     """Path-traced images of ``cameras`` at the scene's reference weights."""
-    from framework.render.mitsuba_scene import MitsubaScene
     from tqdm import tqdm
     ms = MitsubaScene(scene, cameras, spp=spp, integrator={"type": "path", "max_depth": int(max_depth)})
     params = scene.parameters()

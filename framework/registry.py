@@ -13,6 +13,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from framework.config import RunSettings
 from framework.errors import ConfigError
 from framework.scene.model import Parameter
 
@@ -21,16 +22,20 @@ from framework.scene.model import Parameter
 class Problem:
     """Everything a method needs: the scene, the views to fit, their observed images, the settings.
 
-    ``settings`` is the run's full configuration (``render.spp``, ``render.max_bounces``,
-    ``seed``, ``variant``, ``budget.renders``, ``cache.dir``, ``executor``...).
+    ``settings`` are the run-wide settings (:class:`framework.config.RunSettings`: spp,
+    max_bounces, tail_bounces, seed, budget_renders, variant, executor, cache_dir, observe),
+    checked once; a method's own options come to it as ``Method(cfg)``.
     """
 
     scene: Any                       # framework.scene.Scene
     cameras: list                    # framework.scene.Camera, the selected views
     observed: dict[str, np.ndarray]  # camera name -> (H, W, C) float32 linear radiance
     parameters: list[Parameter]
-    settings: Any                    # omegaconf.DictConfig
-    seed: int = 0
+    settings: RunSettings = field(default_factory=RunSettings)
+
+    @property
+    def seed(self) -> int:
+        return self.settings.seed
 
     @property
     def n_channels(self) -> int:

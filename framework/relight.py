@@ -20,6 +20,7 @@ import hashlib
 
 import numpy as np
 
+from framework.render.mitsuba_scene import MitsubaScene
 from framework.scene import Camera, Emitter, Scene
 
 
@@ -79,7 +80,6 @@ def render_relit(scene: Scene, cameras: list[Camera], rho: np.ndarray, parameter
     NaN weights (unobservable parameters) are rendered as 0. View ``i`` uses Mitsuba seed
     ``seed + i``.
     """
-    from framework.render.mitsuba_scene import MitsubaScene
     ms = MitsubaScene(scene, cameras, spp=spp, integrator={"type": "path", "max_depth": int(max_depth)})
     ms.set_weights(np.nan_to_num(np.asarray(rho, float)), parameters)
     return {c.name: ms.render(i, spp=spp, seed=int(seed) + i) for i, c in enumerate(cameras)}
@@ -88,7 +88,6 @@ def render_relit(scene: Scene, cameras: list[Camera], rho: np.ndarray, parameter
 def reflectance_images(scene: Scene, cameras: list[Camera], rho: np.ndarray, parameters, *,
                        kind: str = "diffuse") -> dict[str, np.ndarray]:
     """Shadow-free reflectance (H, W, C) float32 of each view (see the module docstring)."""
-    from framework.render.mitsuba_scene import MitsubaScene
     table = segment_reflectance(scene, rho, parameters, kind=kind)          # (S + 1, C), row -1 = sky
     ms = MitsubaScene(scene, cameras, spp=1)
     return {c.name: table[ms.segment_map(i)].astype(np.float32) for i, c in enumerate(cameras)}

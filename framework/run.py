@@ -1,7 +1,8 @@
 """Command line: ``python -m framework.run method=symbolic scene=urban_canyon`` (Hydra).
 
-A thin entry: the work is :func:`framework.experiment.run_experiment`. A user error prints one
-line (``error: ...``) and exits with status 2, leaving no results.json.
+A thin entry: the work is :func:`framework.experiment.run_experiment`, the run report
+:func:`reports.write_run_report`. A user error prints one line (``error: ...``) and exits with
+status 2, leaving no results.json. Every override is listed in ``docs/cli.md``.
 """
 from __future__ import annotations
 
@@ -12,28 +13,21 @@ from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
+import framework.config  # noqa: F401  (registers the resolvers the configuration uses)
 from framework.errors import UserError
+from framework.experiment import run_experiment
+from reports import write_run_report
 
 log = logging.getLogger("framework.run")
-
-
-def scene_label(name, directory) -> str:
-    """Run-folder label of a scene: the bundled name, or the folder's name for ``scene.dir``."""
-    return Path(str(directory)).name if directory else str(name)
-
-
-if not OmegaConf.has_resolver("scene_label"):
-    OmegaConf.register_new_resolver("scene_label", scene_label)
 
 
 @hydra.main(version_base=None, config_path="conf", config_name="config")
 def main(cfg: DictConfig) -> None:
     run_dir = Path(HydraConfig.get().runtime.output_dir)
-    from framework.experiment import run_experiment
     try:
-        run_experiment(cfg, run_dir)
+        run_experiment(cfg, run_dir, write_report=write_run_report if cfg.get("report", True) else None)
     except UserError as exc:
         print(f"error: {exc}", file=sys.stderr)
         log.error("%s", exc)

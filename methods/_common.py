@@ -11,12 +11,14 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 import numpy as np
 
 from framework import optim
 from framework.errors import ConfigError
+from framework.registry import MethodResult
+from framework.render.mitsuba_scene import max_depth_for
 
 
 # ------------------------------------------------------------------------------------------------
@@ -49,19 +51,20 @@ def check_number(cfg, key: str, lo: float, hi: float | None = None, *, integer: 
 # ------------------------------------------------------------------------------------------------
 # Initial guess and feasible set
 # ------------------------------------------------------------------------------------------------
-def initial_guess(cfg, problem) -> tuple[np.ndarray, int]:
+def initial_guess(cfg, problem, *, prior: Callable | None = None) -> tuple[np.ndarray, int]:
     """(P, C) start weights and the renders spent to get them.
 
     ``cfg.init``: ``guess`` uses ``cfg.guess`` (a number for every kernel, or a mapping
-    kernel -> number); ``lambertian_prior`` runs that registered method and takes its diffuse
-    estimates, the other kernels keeping ``cfg.guess``. The result is projected onto the
-    feasible set.
+    kernel -> number); ``lambertian_prior`` calls ``prior(problem)`` (the Lambertian prior's
+    :class:`~framework.registry.MethodResult`: the method passes it, so this module imports no
+    method) and takes its diffuse estimates, the other kernels keeping ``cfg.guess``. The result
+    is projected onto the feasible set.
     """
     init = check_choice(cfg, "init", ("guess", "lambertian_prior"))
     rho = _guess_from_config(cfg.get("guess"), problem)
     spent = 0
     if init == "lambertian_prior":
-        rho, spent = _lambertian_prior(rho, problem)
+        rho, spent = _from_prior(rho, prior(problem), problem)
     return project_feasible(rho, problem.parameters), spent
 
 
@@ -83,15 +86,8 @@ def _guess_from_config(guess, problem) -> np.ndarray:
     return np.array([[float(values[p.kernel])] * C for p in problem.parameters])
 
 
-def _lambertian_prior(rho: np.ndarray, problem) -> tuple[np.ndarray, int]:
-    """Diffuse weights from the ``lambertian_prior`` method (its renders count)."""
-    from framework.registry import get_method
-    try:
-        prior_cls = get_method("lambertian_prior")
-    except ConfigError:
-        raise ConfigError("method.init=lambertian_prior needs the lambertian_prior method "
-                          "(methods/lambertian_prior), which is not registered: use method.init=guess") from None
-    result = prior_cls(_method_config("lambertian_prior")).run(problem)
+def _from_prior(rho: np.ndarray, result, problem) -> tuple[np.ndarray, int]:
+    """``rho`` with the finite estimates of the prior's ``result`` written in; its renders."""
     got = {(p.segment, p.kernel): result.estimate[i]
            for i, p in enumerate(result.parameters or problem.parameters)}
     rho = rho.copy()
@@ -100,14 +96,6 @@ def _lambertian_prior(rho: np.ndarray, problem) -> tuple[np.ndarray, int]:
         if value is not None and np.all(np.isfinite(value)):
             rho[p.index] = value
     return rho, int(result.renders)
-
-
-def _method_config(name: str):
-    from pathlib import Path
-
-    from omegaconf import OmegaConf
-    path = Path(__file__).resolve().parents[1] / "framework" / "conf" / "method" / f"{name}.yaml"
-    return OmegaConf.load(path) if path.exists() else OmegaConf.create({"name": name})
 
 
 def segment_groups(parameters) -> list[list[int]]:
@@ -193,16 +181,13 @@ def render_pass(ms, *, spp: int, seeds: list[int], ledger: RenderLedger) -> list
 def max_depth(problem) -> int:
     """Mitsuba ``max_depth`` for the run's ``render.max_bounces`` and ``render.tail_bounces``
     (N_max + T + 1: a baseline renders every reflection the symbolic pass traces)."""
-    from framework.render.mitsuba_scene import max_depth_for
-    render = problem.settings.render
-    return max_depth_for(int(render.max_bounces) + int(render.get("tail_bounces", 0)))
+    return max_depth_for(problem.settings.max_bounces + problem.settings.tail_bounces)
 
 
 def loop_result(problem, ledger: RenderLedger, *, started: float, rho: np.ndarray, costs: list[float],
                 times: list[float], reconstructions: list[np.ndarray], extras: dict):
     """The :class:`~framework.registry.MethodResult` of a render-in-the-loop method: Mitsuba time
     is ``render``, the rest of the wall time since ``started`` is ``solve``."""
-    from framework.registry import MethodResult
     total = time.perf_counter() - started
     return MethodResult(
         estimate=rho, renders=ledger.used,

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from reports.data import (as_list, find_run_dirs, fmt_num, fmt_pm, kernel_label,
-                                   load_results, seed_of)
+from reports.data import as_list, find_run_dirs, fmt_num, fmt_pm, kernel_label, load_results, seed_of
 from reports.doc import Doc, link_cell
+from reports.plots import plot_bars, plot_spread
 from reports.run import _safe, finite_or_none, mean_abs_error, write_run_report
 
 FILES_DIR = "comparison_files"
@@ -133,7 +133,6 @@ def _section_errors(doc: Doc, scene: _Scene) -> None:
 
 def _section_plots(doc: Doc, scene: _Scene, files: Path, rel: str) -> None:
     """Spread of estimates across seeds; runtime and render-count bars."""
-    from reports.plots import plot_bars, plot_spread
     stem = _safe(scene.name)
     all_runs = [r for m in scene.methods for r in scene.by_method[m]]
     labels = [_param_label(k, scene.mono) for k in scene.keys]

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from framework import images
-from reports.data import (RESULTS_NAME, as_list, check_results, fmt_num, kernel_label, load_results,
-                                   seed_of)
+from reports.data import RESULTS_NAME, as_list, check_results, fmt_num, kernel_label, load_results, seed_of
 from reports.doc import Doc
+from reports.plots import plot_convergence, plot_correlation, plot_difference, plot_segments
 
 FILES_DIR = "report_files"
 KEY_SETTINGS = ("seed", "spp", "max_bounces", "variant", "views", "budget_renders", "executor")
@@ -143,7 +143,6 @@ def _section_convergence(doc: Doc, ctx: _RunContext) -> None:
     if not costs:
         doc.para("No cost history recorded.", note=True)
         return
-    from reports.plots import plot_convergence
     path, src = ctx.out("convergence.png")
     plot_convergence(path, costs, times=ctx.results.get("cost_times_s"))
     doc.figures([(src, "cost per evaluation (log scale)")])
@@ -151,7 +150,6 @@ def _section_convergence(doc: Doc, ctx: _RunContext) -> None:
 
 def _view_panel(doc: Doc, ctx: _RunContext, view: dict, index: int) -> None:
     """Observed, reconstruction, signed difference and segment map of one view."""
-    from reports.plots import plot_difference, plot_segments
     name = str(view.get("name", f"view {index}"))
     stem = f"view{index:02d}_{_safe(name)}"
     doc.heading(f"View {name}", level=3)
@@ -215,7 +213,6 @@ def _section_correlation(doc: Doc, ctx: _RunContext) -> None:
     corr = ctx.results.get("correlation")
     if not isinstance(corr, dict) or not corr.get("matrix"):
         return
-    from reports.plots import plot_correlation
     doc.heading("Parameter correlation")
     matrix = np.asarray(corr["matrix"], dtype=float)
     labels = list(corr.get("labels") or [str(i) for i in range(matrix.shape[0])])

@@ -13,6 +13,7 @@ from functools import partial
 from pathlib import Path
 
 from scenes import BUNDLED_DIR, cornell_box, furnace, plane_sky, urban_canyon
+from scenes.preview import write_preview
 
 BUILDERS = {
     "urban_canyon": partial(urban_canyon.build, channels="rgb"),
@@ -30,7 +31,6 @@ def build(name: str, root: Path = BUNDLED_DIR, preview: bool = True) -> Path:
         shutil.rmtree(folder)
     BUILDERS[name](folder)
     if preview:
-        from scenes.preview import write_preview
         write_preview(folder)
     return folder
 

@@ -1,9 +1,17 @@
-"""Camera poses: look-at in COLMAP convention, and conversion from a Mitsuba sensor ``to_world``."""
+"""Camera poses and intrinsics for the scene builders, in the conventions of the framework.
+
+Poses are COLMAP ``cam_from_world`` (3, 4) (x right, y down, z forward) and focal lengths are in
+pixels along x: the inverses of what :func:`framework.render.mitsuba_scene.sensor_dict` does with
+a :class:`~framework.scene.model.Camera` (``to_world = inv([R|t]) @ diag(-1, -1, 1, 1)``,
+``fov = 2 atan(w / 2f)`` along x).
+"""
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
-from scenes.io import PinholeCamera
+from framework.scene import Camera
 
 
 def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
@@ -23,39 +31,29 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
 
 
 def focal_from_fov(width: int, fov_deg: float) -> float:
-    """Focal length in pixels for a horizontal field of view ``fov_deg`` over ``width`` pixels."""
+    """Focal length in pixels for a horizontal field of view ``fov_deg`` over ``width`` pixels
+    (the inverse of ``sensor_dict``'s ``fov``)."""
     return width / (2 * np.tan(np.radians(fov_deg) / 2))
-
-
-def fov_from_focal(width: int, focal: float) -> float:
-    """Horizontal field of view (degrees) of ``focal`` pixels over ``width`` pixels."""
-    return float(np.degrees(2 * np.arctan(width / (2 * focal))))
 
 
 def cam_from_mitsuba(to_world: np.ndarray) -> np.ndarray:
     """COLMAP ``cam_from_world`` (3, 4) of a Mitsuba sensor ``to_world`` (4, 4; x left, y up).
 
-    Inverse of ``to_world = inv(T) @ diag(-1, -1, 1, 1)``.
+    The inverse of ``sensor_dict``'s ``to_world = inv([R|t]) @ diag(-1, -1, 1, 1)``.
     """
     world_from_cam = np.asarray(to_world, float) @ np.diag([-1.0, -1.0, 1.0, 1.0])
     return np.linalg.inv(world_from_cam)[:3]
 
 
-def mitsuba_to_world(cam: PinholeCamera) -> np.ndarray:
-    """Mitsuba sensor ``to_world`` (4, 4) of a COLMAP view (the relation of :func:`framework.render.mitsuba_scene.sensor_dict`)."""
-    t = np.eye(4)
-    t[:3] = cam.cam_from_world
-    return np.linalg.inv(t) @ np.diag([-1.0, -1.0, 1.0, 1.0])
+def resized(camera: Camera, width: int | None) -> Camera:
+    """The same view ``width`` pixels wide: same pose and field of view, intrinsics scaled.
 
-
-def perspective_sensor(cam: PinholeCamera, spp: int = 16, seed: int = 0) -> dict:
-    """Mitsuba ``perspective`` sensor dict of a centred-principal-point view (box filter)."""
-    import mitsuba as mi
-
-    return {"type": "perspective", "fov": fov_from_focal(cam.width, cam.focal), "fov_axis": "x",
-            "to_world": mi.ScalarTransform4f(mitsuba_to_world(cam).tolist()),
-            "near_clip": 0.01, "far_clip": 1e5,
-            "sampler": {"type": "independent", "sample_count": spp, "seed": seed},
-            "film": {"type": "hdrfilm", "width": cam.width, "height": cam.height,
-                     "rfilter": {"type": "box"},
-                     "pixel_format": "luminance" if "mono" in mi.variant() else "rgb"}}
+    The height is scaled by the same factor (rounded, at least 1 pixel); ``None`` or the
+    camera's own width returns ``camera``.
+    """
+    if width is None or width == camera.width:
+        return camera
+    s = width / camera.width
+    height = max(1, round(camera.height * s))
+    return replace(camera, width=width, height=height, f=camera.f * s,
+                   cx=camera.cx * s, cy=camera.cy * height / camera.height)

@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from framework.render.backend import set_variant
+from framework.scene.write import pinhole_camera, write_colmap, write_mesh, write_scene_yaml
 from scenes import geometry as g
 from scenes.cameras import cam_from_mitsuba, focal_from_fov
-from scenes.io import PinholeCamera, write_colmap, write_mesh, write_scene_yaml
 
 IMAGE = 64
 
@@ -63,7 +63,7 @@ def build(folder: Path) -> Path:
                  "reference": {"diffuse": list(box[b]["reflectance"]["value"])}} for b in files]
     sensor = box["sensor"]
     focal = focal_from_fov(IMAGE, sensor["fov"])     # square image: fov_axis 'smaller' is x
-    view = PinholeCamera("cornell_000.png", IMAGE, IMAGE, focal, cam_from_mitsuba(_matrix(sensor["to_world"])))
+    view = pinhole_camera("cornell_000.png", IMAGE, IMAGE, focal, cam_from_mitsuba(_matrix(sensor["to_world"])))
     write_colmap(folder / "sparse", [view])
     write_scene_yaml(folder / "scene.yaml", {"name": folder.name, "channels": "rgb",
                                              "segments": segments, "emitters": emitters}, __doc__.split("\n\n", 1)[1])

@@ -10,10 +10,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-
+from framework.scene.write import pinhole_camera, write_colmap, write_mesh, write_scene_yaml
 from scenes import geometry as g
 from scenes.cameras import focal_from_fov, look_at
-from scenes.io import PinholeCamera, write_colmap, write_mesh, write_scene_yaml
 
 ALBEDO, LE, IMAGE, FOV = 0.5, 1.0, 32, 60.0
 
@@ -27,8 +26,8 @@ def build(folder: Path) -> Path:
     """Write the scene folder."""
     folder = Path(folder)
     write_mesh(folder / "meshes/shell.ply", *g.flip(g.icosphere(2, 1.0)))
-    view = PinholeCamera("inside_000.png", IMAGE, IMAGE, focal_from_fov(IMAGE, FOV),
-                         look_at([0.0, 0.0, 0.0], [1.0, 0.2, 0.1]))
+    view = pinhole_camera("inside_000.png", IMAGE, IMAGE, focal_from_fov(IMAGE, FOV),
+                          look_at([0.0, 0.0, 0.0], [1.0, 0.2, 0.1]))
     write_colmap(folder / "sparse", [view])
     scene = {"name": folder.name, "channels": "mono",
              "segments": [{"name": "shell", "meshes": ["meshes/shell.ply"], "kernels": ["diffuse"],

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
+from framework.scene.write import pinhole_camera, write_colmap, write_mesh, write_scene_yaml
 from scenes import geometry as g
 from scenes.cameras import focal_from_fov, look_at
-from scenes.io import PinholeCamera, write_colmap, write_mesh, write_scene_yaml
 
 SKY = [0.3, 0.35, 0.45]
 DIFFUSE, SPECULAR = [0.5, 0.4, 0.3], [0.2, 0.2, 0.2]
@@ -27,8 +27,8 @@ def build(folder: Path) -> Path:
     """Write the scene folder."""
     folder = Path(folder)
     write_mesh(folder / "meshes/ground.ply", *g.quad([-HALF, -HALF, 0.0], [2 * HALF, 0, 0], [0, 2 * HALF, 0]))
-    view = PinholeCamera("top_000.png", IMAGE, IMAGE, focal_from_fov(IMAGE, FOV),
-                         look_at([0.0, 0.0, HEIGHT], [0.0, 0.0, 0.0], up=[0.0, 1.0, 0.0]))
+    view = pinhole_camera("top_000.png", IMAGE, IMAGE, focal_from_fov(IMAGE, FOV),
+                          look_at([0.0, 0.0, HEIGHT], [0.0, 0.0, 0.0], up=[0.0, 1.0, 0.0]))
     write_colmap(folder / "sparse", [view], np.array([[0.0, 0.0, 0.0]]))
     scene = {"name": folder.name, "channels": "rgb",
              "segments": [{"name": "ground", "meshes": ["meshes/ground.ply"], "kernels": ["diffuse", "specular"],

@@ -18,10 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
+from framework.images import write_exr
+from framework.scene import Camera
+from framework.scene.write import pinhole_camera, write_colmap, write_mesh, write_scene_yaml
 from scenes import geometry as g
 from scenes.cameras import focal_from_fov, look_at
-from framework.images import write_exr
-from scenes.io import PinholeCamera, write_colmap, write_mesh, write_scene_yaml
 from scenes.sky import bake_sky, sun_irradiance, sun_vector
 
 LENGTH, HALF_WIDTH, DEPTH, HEIGHT = 40.0, 5.0, 10.0, 15.0
@@ -165,7 +166,7 @@ def street_view(i: int, n_street: int = 8) -> tuple[np.ndarray, np.ndarray]:
     return np.array([x, 0.0, 2.5]), np.array([x + ahead, side * HALF_WIDTH, 4.5])
 
 
-def cameras(n_street: int = 8, image: int = IMAGE) -> list[PinholeCamera]:
+def cameras(n_street: int = 8, image: int = IMAGE) -> list[Camera]:
     """``n_street`` street views (:func:`street_view`) and one aerial view, ``image`` x ``image`` pixels.
 
     The defaults give the bundled scene's nine views; more street views (e.g. 15, for 16 views in
@@ -174,10 +175,10 @@ def cameras(n_street: int = 8, image: int = IMAGE) -> list[PinholeCamera]:
     if n_street < 1:
         raise ValueError(f"n_street={n_street}: use at least one street view")
     focal = focal_from_fov(image, FOV)
-    views = [PinholeCamera(f"street_{i:03d}.png", image, image, focal, look_at(*street_view(i, n_street)))
+    views = [pinhole_camera(f"street_{i:03d}.png", image, image, focal, look_at(*street_view(i, n_street)))
              for i in range(n_street)]
-    views.append(PinholeCamera("aerial_000.png", image, image, focal,
-                               look_at([-6.0, -24.0, 38.0], [0.0, 3.0, 2.0])))
+    views.append(pinhole_camera("aerial_000.png", image, image, focal,
+                                look_at([-6.0, -24.0, 38.0], [0.0, 3.0, 2.0])))
     return views
 
 

@@ -5,8 +5,8 @@ from pathlib import Path
 
 import numpy as np
 
-from scenes.cameras import look_at
-from scenes.io import PinholeCamera, write_colmap, write_mesh, write_scene_yaml
+from framework.scene.write import pinhole_camera, write_colmap, write_mesh, write_scene_yaml
+from scenes.cameras import look_at, resized
 
 QUAD_FACES = np.array([[0, 1, 2], [0, 2, 3]])
 
@@ -47,7 +47,7 @@ def make_tiny_scene(root: Path, *, size: int = 16, channels: str = "rgb", n_view
     })
     f = size / (2 * np.tan(np.radians(30)))
     eyes = [[6, -5, 4], [-6, -5, 3], [5, 6, 5], [-5, 6, 4]]
-    write_colmap(root / "sparse", [PinholeCamera(f"view_{i}.png", size, size, f, look_at(eyes[i], [0, 0, 0.8]))
+    write_colmap(root / "sparse", [pinhole_camera(f"view_{i}.png", size, size, f, look_at(eyes[i], [0, 0, 0.8]))
                                    for i in range(n_views)])
     return root
 
@@ -57,11 +57,69 @@ def small_copy(name: str, dest: Path, *, size: int, views: list[str]) -> Path:
     (same pose and field of view), for tests that must stay <= 64x64."""
     import shutil
 
+    from framework.scene import load_scene
     from scenes import BUNDLED_DIR
-    from scenes.io import read_colmap
     shutil.copytree(Path(BUNDLED_DIR) / name, dest)
     shutil.rmtree(dest / "sparse")
-    cams = [c for c in read_colmap(Path(BUNDLED_DIR) / name / "sparse") if c.name in views]
-    write_colmap(dest / "sparse", [PinholeCamera(c.name, size, size, c.focal * size / c.width, c.cam_from_world)
-                                   for c in cams])
+    cams = [c for c in load_scene(Path(BUNDLED_DIR) / name).cameras if c.name in views]
+    write_colmap(dest / "sparse", [resized(c, size) for c in cams])
     return dest
+
+
+# ------------------------------------------------------------------------------------------------
+# Problems and method configurations
+# ------------------------------------------------------------------------------------------------
+def method_config(name: str, **overrides):
+    """The method's shipped configuration (Hydra defaults resolved) with ``overrides``."""
+    from omegaconf import open_dict
+
+    from framework.config import method_defaults
+    cfg = method_defaults(name)
+    with open_dict(cfg):
+        for key, value in overrides.items():
+            cfg[key] = value
+    return cfg
+
+
+def tiny_problem(root, *, kernels=("diffuse",), spp=16, budget=100, n_views=1, obs_spp=256):
+    """A Problem on make_tiny_scene: observations rendered at the references, ``obs_spp``, odd seed.
+
+    Observations use ``max_depth = N_max + 1`` (N_max = 3), as the inversions do, so the
+    estimates are unbiased up to Monte-Carlo noise.
+    """
+    from framework.config import RunSettings
+    from framework.observe import render_references
+    from framework.registry import Problem
+    from framework.scene import load_scene
+    scene = load_scene(make_tiny_scene(root, kernels=kernels, n_views=n_views))
+    cams = list(scene.cameras)
+    obs = render_references(scene, cams, spp=obs_spp, max_depth=4, seed=0)
+    settings = RunSettings(spp=spp, max_bounces=3, budget_renders=budget, seed=0, cache_dir=None)
+    return Problem(scene=scene, cameras=cams, observed={c.name: o for c, o in zip(cams, obs)},
+                   parameters=scene.parameters(), settings=settings)
+
+
+def compose_config(scene_dir, *overrides):
+    """The run configuration for ``scene_dir``, small and fast by default, no cache."""
+    from framework.config import compose
+    base = [f"scene.dir={scene_dir}", "render.spp=8", "observe.spp=64", "render.max_bounces=2",
+            "observe.max_depth=3", "cache.dir=null"]
+    return compose(base + list(overrides))
+
+
+def make_problem(scene_dir, views=None, *overrides):
+    """A :class:`Problem` of ``scene_dir`` (all views, or the named ones), as a run builds it."""
+    from framework.experiment import prepare
+    views_override = ["views=all"] if views is None else [f"views=[{','.join(views)}]"]
+    problem, _, _ = prepare(compose_config(scene_dir, *views_override, *overrides))
+    return problem
+
+
+def run_method(name: str, problem, **overrides):
+    """Run the registered method ``name`` with its shipped options and ``overrides``."""
+    from framework.registry import get_method
+    return get_method(name)(method_config(name, **overrides)).run(problem)
+
+
+def run_symbolic(problem, **overrides):
+    return run_method("symbolic", problem, **overrides)

@@ -9,9 +9,8 @@ import sys
 from pathlib import Path
 
 import pytest
-from hydra import compose, initialize_config_module
 
-import framework.run  # noqa: F401  (registers the scene_label resolver)
+from framework.config import compose
 from framework.experiment import run_experiment
 from framework.registry import available_methods
 
@@ -20,11 +19,6 @@ FAST = ["render.spp=8", "observe.spp=32", "budget.renders=12", "report=false",
         "method.solver.starts=1"]
 METHOD_FAST = {"iterative": ["method.max_eval=2", "method.noise=fixed"],
                "differentiable": ["method.iterations=2"]}
-
-
-def _compose(overrides):
-    with initialize_config_module("framework.conf", version_base=None):
-        return compose("config", overrides=overrides)
 
 
 def _fast(method):
@@ -37,7 +31,7 @@ def _fast(method):
 @pytest.mark.parametrize("method", available_methods())
 def test_every_method_runs_on_a_tiny_scene(method, tiny_scene, tmp_path):
     """Each registered method writes a results.json of the documented shape within its render budget."""
-    cfg = _compose([f"method={method}", f"scene.dir={tiny_scene}", f"cache.dir={tmp_path / 'cache'}",
+    cfg = compose([f"method={method}", f"scene.dir={tiny_scene}", f"cache.dir={tmp_path / 'cache'}",
                     *_fast(method)])
     results = run_experiment(cfg, tmp_path / "run")
     on_disk = json.loads((tmp_path / "run" / "results.json").read_text())
@@ -106,7 +100,7 @@ def test_rgb_then_mono_scene_in_one_process(tmp_path):
     from factory import make_tiny_scene
     for ch in ("rgb", "mono", "rgb"):
         scene = make_tiny_scene(tmp_path / ch, channels=ch)
-        cfg = _compose(["method=symbolic", f"scene.dir={scene}", f"cache.dir={tmp_path / 'c'}", *FAST])
+        cfg = compose(["method=symbolic", f"scene.dir={scene}", f"cache.dir={tmp_path / 'c'}", *FAST])
         results = run_experiment(cfg, tmp_path / f"run_{ch}")
         assert results["settings"]["variant"] == f"llvm_ad_{ch}"
         assert len(results["parameters"][0]["estimate"]) == (3 if ch == "rgb" else 1)

@@ -3,14 +3,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from factory import run_method, tiny_problem
 
 from framework.errors import ConfigError
-from test_iterative import method_config, tiny_problem
 
 
 def run_differentiable(problem, **overrides):
-    from framework.registry import get_method
-    return get_method("differentiable")(method_config("differentiable", **overrides)).run(problem)
+    return run_method("differentiable", problem, **overrides)
 
 
 def test_differentiable_recovers_diffuse(tmp_path):

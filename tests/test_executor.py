@@ -7,7 +7,7 @@ from omegaconf import OmegaConf
 
 from framework.errors import ConfigError
 from framework.executor import SerialExecutor, make_executor
-from test_uncertainty import make_problem, run_symbolic
+from factory import make_problem, run_symbolic
 
 
 def test_make_executor_defaults_and_errors():

@@ -6,21 +6,18 @@ ill-posedness, not the truncation of longer paths (see README).
 """
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_module
-
-import framework.run  # noqa: F401  (scene_label resolver)
 from factory import make_tiny_scene, small_copy
+
+from framework.config import RunSettings, compose
 from framework.experiment import run_experiment
 
 MATCHED = ["observe.max_depth=4", "report=false"]
 
 
 def _run(tmp_path, name, overrides):
-    with initialize_config_module("framework.conf", version_base=None):
-        cfg = compose("config", overrides=[f"cache.dir={tmp_path / 'cache'}", *MATCHED, *overrides])
+    cfg = compose([f"cache.dir={tmp_path / 'cache'}", *MATCHED, *overrides])
     return run_experiment(cfg, tmp_path / name)
 
 
@@ -166,7 +163,6 @@ def test_polynomial_matches_path_on_small_urban_canyon(small_canyon):
     """The polynomial at random ρ (far from its guesses, 0.5) equals Mitsuba's ``path`` image
     (max_depth = N_max + 1, box filter) at that ρ: per-segment means of 4 independent
     polynomial passes vs 4 path renders (32 spp each) agree within 4 standard errors."""
-    from omegaconf import OmegaConf
 
     from framework.cache import Cache
     from framework.registry import Problem
@@ -184,7 +180,7 @@ def test_polynomial_matches_path_on_small_urban_canyon(small_canyon):
     basis = MonomialBasis(len(params), 3)
     mu = np.stack([basis.evaluate(rho[:, c]) for c in range(3)])
     problem = Problem(scene=scene, cameras=cams, observed={c.name: np.zeros((48, 48, 3), np.float32) for c in cams},
-                      parameters=params, settings=OmegaConf.create({"variant_resolved": "llvm_ad_rgb"}))
+                      parameters=params, settings=RunSettings(variant="llvm_ad_rgb"))
     for v, cam in enumerate(cams):
         seg = ms.segment_map(v)
         path = [ms.render(v, spp=32, seed=2 * k + 1) for k in range(4)]
@@ -207,16 +203,13 @@ def test_symbolic_errors(key, value):
     """Each bad symbolic option raises ConfigError naming it (before any rendering)."""
     from framework.errors import ConfigError
     from framework.registry import get_method
-    with initialize_config_module("framework.conf", version_base=None):
-        cfg = compose("config", overrides=["method=symbolic", f"method.{key}={value}"])
+    cfg = compose(["method=symbolic", f"method.{key}={value}"])
     with pytest.raises(ConfigError, match=f"method.{key}={value}"):
         get_method("symbolic")(cfg.method).check()
 
 
 def test_tail_bounces_range():
     from framework.errors import ConfigError
-    from framework.experiment import check_settings
-    with initialize_config_module("framework.conf", version_base=None):
-        cfg = compose("config", overrides=["render.tail_bounces=-1"])
+    cfg = compose(["render.tail_bounces=-1"])
     with pytest.raises(ConfigError, match=r"render.tail_bounces=-1 is out of range: use an integer \[0, 16\]"):
-        check_settings(cfg)
+        RunSettings.from_config(cfg)

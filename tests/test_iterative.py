@@ -1,48 +1,19 @@
 """The plain iterative baseline (methods/iterative), its nlopt wrapper (framework/optim.py) and
 the shared pieces (methods/_common.py), on the 16x16 tiny scene.
 
-:func:`tiny_problem` is reused by tests/test_differentiable.py.
+Problems come from tests/factory.py.
 """
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from omegaconf import OmegaConf
+from factory import run_method, tiny_problem
 
 from framework.errors import ConfigError
 
 
-def tiny_problem(root, *, kernels=("diffuse",), spp=16, budget=100, n_views=1, obs_spp=256):
-    """A Problem on make_tiny_scene: observations rendered at the references, ``obs_spp``, odd seed.
-
-    Observations use ``max_depth = N_max + 1`` (N_max = 3), as the inversions do, so the
-    estimates are unbiased up to Monte-Carlo noise.
-    """
-    from factory import make_tiny_scene
-    from framework.registry import Problem
-    from framework.observe import render_references
-    from framework.scene import load_scene
-    scene = load_scene(make_tiny_scene(root, kernels=kernels, n_views=n_views))
-    cams = list(scene.cameras)
-    obs = render_references(scene, cams, spp=obs_spp, max_depth=4, seed=0)
-    settings = OmegaConf.create({"render": {"spp": spp, "max_bounces": 3}, "budget": {"renders": budget},
-                                 "seed": 0})
-    return Problem(scene=scene, cameras=cams, observed={c.name: o for c, o in zip(cams, obs)},
-                   parameters=scene.parameters(), settings=settings, seed=0)
-
-
-def method_config(name: str, **overrides):
-    """The method's shipped YAML with ``overrides``."""
-    from pathlib import Path
-    cfg = OmegaConf.load(Path(__file__).parents[1] / "framework" / "conf" / "method" / f"{name}.yaml")
-    for key, value in overrides.items():
-        cfg[key] = value
-    return cfg
-
-
 def run_iterative(problem, **overrides):
-    from framework.registry import get_method
-    return get_method("iterative")(method_config("iterative", **overrides)).run(problem)
+    return run_method("iterative", problem, **overrides)
 
 
 def expected_renders(result, D: int) -> int:
@@ -117,21 +88,6 @@ def test_iterative_errors_unconstrained_algorithm(tmp_path):
     problem = tiny_problem(tmp_path / "s", kernels=("diffuse", "specular"), budget=5, obs_spp=16)
     with pytest.raises(ConfigError, match="method.algorithm=LD_LBFGS"):
         run_iterative(problem, algorithm="LD_LBFGS")
-
-
-def test_iterative_errors_missing_lambertian_prior(tmp_path, monkeypatch):
-    """init: lambertian_prior without that method registered names the fix."""
-    from framework import registry as methods
-    registered = methods.get_method
-
-    def unregistered(name):
-        if name == "lambertian_prior":
-            raise ConfigError(f"method={name} is not a registered method")
-        return registered(name)
-    monkeypatch.setattr(methods, "get_method", unregistered)
-    problem = tiny_problem(tmp_path / "s", budget=5)
-    with pytest.raises(ConfigError, match="method.init=lambertian_prior"):
-        run_iterative(problem, init="lambertian_prior")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -218,13 +174,7 @@ def test_project_feasible():
 
 def test_iterative_init_lambertian_prior(tmp_path):
     """init: lambertian_prior starts from that method's diffuse estimates; its renders count."""
-    from framework.registry import get_method
-    try:
-        get_method("lambertian_prior")
-    except ConfigError:
-        pytest.skip("lambertian_prior is not registered")
     problem = tiny_problem(tmp_path / "s", budget=4, obs_spp=64)
-    problem.settings.merge_with({"cache": {"dir": None}, "executor": {"name": "serial"}, "variant": "llvm_ad_rgb"})
     result = run_iterative(problem, init="lambertian_prior")
     assert 2 <= result.renders <= 4
     ref = problem.scene.reference(problem.parameters)

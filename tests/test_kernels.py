@@ -12,7 +12,7 @@ def _bsdf(kernels, rho):
     import mitsuba as mi
     b = mi.load_dict(KB.forward_bsdf(kernels, ("R", "G", "B")))
     p = mi.traverse(b)
-    for key, v in KB.weight_values(kernels, rho):
+    for key, v in zip(KB.weight_keys(kernels), np.asarray(rho, float).reshape(len(kernels), -1)):
         p[key] = mi.Color3f(*[float(x) for x in v])
     p.update()
     return b

@@ -105,7 +105,7 @@ SEGMENTS = [[("diffuse", 0), ("diffuse", 1)],   # 0 white: two kernels (exercise
 
 
 def cornell(rho, res=32):
-    """mi.cornell_box() with forward kernel BSDFs (framework.render.kernel_bsdf.forward_bsdf + weight_values),
+    """mi.cornell_box() with forward kernel BSDFs (framework.render.kernel_bsdf.forward_bsdf + weight_keys),
     box filter, black emit-only light (segment -1); the large box is a pure mirror segment."""
     d = mi.cornell_box()
     d["sensor"]["film"].update({"width": res, "height": res, "rfilter": {"type": "box"}})
@@ -123,7 +123,7 @@ def cornell(rho, res=32):
     params = mi.traverse(scene)
     for name, seg in (("white", 0), ("red", 1), ("green", 2), ("large-box.bsdf", 3)):
         kl = SEGMENTS[seg]
-        for key, val in KB.weight_values([k for k, _ in kl], rho[[p for _, p in kl]]):
+        for key, val in zip(KB.weight_keys(kl), rho[[p for _, p in kl]]):
             params[f"{name}.{key}"] = mi.Color3f(*[float(v) for v in val])
     params.update()
     return scene, [(s, shape_seg[s.id()]) for s in scene.shapes()]

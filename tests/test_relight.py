@@ -3,16 +3,16 @@ from __future__ import annotations
 
 import numpy as np
 import yaml
-from omegaconf import OmegaConf
+from factory import make_problem, run_symbolic
 
 from framework.relight import reflectance_images, relit_scene, render_relit, sun
-from test_uncertainty import make_problem, run_symbolic
 
 NEW_SUN = [-0.5, 0.2, -0.84]
 
 
 def _scene(tmp_path):
     from factory import make_tiny_scene
+
     from framework.scene import load_scene
     return load_scene(make_tiny_scene(tmp_path / "s", kernels=("diffuse",)))
 
@@ -77,11 +77,9 @@ def test_symbolic_relight_option(tmp_path):
     """``method.relight.enabled`` puts ``<view>.relit`` and ``<view>.reflectance`` arrays into
     extras["relit_images"] and times them."""
     from factory import make_tiny_scene
-    from omegaconf import open_dict
     problem = make_problem(make_tiny_scene(tmp_path / "s", kernels=("diffuse",)))
-    with open_dict(problem.settings):
-        problem.settings.method.relight = OmegaConf.create({"enabled": True, "sun_direction": NEW_SUN, "spp": 4})
-    res = run_symbolic(problem)
+    res = run_symbolic(problem, relight={"enabled": True, "sun_direction": NEW_SUN, "spp": 4,
+                                         "sun_irradiance": None, "sky_radiance": None, "reflectance": "diffuse"})
     images = res.extras["relit_images"]
     assert sorted(images) == ["view_0.png.reflectance", "view_0.png.relit",
                               "view_1.png.reflectance", "view_1.png.relit"]

@@ -54,7 +54,7 @@ def test_mesh_errors(tiny_scene):
     ply.write_bytes(b"not a ply file")
     with pytest.raises(SceneError, match="block.ply: no triangles"):
         load_scene(tiny_scene)
-    from scenes.io import write_mesh
+    from framework.scene.write import write_mesh
     write_mesh(ply, np.zeros((3, 3)), np.zeros((0, 3), int))
     with pytest.raises(SceneError, match="block.ply: no triangles"):
         load_scene(tiny_scene)

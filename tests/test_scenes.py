@@ -1,7 +1,7 @@
 """The bundled scenes: files re-read, generator is up to date, cameras, visibility, closed forms.
 
-Rendering uses :mod:`scenes.preview` (a hand-built Mitsuba scene: only framework.render.backend,
-framework.render.envmap and framework.kernels from the framework), at low resolution and spp.
+Rendering uses :mod:`scenes.preview` (the framework's loader and Mitsuba scene at the reference
+weights), at low resolution and spp.
 """
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from scenes import BUNDLED_DIR, bundled_names
 from scenes import build as scene_build
 from scenes import furnace, plane_sky, urban_canyon
 from framework.images import read_exr, write_exr
-from scenes.io import read_colmap, read_mesh
+from framework.scene import load_scene
 
 NAMES = ["urban_canyon", "urban_canyon_mono", "cornell_box", "plane_sky", "furnace"]
 CONF = Path(__file__).resolve().parents[1] / "framework" / "conf" / "scene"
@@ -31,7 +31,7 @@ def _segment_visibility(name: str) -> dict[str, set[str]]:
     folder = BUNDLED_DIR / name
     names = [s["name"] for s in _yaml(name)["segments"]]
     out = {}
-    for cam in read_colmap(folder / "sparse"):
+    for cam in load_scene(folder).cameras:
         ids = segment_ids(folder, cam)
         out[cam.name] = {names[k] for k in np.unique(ids) if k >= 0}
     return out
@@ -58,8 +58,9 @@ def test_folder_rereads(name):
     assert len(meshes) == len(set(meshes)), "a mesh belongs to two segments"
     emitter_meshes = [m for e in scene["emitters"] if e["type"] == "area" for m in e["meshes"]]
     assert {str(p.relative_to(folder)) for p in folder.glob("meshes/*.ply")} == set(meshes) | set(emitter_meshes)
+    loaded = {m.path: m for m in load_scene(folder).meshes}
     for m in meshes:
-        v, f = read_mesh(folder / m)
+        v, f = loaded[m].vertices, loaded[m].faces
         assert len(f) > 0 and np.isfinite(v).all() and f.max() < len(v)
     ch = "Y" if scene["channels"] == "mono" else "RGB"
     for e in scene["emitters"]:
@@ -93,7 +94,7 @@ def test_hydra_scene_configs():
     for name in NAMES:
         conf = yaml.safe_load((CONF / f"{name}.yaml").read_text())
         assert conf["name"] == name and conf["dir"] is None
-        images = {c.name for c in read_colmap(BUNDLED_DIR / name / "sparse")}
+        images = {c.name for c in load_scene(BUNDLED_DIR / name).cameras}
         assert conf["views"] == "all" or set(conf["views"]) <= images
 
 
@@ -111,34 +112,41 @@ def test_mono_is_table2_with_same_geometry():
 
 
 def test_triangle_count():
-    scene = _yaml("urban_canyon")
-    n = sum(len(read_mesh(BUNDLED_DIR / "urban_canyon" / m)[1]) for s in scene["segments"] for m in s["meshes"])
+    n = sum(len(m.faces) for m in load_scene(BUNDLED_DIR / "urban_canyon").meshes if m.segment is not None)
     assert 1000 < n < 10000
 
 
 def test_colmap_projection_matches_intent_and_mitsuba():
     """Aim points project to the image centre; a facade corner lands where Mitsuba's ray goes."""
-    from scenes.preview import select_variant
+    from framework.render.mitsuba_scene import sensor_dict
+    from scenes.cameras import cam_from_mitsuba
+    from scenes.preview import load
+
+    def project(cam, point):
+        p = np.atleast_2d(point)
+        return cam.project(p), (p @ cam.cam_from_world[:, :3].T + cam.cam_from_world[:, 3])[:, 2]
 
     folder = BUNDLED_DIR / "urban_canyon"
-    cams = {c.name: c for c in read_colmap(folder / "sparse")}
-    uv, depth = cams["street_000.png"].project(np.array([-8.0, 5.0, 4.5]))     # its aim point
+    scene = load(folder)
+    cams = {c.name: c for c in scene.cameras}
+    uv, depth = project(cams["street_000.png"], np.array([-8.0, 5.0, 4.5]))     # its aim point
     np.testing.assert_allclose(uv[0], [100, 100], atol=1e-6)
     assert depth[0] > 0
     corner = np.array([-20.0, 5.0, 15.0])                   # top of the north facade, west end
-    uv, depth = cams["aerial_000.png"].project(corner)
+    uv, depth = project(cams["aerial_000.png"], corner)
     assert depth[0] > 0 and (0 < uv[0]).all() and (uv[0] < 200).all()
     assert uv[0, 0] < 100 and uv[0, 1] < 100, "west end should be left, the facade top in the upper half"
     # the south facade lies to the right of a camera looking east (+x) at the north facade ...
-    uv, _ = cams["street_000.png"].project(np.array([-14.0 + 6.0, 5.0, 2.5]))
+    uv, _ = project(cams["street_000.png"], np.array([-14.0 + 6.0, 5.0, 2.5]))
     assert uv[0, 1] > 100                                   # ... and a point below the aim is lower
-    select_variant(folder)
     import mitsuba as mi
 
-    from scenes.cameras import perspective_sensor
     cam = cams["aerial_000.png"]
-    uv, depth = cam.project(corner)
-    sensor = mi.load_dict(perspective_sensor(cam))
+    uv, depth = project(cam, corner)
+    sensor_desc = sensor_dict(cam, spp=1, channels=scene.channels)
+    to_world = np.array(sensor_desc["to_world"].matrix, dtype=float).reshape(4, 4)
+    np.testing.assert_allclose(cam_from_mitsuba(to_world), cam.cam_from_world, atol=1e-6)
+    sensor = mi.load_dict(sensor_desc)
     ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(*[float(x) for x in uv[0] / [cam.width, cam.height]]), mi.Point2f(0.5))
     o, d = np.array(ray.o).ravel(), np.array(ray.d).ravel()
     to_p = corner - o
@@ -162,7 +170,7 @@ def test_urban_canyon_variant_more_views_other_size(tmp_path):
     from scenes.preview import segment_ids
 
     folder = urban_canyon.build(tmp_path / "urban_canyon_v16", n_street=15, image=48)
-    cams = read_colmap(folder / "sparse")
+    cams = load_scene(folder).cameras
     assert sorted(c.name for c in cams) == ["aerial_000.png"] + [f"street_{i:03d}.png" for i in range(15)]
     assert all((c.width, c.height) == (48, 48) for c in cams)
     names = [s["name"] for s in yaml.safe_load((folder / "scene.yaml").read_text())["segments"]]
@@ -196,16 +204,17 @@ def test_sun_matches_sky():
 
 def test_urban_canyon_lit_and_shadowed_facades():
     """North facade (lit by the sun) is brighter than the south one (in shadow)."""
-    from scenes.preview import render, resized, segment_ids
+    from scenes.cameras import resized
+    from scenes.preview import render, segment_ids
 
     folder = BUNDLED_DIR / "urban_canyon"
-    cams = read_colmap(folder / "sparse")
+    scene = load_scene(folder)
     wall = [s["name"] for s in _yaml("urban_canyon")["segments"]].index("wall")
     means = []
-    for k in (2, 3):           # street_002 looks at the north facade, street_003 at the south one
+    for k in ("street_002.png", "street_003.png"):     # north facade, south facade
         img = render(folder, k, spp=8, size=48, seed=1)
         assert np.isfinite(img).all() and 0.01 < img.mean() < 1.0
-        ids = segment_ids(folder, resized(cams[k], 48))
+        ids = segment_ids(folder, resized(scene.camera(k), 48))
         means.append(img[ids == wall].mean())
     assert means[0] > 1.5 * means[1]
 
@@ -234,10 +243,10 @@ def test_furnace_closed_form(bounces):
 
 def test_cornell_box_matches_mitsuba_original():
     """Our converted folder renders like Mitsuba's own ``cornell_box()`` dict (64 px, box filter)."""
-    from scenes.preview import render, select_variant
+    from scenes.preview import load, render
 
     ours = render(BUNDLED_DIR / "cornell_box", 0, spp=64, seed=5, max_depth=8)
-    select_variant(BUNDLED_DIR / "cornell_box")
+    load(BUNDLED_DIR / "cornell_box")
     import mitsuba as mi
 
     d = mi.cornell_box()

@@ -10,54 +10,20 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from factory import make_problem, run_symbolic
 
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.gram import GramSystem
-from methods.symbolic.uncertainty import (observable_parameters, parameter_uncertainty,
-                                          restrict_system)
-
-
-# ------------------------------------------------------------------------------------------------
-# Helpers (also used by test_executor.py and test_relight.py)
-# ------------------------------------------------------------------------------------------------
-def compose_config(scene_dir, *overrides):
-    """The run configuration for ``scene_dir``, small and fast by default."""
-    from hydra import compose, initialize_config_module
-    from omegaconf import open_dict
-
-    base = [f"scene.dir={scene_dir}", "render.spp=8", "observe.spp=64", "render.max_bounces=2",
-            "observe.max_depth=3", "cache.dir=null"]
-    with initialize_config_module("framework.conf", version_base=None):
-        cfg = compose("config", overrides=base + list(overrides))
-    with open_dict(cfg):
-        cfg.variant_resolved = "llvm_ad_rgb"
-    return cfg
-
-
-def make_problem(scene_dir, views=None, *overrides):
-    """A :class:`Problem` of ``scene_dir`` (all views, or the named ones)."""
-    from framework.cache import Cache
-    from framework.registry import Problem
-    from framework.observe import observed_images
-    from framework.scene import load_scene
-    cfg = compose_config(scene_dir, *overrides)
-    scene = load_scene(scene_dir)
-    cams = list(scene.cameras) if views is None else [scene.camera(v) for v in views]
-    observed, _ = observed_images(scene, cams, cfg, cache=Cache(None))
-    return Problem(scene, cams, observed, scene.parameters(), cfg, int(cfg.seed))
-
-
-def run_symbolic(problem):
-    from framework.registry import get_method
-    return get_method("symbolic")(problem.settings.method).run(problem)
+from methods.symbolic.uncertainty import observable_parameters, parameter_uncertainty, restrict_system
 
 
 def make_pit_scene(root: Path) -> Path:
     """Tiny diffuse scene plus the hidden ``pit`` segment and the camera ``view_9`` under it."""
     import yaml
     from factory import make_tiny_scene, quad
+
+    from framework.scene.write import pinhole_camera, write_colmap, write_mesh, write_scene_yaml
     from scenes.cameras import look_at
-    from scenes.io import PinholeCamera, write_colmap, write_mesh, write_scene_yaml
     root = make_tiny_scene(root, kernels=("diffuse",))
     v, f = quad(-1, 1, -1, 1, z=-2.0)
     write_mesh(root / "meshes/pit.ply", v, f[:, ::-1])                 # reversed winding: faces -z
@@ -68,7 +34,7 @@ def make_pit_scene(root: Path) -> Path:
     size, fpx = 16, 16 / (2 * np.tan(np.radians(30)))
     eyes = {"view_0.png": [6, -5, 4], "view_1.png": [-6, -5, 3], "view_9.png": [0.3, 0.2, -5]}
     targets = {"view_0.png": [0, 0, 0.8], "view_1.png": [0, 0, 0.8], "view_9.png": [0, 0, -2]}
-    write_colmap(root / "sparse", [PinholeCamera(n, size, size, fpx, look_at(eyes[n], targets[n]))
+    write_colmap(root / "sparse", [pinhole_camera(n, size, size, fpx, look_at(eyes[n], targets[n]))
                                    for n in eyes])
     return root
 
@@ -156,10 +122,11 @@ def test_joint_inversion_equals_solve_of_summed_gram_systems(tmp_path):
     """Joint inversion of two views = the solve of the sum of the two views' Gram systems (PSD-projected, the
     per-view systems are those of the pass; the solver is deterministic: identical to 1e-12)."""
     from factory import make_tiny_scene
+
+    from framework.cache import Cache
     from methods._common import segment_groups
     from methods.symbolic.polynomial_pass import polynomial_pass
     from methods.symbolic.solve import solve_polynomial
-    from framework.cache import Cache
     problem = make_problem(make_tiny_scene(tmp_path / "s", kernels=("diffuse",)))
     result = run_symbolic(problem)
     params = problem.parameters
@@ -183,6 +150,7 @@ def test_hidden_segment_is_unobservable_and_a_view_makes_it_observable(tmp_path)
     the coefficients shrinks the estimates by ~10 % through G = Σγγᵀ, errors-in-variables). Adding ``view_9`` (below the ground) makes ``pit`` observable, recovered
     within 0.05 as well, with a finite std."""
     import json
+
     from framework.results import parameter_rows
     root = make_pit_scene(tmp_path / "pit")
     hidden = make_problem(root, ["view_0.png", "view_1.png"], "render.spp=64")

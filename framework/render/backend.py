@@ -52,9 +52,13 @@ def ensure_libllvm() -> str:
     return found
 
 
-def known_variants() -> list[str]:
-    import mitsuba as mi
-    return list(mi.variants())
+def point_at_libllvm() -> None:
+    """Set ``DRJIT_LIBLLVM_PATH`` to a usable libLLVM if one is found and none is set; never raises
+    (:func:`set_variant` raises with the fix when an LLVM variant is asked for without one)."""
+    if not os.environ.get("DRJIT_LIBLLVM_PATH"):
+        found = find_libllvm()
+        if found is not None:
+            os.environ["DRJIT_LIBLLVM_PATH"] = found
 
 
 def set_variant(variant: str, *, channels: tuple[str, ...] | None = None) -> str:

@@ -17,9 +17,9 @@ from __future__ import annotations
 
 import drjit as dr
 import mitsuba as mi
-import numpy as np
 
 from framework import kernels as K
+from framework.render.plugin import plugin_class
 
 
 def _put(callback, name, value):
@@ -39,130 +39,120 @@ def _unit(name: str):
     return _UNITS[key]
 
 
-def _make_class():
-    """The plugin class for the *current* variant: ``mi.BSDF`` differs between variants."""
+class KernelSumMixin:
+    """The ``kernel_sum`` BSDF Σ_i ρ_i f_i (paper eq. 3-4, module docstring), written once: the
+    plugin class ``KernelSumBSDF`` is these methods on the current variant's ``mi.BSDF``, built
+    and registered once per variant by :func:`ensure_registered`.
 
-    class KernelSumBSDF(mi.BSDF):
-        """Properties: ``kernels`` (comma-separated registry names); weights start at 0."""
+    Properties: ``kernels`` (comma-separated registry names); the weights ``rho_<i>`` start at 0.
+    """
 
-        def __init__(self, props):
-            mi.BSDF.__init__(self, props)
-            names = [k for k in str(props["kernels"]).split(",") if k]
-            self.names = names
-            self.units = [_unit(k) for k in names]
-            self.delta = [K.get(k).delta for k in names]
-            for i in range(len(names)):
-                setattr(self, f"rho_{i}", dr.zeros(mi.UnpolarizedSpectrum))
-            flags = [mi.BSDFFlags.DeltaReflection if d else mi.BSDFFlags.DiffuseReflection for d in self.delta]
-            both = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
-            self.m_components = [f | both for f in flags]
-            self.m_flags = mi.BSDFFlags(0)
-            for f in self.m_components:
-                self.m_flags = self.m_flags | f
+    def __init__(self, props):
+        mi.BSDF.__init__(self, props)     # no super(): see framework.render.plugin
+        names = [k for k in str(props["kernels"]).split(",") if k]
+        self.names = names
+        self.units = [_unit(k) for k in names]
+        self.delta = [K.get(k).delta for k in names]
+        for i in range(len(names)):
+            setattr(self, f"rho_{i}", dr.zeros(mi.UnpolarizedSpectrum))
+        flags = [mi.BSDFFlags.DeltaReflection if d else mi.BSDFFlags.DiffuseReflection for d in self.delta]
+        both = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
+        self.m_components = [f | both for f in flags]
+        self.m_flags = mi.BSDFFlags(0)
+        for f in self.m_components:
+            self.m_flags = self.m_flags | f
 
-        # -- helpers ---------------------------------------------------------------------------------
-        @property
-        def rho(self) -> list:
-            # mi.traverse writes the attributes named in traverse(): read them afresh every time
-            return [getattr(self, f"rho_{i}") for i in range(len(self.names))]
+    # -- helpers ---------------------------------------------------------------------------------
+    @property
+    def rho(self) -> list:
+        # mi.traverse writes the attributes named in traverse(): read them afresh every time
+        return [getattr(self, f"rho_{i}") for i in range(len(self.names))]
 
-        @staticmethod
-        def _front(si):
-            """The interaction seen from the front side, and whether it was flipped."""
-            flip = mi.Frame3f.cos_theta(si.wi) < 0
-            si2 = mi.SurfaceInteraction3f(si)
-            si2.wi = dr.select(flip, mi.Vector3f(si.wi.x, si.wi.y, -si.wi.z), si.wi)
-            return si2, flip
+    @staticmethod
+    def _front(si):
+        """The interaction seen from the front side, and whether it was flipped."""
+        flip = mi.Frame3f.cos_theta(si.wi) < 0
+        si2 = mi.SurfaceInteraction3f(si)
+        si2.wi = dr.select(flip, mi.Vector3f(si.wi.x, si.wi.y, -si.wi.z), si.wi)
+        return si2, flip
 
-        def _probs(self):
-            means = [sum(dr.detach(r)[c] for c in range(len(r))) / len(r) for r in self.rho]
-            total = sum(means)
-            n = len(self.rho)
-            return [dr.select(total > 0, m / dr.maximum(total, 1e-12), 1.0 / n) for m in means]
+    def _probs(self):
+        means = [sum(dr.detach(r)[c] for c in range(len(r))) / len(r) for r in self.rho]
+        total = sum(means)
+        n = len(self.rho)
+        return [dr.select(total > 0, m / dr.maximum(total, 1e-12), 1.0 / n) for m in means]
 
-        def _smooth(self, ctx, si, wo, active):
-            value, pdf = dr.zeros(mi.UnpolarizedSpectrum), mi.Float(0)
-            for unit, d, rho, q in zip(self.units, self.delta, self.rho, self._probs()):
-                if d:
-                    continue
-                v, p = unit.eval_pdf(ctx, si, wo, active)
-                value += rho * mi.unpolarized_spectrum(v)
-                pdf += q * p
-            return value, pdf
+    def _smooth(self, ctx, si, wo, active):
+        value, pdf = dr.zeros(mi.UnpolarizedSpectrum), mi.Float(0)
+        for unit, d, rho, q in zip(self.units, self.delta, self.rho, self._probs()):
+            if d:
+                continue
+            v, p = unit.eval_pdf(ctx, si, wo, active)
+            value += rho * mi.unpolarized_spectrum(v)
+            pdf += q * p
+        return value, pdf
 
-        # -- BSDF interface --------------------------------------------------------------------------
-        def sample(self, ctx, si, sample1, sample2, active=True):
-            si2, flip = self._front(si)
-            q = self._probs()
-            bs, weight = dr.zeros(mi.BSDFSample3f), dr.zeros(mi.Spectrum)
-            lo = mi.Float(0)
-            for i, (unit, d, rho) in enumerate(zip(self.units, self.delta, self.rho)):
-                hi = lo + q[i] if i < len(q) - 1 else mi.Float(1.0 + 1e-6)
-                m = active & (sample1 >= lo) & (sample1 < hi)
-                u1 = dr.clip((sample1 - lo) / dr.maximum(q[i], 1e-12), 0, 1)
-                bsi, wi_ = unit.sample(ctx, si2, u1, sample2, m)
-                if d:
-                    w = rho * mi.unpolarized_spectrum(wi_) / dr.maximum(q[i], 1e-12)
-                    bsi.pdf = bsi.pdf * q[i]
-                else:
-                    value, pdf = self._smooth(ctx, si2, bsi.wo, m)
-                    w = dr.select(pdf > 0, value / dr.maximum(pdf, 1e-20), 0.0)
-                    bsi.pdf = pdf
-                bsi.sampled_component = mi.UInt32(i)
-                bs[m] = bsi
-                weight[m] = mi.Spectrum(w)
-                lo = hi
-            bs.wo = dr.select(flip, mi.Vector3f(bs.wo.x, bs.wo.y, -bs.wo.z), bs.wo)
-            return bs, weight & (active & (bs.pdf > 0))
+    # -- BSDF interface --------------------------------------------------------------------------
+    def sample(self, ctx, si, sample1, sample2, active=True):
+        si2, flip = self._front(si)
+        q = self._probs()
+        bs, weight = dr.zeros(mi.BSDFSample3f), dr.zeros(mi.Spectrum)
+        lo = mi.Float(0)
+        for i, (unit, d, rho) in enumerate(zip(self.units, self.delta, self.rho)):
+            hi = lo + q[i] if i < len(q) - 1 else mi.Float(1.0 + 1e-6)
+            m = active & (sample1 >= lo) & (sample1 < hi)
+            u1 = dr.clip((sample1 - lo) / dr.maximum(q[i], 1e-12), 0, 1)
+            bsi, wi_ = unit.sample(ctx, si2, u1, sample2, m)
+            if d:
+                w = rho * mi.unpolarized_spectrum(wi_) / dr.maximum(q[i], 1e-12)
+                bsi.pdf = bsi.pdf * q[i]
+            else:
+                value, pdf = self._smooth(ctx, si2, bsi.wo, m)
+                w = dr.select(pdf > 0, value / dr.maximum(pdf, 1e-20), 0.0)
+                bsi.pdf = pdf
+            bsi.sampled_component = mi.UInt32(i)
+            bs[m] = bsi
+            weight[m] = mi.Spectrum(w)
+            lo = hi
+        bs.wo = dr.select(flip, mi.Vector3f(bs.wo.x, bs.wo.y, -bs.wo.z), bs.wo)
+        return bs, weight & (active & (bs.pdf > 0))
 
-        def eval(self, ctx, si, wo, active=True):
-            return self.eval_pdf(ctx, si, wo, active)[0]
+    def eval(self, ctx, si, wo, active=True):
+        return self.eval_pdf(ctx, si, wo, active)[0]
 
-        def pdf(self, ctx, si, wo, active=True):
-            return self.eval_pdf(ctx, si, wo, active)[1]
+    def pdf(self, ctx, si, wo, active=True):
+        return self.eval_pdf(ctx, si, wo, active)[1]
 
-        def eval_pdf(self, ctx, si, wo, active=True):
-            si2, flip = self._front(si)
-            wo2 = dr.select(flip, mi.Vector3f(wo.x, wo.y, -wo.z), wo)
-            value, pdf = self._smooth(ctx, si2, wo2, active)
-            return mi.Spectrum(value) & active, pdf & active
+    def eval_pdf(self, ctx, si, wo, active=True):
+        si2, flip = self._front(si)
+        wo2 = dr.select(flip, mi.Vector3f(wo.x, wo.y, -wo.z), wo)
+        value, pdf = self._smooth(ctx, si2, wo2, active)
+        return mi.Spectrum(value) & active, pdf & active
 
-        def traverse(self, callback):
-            for i, rho in enumerate(self.rho):
-                _put(callback, f"rho_{i}", rho)
+    def traverse(self, callback):
+        for i, rho in enumerate(self.rho):
+            _put(callback, f"rho_{i}", rho)
 
-        def parameters_changed(self, keys):
-            pass
+    def parameters_changed(self, keys):
+        pass
 
-        def to_string(self):
-            return f"KernelSumBSDF[kernels={self.names}]"
-
-    return KernelSumBSDF
-
-
-_registered: set[str] = set()
+    def to_string(self):
+        return f"KernelSumBSDF[kernels={self.names}]"
 
 
 def ensure_registered() -> None:
     """Register ``kernel_sum`` for the current Mitsuba variant (plugins are per variant)."""
-    if mi.variant() not in _registered:
-        cls = _make_class()
-        mi.register_bsdf("kernel_sum", lambda props: cls(props))
-        _registered.add(mi.variant())
+    plugin_class("KernelSumBSDF", KernelSumMixin, mi.BSDF, mi.register_bsdf, "kernel_sum")
 
 
 def forward_bsdf(kernels: list[str], channels: tuple[str, ...] | None = None) -> dict:
     """Mitsuba dict of the exact kernel BRDF Σ_i ρ_i f_i of one segment (``kernel_sum`` plugin,
-    this module); the weights start at 0 and are set by :func:`weight_values`
-    keys through ``mi.traverse``."""
+    this module); the weights start at 0 and are written at the :func:`weight_keys` through
+    ``mi.traverse`` (:meth:`framework.render.mitsuba_scene.MitsubaScene.set_weights`)."""
     ensure_registered()
     return {"type": "kernel_sum", "kernels": ",".join(kernels)}
 
 
-def weight_values(kernels: list[str], rho: np.ndarray) -> list[tuple[str, np.ndarray]]:
-    """(traverse key relative to the shape's ``bsdf``, value ρ_i) for each kernel of a segment.
-
-    ``rho`` has shape (len(kernels), n_channels).
-    """
-    rho = np.asarray(rho, dtype=float).reshape(len(kernels), -1)
-    return [(f"rho_{i}", rho[i]) for i in range(len(kernels))]
+def weight_keys(kernels) -> list[str]:
+    """The ``mi.traverse`` key of each kernel's weight ρ_i, relative to the shape's ``bsdf``."""
+    return [f"rho_{i}" for i in range(len(kernels))]

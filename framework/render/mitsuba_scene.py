@@ -12,9 +12,10 @@ from __future__ import annotations
 import numpy as np
 
 from framework import kernels as K
-from framework.render.kernel_bsdf import forward_bsdf, weight_values
 from framework.render.envmap import TO_WORLD
+from framework.render.kernel_bsdf import forward_bsdf, weight_keys
 from framework.scene import Camera, Scene
+
 
 #: Mitsuba renders the scene's N_max reflections with ``max_depth = N_max + 1`` (``max_depth = 1`` renders emitters only, ``2`` direct light).
 def max_depth_for(max_bounces: int) -> int:
@@ -118,20 +119,48 @@ class MitsubaScene:
         #: (mi.Shape, segment index or -1) for every mesh, in scene.meshes order
         self.shape_segments = [(by_id[f"mesh_{i}"], -1 if m.segment is None else m.segment)
                                for i, m in enumerate(scene.meshes)]
+        #: (traverse key, segment, kernel) of every kernel weight of every mesh
+        self._weight_slots = [(f"mesh_{i}.bsdf.{key}", m.segment, k)
+                              for i, m in enumerate(scene.meshes) if m.segment is not None
+                              for k, key in zip(scene.segments[m.segment].kernels,
+                                                weight_keys(scene.segments[m.segment].kernels))]
+
+    def weight_keys(self, parameters) -> list[list[str]]:
+        """Per parameter: the ``mi.traverse`` keys of its weight, one in every mesh of its segment."""
+        index = {(p.segment, p.kernel): p.index for p in parameters}
+        out: list[list[str]] = [[] for _ in parameters]
+        for key, segment, kernel in self._weight_slots:
+            j = index.get((segment, kernel))
+            if j is not None:
+                out[j].append(key)
+        return out
+
+    def weight_value(self, values):
+        """A Dr.Jit value of the weights' type (``Color3f`` for rgb, ``Float`` for mono) holding
+        ``values`` (one number per channel)."""
+        kind = type(self.params[self._weight_slots[0][0]])
+        return kind(*[float(x) for x in values]) if len(values) > 1 else kind(float(values[0]))
 
     def set_weights(self, rho: np.ndarray, parameters) -> None:
         """Write ρ (P, C) of ``parameters`` into every mesh's BSDF; kernels not listed get 0."""
-        rho = np.asarray(rho, dtype=float)
-        value = {(p.segment, p.kernel): rho[p.index] for p in parameters}
-        for i, m in enumerate(self.model.meshes):
-            if m.segment is None:
-                continue
-            kernels = self.model.segments[m.segment].kernels
-            weights = np.array([value.get((m.segment, k), np.zeros(rho.shape[1])) for k in kernels])
-            for key, v in weight_values(list(kernels), weights):
-                full = f"mesh_{i}.bsdf.{key}"
-                cur = self.params[full]
-                self.params[full] = type(cur)(*[float(x) for x in v]) if len(v) > 1 else type(cur)(float(v[0]))
+        self.assign_weights([self.weight_value(row) for row in np.asarray(rho, dtype=float)], parameters)
+
+    def assign_weights(self, values: list, parameters) -> None:
+        """Write one Dr.Jit value per parameter (numbers, or differentiable variables) into every
+        mesh of its segment; the weights of kernels not in ``parameters`` are set to 0.
+
+        This is the one path from ρ to the Mitsuba scene: every method, the observations and the
+        relighting write their weights through it.
+        """
+        written = {}
+        for value, keys in zip(values, self.weight_keys(parameters)):
+            for key in keys:
+                written[key] = value
+        if not self._weight_slots:
+            return
+        zero = self.weight_value(np.zeros(len(self.model.channels)))
+        for key, _, _ in self._weight_slots:
+            self.params[key] = written.get(key, zero)
         self.params.update()
 
     def render(self, view: int = 0, *, spp: int, seed: int, integrator=None) -> np.ndarray:

@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from framework.errors import SceneError
 from framework import kernels as kernel_registry
+from framework.errors import SceneError
 from framework.scene.exr import read_exr_checked
 from framework.scene.model import CHANNELS, Camera, Emitter, Mesh, Scene, Segment
 

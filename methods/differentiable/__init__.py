@@ -7,8 +7,11 @@ import time
 import numpy as np
 
 from framework import kernels as K
+from framework.observe import inversion_seed
 from framework.registry import Method, MethodResult, Problem, register
+from framework.render.mitsuba_scene import MitsubaScene
 from methods import _common as C
+from methods.lambertian_prior import lambertian_prior
 
 log = logging.getLogger(__name__)
 
@@ -25,9 +28,9 @@ class DifferentiableMethod(Method):
               [L^{\text{synthetic}}_c(i, j, \rho) - L^{\text{acquired}}_c(i, j)]^2 ,
 
     to one optimisation variable per (segment, kernel) parameter and channel. That variable is
-    written, scaled by the segment's number of kernels :math:`K` (Mitsuba's ``blendbsdf``
-    shares, see :func:`framework.kernels.weight_values`), into the BSDF of *every* mesh of the
-    segment, so the gradients of all its meshes accumulate into it. ρ is updated with Adam
+    written as it is into the exact kernel-sum BSDF Σ ρ_i f_i of *every* mesh of the segment
+    (:meth:`framework.render.mitsuba_scene.MitsubaScene.assign_weights`, the same writer every
+    method uses), so the gradients of all its meshes accumulate into it. ρ is updated with Adam
     (Kingma & Ba 2015; a small host-side implementation, bias-corrected) and then projected
     onto the feasible set: clipped to [0, 1], then, per segment and channel where
     :math:`\sum_\text{kernels} \rho > 1`, the exact Euclidean projection onto the simplex face
@@ -71,8 +74,8 @@ class DifferentiableMethod(Method):
         opts = _options(self.cfg, problem)
         frozen = _delta_parameters(problem)
         t0 = time.perf_counter()
-        rho, spent = C.initial_guess(self.cfg, problem)
-        ledger = C.RenderLedger(problem.settings.budget.renders, desc="differentiable", spent=spent)
+        rho, spent = C.initial_guess(self.cfg, problem, prior=lambertian_prior)
+        ledger = C.RenderLedger(problem.settings.budget_renders, desc="differentiable", spent=spent)
         try:
             fit = _Fit(problem, ledger, opts)
             rho = fit.optimise(rho)
@@ -88,7 +91,7 @@ class DifferentiableMethod(Method):
 
 def _options(cfg, problem) -> dict:
     """The validated options; :class:`ConfigError` naming the first bad key."""
-    spp = int(problem.settings.render.spp)
+    spp = problem.settings.spp
     spp_grad = cfg.get("spp_grad")
     return {"lr": float(C.check_number(cfg, "lr", 0.0, 1.0, lo_open=True)),
             "beta1": float(C.check_number(cfg, "beta1", 0.0, 0.999999)),
@@ -118,13 +121,10 @@ class _Fit:
     """The Mitsuba scene with a ``prb`` integrator, its weight keys, and the optimisation loop."""
 
     def __init__(self, problem: Problem, ledger: C.RenderLedger, opts: dict):
-        from framework.render.mitsuba_scene import MitsubaScene
         self.problem, self.ledger, self.opts = problem, ledger, opts
         self.ms = MitsubaScene(problem.scene, problem.cameras, spp=opts["spp"],
                                integrator={"type": "prb", "max_depth": C.max_depth(problem)})
         self.observed = C.observed_list(problem)
-        self.keys = _weight_keys(problem)
-        self.ms.set_weights(np.zeros((len(problem.parameters), problem.n_channels)), problem.parameters)
         self.costs: list[float] = []
         self.times: list[float] = []
 
@@ -160,23 +160,18 @@ class _Fit:
 
     def seeds(self, it: int, view: int) -> tuple[int, int]:
         """(primal, gradient) Mitsuba seeds of ``view`` at iteration ``it``: even, never reused."""
-        from framework.observe import inversion_seed
         counter = 2 * (it * len(self.observed) + view)
         return inversion_seed(self.problem.seed, counter), inversion_seed(self.problem.seed, counter + 1)
 
     def write(self, rho: np.ndarray, *, grad: bool) -> list:
-        """Write ρ into every mesh's BSDF keys (K·ρ); with ``grad``, as fresh differentiable variables."""
+        """Write ρ into every mesh's BSDF; with ``grad``, as fresh differentiable variables."""
         import drjit as dr
-        variables = []
-        for p in self.problem.parameters:
-            var = _colour(self.ms.params, self.keys[p.index][0][0], rho[p.index])
+        variables = [self.ms.weight_value(row) for row in rho]
+        for var in variables:
             dr.make_opaque(var)  # a literal would change the kernel, and recompile it, every iteration
             if grad:
                 dr.enable_grad(var)
-            variables.append(var)
-            for key, scale in self.keys[p.index]:
-                self.ms.params[key] = var * scale
-        self.ms.params.update()
+        self.ms.assign_weights(variables, self.problem.parameters)
         return variables
 
     def final_render(self, rho: np.ndarray) -> list[np.ndarray]:
@@ -195,27 +190,6 @@ def _delta_parameters(problem: Problem) -> list[str]:
         log.warning("differentiable: prb gives no gradient to Dirac-lobe weights %s; they keep their "
                     "initial guess", ", ".join(names))
     return names
-
-
-def _weight_keys(problem: Problem) -> list[list[tuple[str, float]]]:
-    """Per parameter: (full traverse key, K) of each mesh of its segment."""
-    out: list[list[tuple[str, float]]] = [[] for _ in problem.parameters]
-    index = {(p.segment, p.kernel): p.index for p in problem.parameters}
-    for i, mesh in enumerate(problem.scene.meshes):
-        if mesh.segment is None:
-            continue
-        kernels = list(problem.scene.segments[mesh.segment].kernels)
-        zeros = np.zeros((len(kernels), problem.n_channels))
-        for kernel, (key, _) in zip(kernels, K.weight_values(kernels, zeros)):
-            if (mesh.segment, kernel) in index:
-                out[index[(mesh.segment, kernel)]].append((f"mesh_{i}.bsdf.{key}", float(len(kernels))))
-    return out
-
-
-def _colour(params, key: str, values: np.ndarray):
-    """A Dr.Jit value of the type stored at ``key`` (Color3f, Float...) holding ``values``."""
-    kind = type(params[key])
-    return kind(*[float(x) for x in values]) if len(values) > 1 else kind(float(values[0]))
 
 
 def _to_numpy(value, n_channels: int) -> np.ndarray:

@@ -5,9 +5,12 @@ import time
 
 import numpy as np
 
-from framework.registry import Method, MethodResult, Problem, register
+from framework.observe import inversion_seed
 from framework.optim import StopOptimization, check_algorithm, minimize
+from framework.registry import Method, MethodResult, Problem, register
+from framework.render.mitsuba_scene import MitsubaScene
 from methods import _common as C
+from methods.lambertian_prior import lambertian_prior
 
 
 @register("iterative")
@@ -74,8 +77,8 @@ class IterativeMethod(Method):
     def run(self, problem: Problem) -> MethodResult:
         opts = _options(self.cfg, problem)
         t0 = time.perf_counter()
-        rho0, spent = C.initial_guess(self.cfg, problem)
-        ledger = C.RenderLedger(problem.settings.budget.renders, desc="iterative", spent=spent)
+        rho0, spent = C.initial_guess(self.cfg, problem, prior=lambertian_prior)
+        ledger = C.RenderLedger(problem.settings.budget_renders, desc="iterative", spent=spent)
         objective = _Objective(problem, ledger, opts)
         try:
             best_x, status = _optimise(objective, rho0, problem, opts)
@@ -120,9 +123,8 @@ class _Objective:
     """``(x, need_grad) -> (cost, gradient)`` by re-rendering; counts renders, records costs."""
 
     def __init__(self, problem: Problem, ledger: C.RenderLedger, opts: dict):
-        from framework.render.mitsuba_scene import MitsubaScene
         self.problem, self.ledger, self.opts = problem, ledger, opts
-        self.spp = int(problem.settings.render.spp)
+        self.spp = problem.settings.spp
         self.ms = MitsubaScene(problem.scene, problem.cameras, spp=self.spp,
                                integrator={"type": "path", "max_depth": C.max_depth(problem)})
         self.observed = C.observed_list(problem)
@@ -158,7 +160,6 @@ class _Objective:
 
     def seeds(self) -> list[int]:
         """Per-view Mitsuba seeds of the next pass (fresh: never reused; fixed: the same every pass)."""
-        from framework.observe import inversion_seed
         n = len(self.problem.cameras)
         start = self._counter if self.opts["noise"] == "fresh" else 0
         self._counter += n

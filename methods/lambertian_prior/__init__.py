@@ -5,8 +5,9 @@ The paper's Table 1 setting, and the initial guess of the kernel inversions (sec
 """
 from __future__ import annotations
 
+from framework.config import method_defaults
 from framework.errors import ConfigError
-from framework.registry import register
+from framework.registry import MethodResult, register
 from methods.symbolic import SymbolicMethod
 
 
@@ -25,3 +26,9 @@ class LambertianPriorMethod(SymbolicMethod):
             raise ConfigError(f"method.init={self.cfg.init}: lambertian_prior starts from method.guess; "
                               "use method.init=guess")
         super().check()
+
+
+def lambertian_prior(problem) -> MethodResult:
+    """The Lambertian prior of ``problem`` with this method's shipped options: the ``prior`` that
+    render-in-the-loop methods give :func:`methods._common.initial_guess`."""
+    return LambertianPriorMethod(method_defaults("lambertian_prior")).run(problem)

@@ -12,14 +12,20 @@ import time
 import numpy as np
 
 from framework.cache import Cache
+from framework.config import method_defaults
 from framework.executor import make_executor
 from framework.registry import Method, MethodResult, register
+from framework.relight import relight_outputs
 from methods._common import check_choice, check_number, initial_guess, segment_groups
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.polynomial_pass import polynomial_pass
 from methods.symbolic.solve import solve_polynomial
-from methods.symbolic.uncertainty import (correlation_extra, observable_parameters, parameter_uncertainty,
-                                          restrict_system)
+from methods.symbolic.uncertainty import (
+    correlation_extra,
+    observable_parameters,
+    parameter_uncertainty,
+    restrict_system,
+)
 
 
 @register("symbolic")
@@ -112,10 +118,10 @@ class SymbolicMethod(Method):
         t0 = time.perf_counter()
         params = self.parameters(problem)
         sub = dataclasses.replace(problem, parameters=params)
-        x0, renders = initial_guess(self.cfg, sub)
+        x0, renders = initial_guess(self.cfg, sub, prior=_lambertian_prior)
         guess0 = x0
         settings = problem.settings
-        basis = MonomialBasis(len(params), int(settings.render.max_bounces))
+        basis = MonomialBasis(len(params), settings.max_bounces)
         render_s = solve_s = 0.0
         stages = {}
         for k in range(1 + int(self.cfg.get("refine", 0))):
@@ -137,7 +143,7 @@ class SymbolicMethod(Method):
                   "solver_evaluations_from_guess": sol.guess_evals if sol else 0,
                   "initial_guess": guess0.tolist(), "views_from_cache": result.from_cache,
                   "correlation": fit["correlation"], "residual_variance": fit["sigma2"],
-                  "executor": str((settings.get("executor") or {}).get("name", "serial")),
+                  "executor": str(settings.executor.get("name", "serial")),
                   "solve_stages_s": stages}
         timings = {"render": render_s, "solve": solve_s}
         relit = self._relight(sub, params, estimate)
@@ -153,11 +159,11 @@ class SymbolicMethod(Method):
     def _pass(self, problem, params, x0, basis, *, seed: int):
         """The polynomial pass of every view with guesses ``x0`` (one render)."""
         settings = problem.settings
-        with make_executor(settings.get("executor")) as executor:
-            return polynomial_pass(problem, params, x0, basis, spp=int(settings.render.spp),
-                                   tail_bounces=int(settings.render.get("tail_bounces", 0)), seed=seed,
+        with make_executor(settings.executor) as executor:
+            return polynomial_pass(problem, params, x0, basis, spp=settings.spp,
+                                   tail_bounces=settings.tail_bounces, seed=seed,
                                    prob_floor=float(self.cfg.prob_floor), memory_mb=float(self.cfg.memory_mb),
-                                   cache=Cache(settings.cache.dir), executor=executor,
+                                   cache=Cache(settings.cache_dir), executor=executor,
                                    cross_gram=self.cfg.get("gram", "cross") == "cross")
 
     def _solve(self, system, basis, params, x0, problem) -> dict:
@@ -203,7 +209,12 @@ class SymbolicMethod(Method):
         opt = self.cfg.get("relight")
         if not opt or not opt.get("enabled", False):
             return None
-        from framework.relight import relight_outputs
         t = time.perf_counter()
         images = relight_outputs(problem, params, estimate, opt)
         return images, time.perf_counter() - t
+
+
+def _lambertian_prior(problem) -> MethodResult:
+    """``method.init=lambertian_prior``: the symbolic inversion of the diffuse weights with the
+    ``lambertian_prior`` method's shipped options (that method is this class with diffuse kernels)."""
+    return SymbolicMethod(method_defaults("lambertian_prior")).run(problem)

@@ -112,7 +112,7 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
         tasks = [view_task(problem, parameters, guesses, basis, i, spp=spp, seed=seed, prob_floor=prob_floor,
                            tile_pixels=tile, cross_gram=cross_gram, tail_bounces=tail_bounces)
                  for i, _, _ in todo]
-        variant = str(problem.settings.get("variant_resolved") or problem.settings.get("variant", "auto"))
+        variant = problem.settings.variant
         results = executor.imap(render_view_task, tasks, variant=variant, threads=executor.threads_per_worker)
         for (i, cam, key), (system, mats) in zip(todo, results):
             cache.store("polynomial_pass", key, _pack(system, mats))
@@ -217,7 +217,7 @@ def _key(problem, cam, parameters, guesses, spp, seed, prob_floor, basis, *, vie
             "parameters": [[p.segment, p.kernel] for p in parameters],
             "guesses": np.round(np.asarray(guesses, float), 9).tolist(), "prob_floor": float(prob_floor),
             "observed": _digest(problem.observed[cam.name]),
-            "variant": str(problem.settings.get("variant_resolved", "")), "cross_gram": bool(cross_gram),
+            "variant": problem.settings.variant, "cross_gram": bool(cross_gram),
             "tail_bounces": int(tail_bounces), "version": 2}
 
 

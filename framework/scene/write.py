@@ -1,14 +1,19 @@
-"""Writers (and a few readers) for the pieces of a scene folder: meshes, COLMAP, scene.yaml.
+"""The scene-format writer (``docs/scene-format.md``): meshes, the COLMAP model and ``scene.yaml``.
 
-EXR files go through :mod:`framework.images`. Used by the bundled scenes and the tests' tiny scenes.
+The counterpart of :mod:`framework.scene.load`, used by the scene builders (``scenes/``) and the
+tests' tiny scenes. Views are the model's own :class:`~framework.scene.model.Camera`;
+:func:`pinhole_camera` makes one with its principal point at the image centre. EXR files go
+through :func:`framework.images.write_exr`.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 import yaml
+
+from framework.scene.model import Camera
 
 
 def write_mesh(path: Path, vertices: np.ndarray, faces: np.ndarray) -> Path:
@@ -27,6 +32,11 @@ def write_mesh(path: Path, vertices: np.ndarray, faces: np.ndarray) -> Path:
     -------
     Path
         ``path``.
+
+    Raises
+    ------
+    OSError
+        If Open3D cannot write the file.
     """
     import open3d as o3d
 
@@ -41,47 +51,29 @@ def write_mesh(path: Path, vertices: np.ndarray, faces: np.ndarray) -> Path:
     return path
 
 
-def read_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Read a PLY with Open3D; (vertices (n, 3), faces (m, 3)). Raises if the file is missing."""
-    import open3d as o3d
+def pinhole_camera(name: str, width: int, height: int, focal: float, cam_from_world: np.ndarray) -> Camera:
+    """A view with square pixels and its principal point at the image centre.
 
-    if not Path(path).is_file():
-        raise FileNotFoundError(path)
-    mesh = o3d.io.read_triangle_mesh(str(path))
-    return np.asarray(mesh.vertices), np.asarray(mesh.triangles)
-
-
-@dataclass(frozen=True)
-class PinholeCamera:
-    """One posed pinhole view, as written to the COLMAP model.
-
-    Attributes
+    Parameters
     ----------
     name : str
         Image name in ``images.txt`` (e.g. ``street_000.png``).
     width, height : int
         Image size in pixels.
     focal : float
-        Focal length in pixels (fx = fy); the principal point is the image centre.
+        Focal length in pixels (fx = fy).
     cam_from_world : ndarray, shape (3, 4)
         COLMAP pose [R | t] (camera x right, y down, z forward).
+
+    Returns
+    -------
+    Camera
+        With ``cx = width / 2``, ``cy = height / 2``.
     """
-
-    name: str
-    width: int
-    height: int
-    focal: float
-    cam_from_world: np.ndarray
-
-    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Pixel coordinates (n, 2) (COLMAP convention: pixel centres at +0.5) and depths (n,)."""
-        p = np.atleast_2d(points) @ self.cam_from_world[:, :3].T + self.cam_from_world[:, 3]
-        uv = self.focal * p[:, :2] / p[:, 2:3] + np.array([self.width, self.height]) / 2
-        return uv, p[:, 2]
+    return Camera(name, width, height, focal, width / 2, height / 2, np.asarray(cam_from_world, float))
 
 
-def write_colmap(sparse_dir: Path, cameras: list[PinholeCamera],
-                 points: np.ndarray | None = None) -> Path:
+def write_colmap(sparse_dir: Path, cameras: Sequence[Camera], points: np.ndarray | None = None) -> Path:
     """Write a text COLMAP model (cameras.txt, images.txt, points3D.txt, ...) with pycolmap.
 
     Each view gets its own ``PINHOLE`` camera (ids 1..n, in list order) and image of the same id.
@@ -90,22 +82,21 @@ def write_colmap(sparse_dir: Path, cameras: list[PinholeCamera],
     ----------
     sparse_dir : Path
         Output folder (created).
-    cameras : list of PinholeCamera
+    cameras : sequence of Camera
         The views.
     points : ndarray, shape (k, 3), optional
         A few 3D points of the scene for ``points3D.txt`` (empty tracks).
+
+    Returns
+    -------
+    Path
+        ``sparse_dir``.
     """
     import pycolmap
 
     rec = pycolmap.Reconstruction()
     for i, cam in enumerate(cameras, start=1):
-        c = cam.width / 2, cam.height / 2
-        rec.add_camera_with_trivial_rig(pycolmap.Camera(
-            model="PINHOLE", width=cam.width, height=cam.height,
-            params=[cam.focal, cam.focal, c[0], c[1]], camera_id=i))
-        pose = pycolmap.Rigid3d(pycolmap.Rotation3d(np.asarray(cam.cam_from_world[:, :3], float)),
-                                np.asarray(cam.cam_from_world[:, 3], float))
-        rec.add_image_with_trivial_frame(pycolmap.Image(name=cam.name, camera_id=i, image_id=i), pose)
+        _add_view(rec, i, cam)
     for p in (np.zeros((0, 3)) if points is None else np.asarray(points, float)):
         rec.add_point3D(p, pycolmap.Track(), np.array([128, 128, 128], np.uint8))
     sparse_dir = Path(sparse_dir)
@@ -114,35 +105,35 @@ def write_colmap(sparse_dir: Path, cameras: list[PinholeCamera],
     return sparse_dir
 
 
-def read_colmap(sparse_dir: Path) -> list[PinholeCamera]:
-    """Read the views of a COLMAP model back as :class:`PinholeCamera` (sorted by image id).
-
-    Only ``PINHOLE`` with fx = fy and ``SIMPLE_PINHOLE`` cameras with a centred principal point
-    are expected here (the bundled scenes write no other).
-    """
+def _add_view(rec, i: int, cam: Camera) -> None:
+    """Add ``cam`` to the reconstruction ``rec`` as camera and image ``i``."""
     import pycolmap
 
-    rec = pycolmap.Reconstruction(str(sparse_dir))
-    out = []
-    for iid in sorted(rec.images):
-        im = rec.images[iid]
-        cam = rec.cameras[im.camera_id]
-        out.append(PinholeCamera(im.name, cam.width, cam.height, float(cam.focal_length_x),
-                                 np.asarray(im.cam_from_world().matrix())))
-    return out
+    rec.add_camera_with_trivial_rig(pycolmap.Camera(
+        model="PINHOLE", width=cam.width, height=cam.height,
+        params=[cam.f, cam.f, cam.cx, cam.cy], camera_id=i))
+    pose = pycolmap.Rigid3d(pycolmap.Rotation3d(np.asarray(cam.cam_from_world[:, :3], float)),
+                            np.asarray(cam.cam_from_world[:, 3], float))
+    rec.add_image_with_trivial_frame(pycolmap.Image(name=cam.name, camera_id=i, image_id=i), pose)
 
 
 def write_scene_yaml(path: Path, scene: dict, comment: str = "") -> Path:
-    """Write ``scene.yaml`` (``docs/scene-format.md``) with a leading comment block.
+    """Write ``scene.yaml`` with a leading comment block.
 
     Parameters
     ----------
     path : Path
         Output file.
     scene : dict
-        ``name``, ``channels``, ``segments``, ``emitters`` (plain Python types).
+        ``name``, ``channels``, ``segments``, ``emitters``; numpy values are written as plain
+        numbers (floats rounded to 7 decimals).
     comment : str
         Free text written as ``#`` comment lines above the data (units, scales, provenance).
+
+    Returns
+    -------
+    Path
+        ``path``.
     """
     head = "".join(f"# {line}".rstrip() + "\n" for line in comment.strip().splitlines()) if comment else ""
     body = yaml.safe_dump(_plain(scene), sort_keys=False, default_flow_style=None, width=100)

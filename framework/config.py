@@ -1,0 +1,135 @@
+"""The run configuration: Hydra composition, its resolvers, and the typed settings a method gets.
+
+The configuration files live in ``framework/conf`` (``docs/cli.md`` lists every key). Hydra
+composes them into a ``DictConfig``; :meth:`RunSettings.from_config` reads the run-wide keys
+(``render.*``, ``seed``, ``budget.renders``, ``executor``, ``cache.dir``, ``observe.*``) in
+this one place, checks each against its range, and hands methods a frozen, typed object.
+Method options (``method.*``) stay with the method, which checks them itself.
+
+Importing this module registers the ``scene_label`` resolver that the run folder names use, so
+``compose`` works in tests and the bench without importing the command-line entry.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from hydra import compose as hydra_compose
+from hydra import initialize_config_module
+from hydra.core.global_hydra import GlobalHydra
+from omegaconf import DictConfig, OmegaConf
+
+from framework.errors import ConfigError
+
+#: The bundled scene folders ship beside the framework, in ``scenes/<name>/`` (data only: the
+#: framework never imports the ``scenes`` package, whose builders write these folders).
+BUNDLED_SCENES = Path(__file__).resolve().parents[1] / "scenes"
+
+
+def scene_label(name, directory) -> str:
+    """Run-folder label of a scene: the bundled name, or the folder's name for ``scene.dir``."""
+    return Path(str(directory)).name if directory else str(name)
+
+
+if not OmegaConf.has_resolver("scene_label"):
+    OmegaConf.register_new_resolver("scene_label", scene_label)
+
+
+def compose(overrides: list[str] | tuple[str, ...] = ()) -> DictConfig:
+    """The configuration ``python -m framework.run`` would build from ``overrides`` (inside a
+    running Hydra application, from its already initialised config search path)."""
+    if GlobalHydra.instance().is_initialized():
+        return hydra_compose("config", overrides=list(overrides))
+    with initialize_config_module("framework.conf", version_base=None):
+        return hydra_compose("config", overrides=list(overrides))
+
+
+def method_defaults(name: str) -> DictConfig:
+    """The shipped options of method ``name`` (``framework/conf/method/<name>.yaml``, defaults
+    resolved)."""
+    return compose([f"method={name}"]).method
+
+
+def scene_dir(cfg: DictConfig) -> Path:
+    """``scene.dir`` if given, else the bundled folder of ``scene.name``."""
+    if cfg.scene.get("dir"):
+        return Path(str(cfg.scene.dir)).expanduser()
+    return BUNDLED_SCENES / str(cfg.scene.name)
+
+
+def _integer(key: str, value, lo: int, hi: int | None = None) -> int:
+    """``value`` if it is an integer in [lo, hi]; else ConfigError naming ``key`` and the range."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < lo or (hi is not None and value > hi):
+        rng = f"[{lo}, {hi}]" if hi is not None else f">= {lo}"
+        raise ConfigError(f"{key}={value} is out of range: use an integer {rng}")
+    return int(value)
+
+
+@dataclass(frozen=True)
+class ObserveSettings:
+    """Synthetic observations of scenes without ``images/`` (``observe.*``)."""
+
+    spp: int = 512
+    max_depth: int = -1          # Mitsuba max_depth; -1 unbounded, as real light is
+    noise: float = 0.0           # additive Gaussian noise, std relative to the image mean
+    seed: int = 0                # observation stream (odd Mitsuba seeds)
+
+    @classmethod
+    def from_config(cls, obs) -> ObserveSettings:
+        noise = obs.get("noise", 0.0)
+        if isinstance(noise, bool) or not isinstance(noise, (int, float)) or not noise >= 0:
+            raise ConfigError(f"observe.noise={noise} is out of range: use a number >= 0")
+        return cls(spp=_integer("observe.spp", obs.spp, 1),
+                   max_depth=_integer("observe.max_depth", obs.get("max_depth", -1), -1),
+                   noise=float(noise), seed=_integer("observe.seed", obs.get("seed", 0), 0))
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """The run-wide settings every method reads, checked once.
+
+    Attributes
+    ----------
+    spp : int
+        ``render.spp``: samples per pixel of the inversion's own renders.
+    max_bounces : int
+        ``render.max_bounces``: N_max, reflections per path (Mitsuba ``max_depth = N_max + 1``).
+    tail_bounces : int
+        ``render.tail_bounces``: reflections traced beyond N_max (0 is the paper's truncation).
+    seed : int
+        ``seed``: the run's seed; its renders use even Mitsuba seeds derived from it.
+    budget_renders : int
+        ``budget.renders``: the most full passes over the views a method may spend.
+    variant : str
+        The Mitsuba variant in use (``variant=auto`` resolved from the scene's channels).
+    executor : dict
+        ``executor.*``: ``name`` (serial | dask) and the Dask options.
+    cache_dir : str or None
+        ``cache.dir``: where observations and polynomial passes are cached (None: no cache).
+    observe : ObserveSettings
+        ``observe.*``.
+    """
+
+    spp: int = 64
+    max_bounces: int = 3
+    tail_bounces: int = 0
+    seed: int = 0
+    budget_renders: int = 400
+    variant: str = "llvm_ad_rgb"
+    executor: dict = field(default_factory=lambda: {"name": "serial"})
+    cache_dir: str | None = None
+    observe: ObserveSettings = field(default_factory=ObserveSettings)
+
+    @classmethod
+    def from_config(cls, cfg: DictConfig, *, variant: str | None = None) -> RunSettings:
+        """The checked settings of a composed configuration; ConfigError names the first bad key."""
+        return cls(spp=_integer("render.spp", cfg.render.spp, 1),
+                   max_bounces=_integer("render.max_bounces", cfg.render.max_bounces, 1, 8),
+                   tail_bounces=_integer("render.tail_bounces", cfg.render.get("tail_bounces", 0), 0, 16),
+                   seed=_integer("seed", cfg.seed, 0),
+                   budget_renders=_integer("budget.renders", cfg.budget.renders, 1),
+                   variant=str(variant or cfg.variant),
+                   executor=OmegaConf.to_container(cfg.executor, resolve=True) if cfg.get("executor") else
+                   {"name": "serial"},
+                   cache_dir=str(cfg.cache.dir) if cfg.cache.get("dir") else None,
+                   observe=ObserveSettings.from_config(cfg.observe))

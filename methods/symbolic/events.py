@@ -1,0 +1,126 @@
+"""Events of the polynomial path tracer, from the device buffers to sparse coefficient matrices.
+
+A path writes each of its contributions to one *event slot*: (monomial index, value per channel).
+A tile of ``n`` pixels x ``spp`` samples has ``spp × (N_max + T + 1)`` slots per pixel, most of
+them empty or zero (occluded next-event estimation, paths that left the scene). So the slots are
+compacted on the device (``dr.compress``) and only the rest reaches the host, where the events of
+a pixel are summed into a row of a CSR matrix (coefficients are ~1-3 % non-zero): memory is that
+of the tile's events, never pixels x N_e.
+
+The lanes of a tile come in two blocks, samples ``0 .. split - 1`` of every pixel, then the others
+(:func:`lane_pixel`), so the events of each block are contiguous and the tile gives two
+independent estimates ``A`` and ``B`` of the coefficients at no extra cost (:func:`tile_matrices`).
+"""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import scipy.sparse as sp
+
+EMPTY = 0xFFFFFFFF   # monomial index of an event slot that received no contribution
+
+
+def lane_pixel(lane, n: int, spp: int, split: int):
+    """Tile pixel of each lane: ``n × split`` lanes (``split`` samples per pixel), then
+    ``n × (spp - split)`` lanes (``split = spp``: one block)."""
+    if split == spp:
+        return lane // dr.opaque(mi.UInt32, spp)
+    first = dr.opaque(mi.UInt32, n * split)
+    in_b = lane >= first
+    return dr.select(in_b, (lane - dr.select(in_b, first, 0)) // dr.opaque(mi.UInt32, spp - split),
+                     lane // dr.opaque(mi.UInt32, split))
+
+
+class EventBuffer:
+    """Device buffers of a tile's events: slot ``k`` of lane ``l`` holds the ``k``-th
+    (monomial, value) of that lane's path; slots no contribution reached keep :data:`EMPTY`."""
+
+    def __init__(self, lanes: int, slots: int, n_channels: int):
+        self.slots = slots
+        self.mono = dr.full(mi.UInt32, EMPTY, lanes * slots)
+        self.values = [dr.zeros(mi.Float, lanes * slots) for _ in range(n_channels)]
+        self._lane_base = dr.arange(mi.UInt32, lanes) * slots
+
+    def store(self, slot, mono, value, active):
+        """Write ``value`` (a Spectrum) to monomial ``mono`` in slot ``slot`` of each active lane."""
+        at = self._lane_base + slot
+        dr.scatter(self.mono, mono, at, active)
+        for c, v in enumerate(self.values):
+            dr.scatter(v, value[c], at, active)
+
+    def compact(self, n: int, spp: int, split: int) -> tuple[tuple, int]:
+        """The non-empty, non-zero events, in lane order, on the host.
+
+        Returns ``((rows, cols, vals), first_b)``: tile pixel (non-decreasing within a lane block,
+        :func:`lane_pixel`), int32; monomial index, int32; one float32 array of values per
+        channel; and the index of the first event of the second block.
+        """
+        dr.eval(self.mono, self.values)                # the whole tile's paths: one kernel
+        nonzero = self.values[0] != 0
+        for v in self.values[1:]:
+            nonzero |= v != 0
+        keep = (self.mono != EMPTY) & nonzero
+        at = dr.compress(keep)                         # order-preserving: rows stay sorted
+        rows = lane_pixel(at // dr.opaque(mi.UInt32, self.slots), n, spp, split).numpy().view(np.int32)
+        cols = dr.gather(mi.UInt32, self.mono, at).numpy().view(np.int32)
+        vals = [dr.gather(mi.Float, v, at).numpy() for v in self.values]
+        first_b = int(np.searchsorted(at.numpy(), n * split * self.slots))
+        return (rows, cols, vals), first_b
+
+
+def csr(rows, cols, vals, shape, weight: float = 1.0) -> list:
+    """Canonical ``csr_matrix`` (sorted indices, duplicates summed, times ``weight``), one per
+    entry of ``vals`` (channels), from events whose ``rows`` are non-decreasing.
+
+    The channels share their sparsity, so the within-row sort runs once: scipy sorts the event
+    numbers as data along with the columns, which gives the permutation for every channel.
+    """
+    n, m = shape[0], len(cols)
+    if m == 0:
+        return [sp.csr_matrix(shape) for _ in vals]
+    indptr = np.searchsorted(rows, np.arange(n + 1))
+    perm = sp.csr_matrix((np.arange(m, dtype=np.float64), cols, indptr), shape=shape)
+    perm.sort_indices()
+    order, cols = perm.data.astype(np.intp), perm.indices
+    first = np.empty(m, bool)                  # first event of each (row, column)
+    first[0] = True
+    first[1:] = (cols[1:] != cols[:-1]) | (rows[1:] != rows[:-1])
+    starts = np.flatnonzero(first)
+    indptr = np.searchsorted(rows[starts], np.arange(n + 1))
+    out = []
+    for v in vals:
+        data = np.add.reduceat(v[order], starts, dtype=np.float64)
+        if weight != 1.0:
+            data *= weight
+        mat = sp.csr_matrix((data, cols[starts], indptr), shape=shape)
+        mat.has_canonical_format = True
+        out.append(mat)
+    return out
+
+
+def tile_matrices(events: tuple, first_b: int, shape: tuple[int, int], spp: int, split: int) -> tuple:
+    """A tile's events (values already divided by ``spp``) as sparse matrices of ``shape``:
+    ``(Γ,)`` when ``split = spp``, else ``(A, B, Γ)``.
+
+    ``A`` holds the ``split`` first samples of each pixel, ``B`` the others, each reweighted to
+    a full estimate; ``Γ`` is their sample-count-weighted mean, i.e. the estimate from all samples.
+    """
+    rows, cols, vals = events
+    if split == spp:
+        return (csr(rows, cols, vals, shape),)
+    in_a, in_b = slice(0, first_b), slice(first_b, len(rows))
+    A = csr(rows[in_a], cols[in_a], [v[in_a] for v in vals], shape, weight=spp / split)
+    B = csr(rows[in_b], cols[in_b], [v[in_b] for v in vals], shape, weight=spp / (spp - split))
+    wa, wb = split / spp, (spp - split) / spp
+    return A, B, [(a + b) * 0.5 if wa == wb else a * wa + b * wb for a, b in zip(A, B)]
+
+
+def stack_tiles(tiles: list[tuple], n_out: int, n_channels: int, n_cols: int) -> tuple:
+    """The ``n_out`` per-channel matrix lists of consecutive tiles, stacked by rows."""
+    if not tiles:
+        return tuple([sp.csr_matrix((0, n_cols)) for _ in range(n_channels)] for _ in range(n_out))
+    if len(tiles) == 1:
+        return tiles[0]
+    return tuple([sp.vstack([t[k][c] for t in tiles], format="csr") for c in range(n_channels)]
+                 for k in range(n_out))
