@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import framework  # noqa: F401  (a usable libLLVM for Dr.Jit before the builders import it)
+
 #: Folder of this package: the bundled scene ``name`` lies in ``BUNDLED_DIR / name``.
 BUNDLED_DIR = Path(__file__).resolve().parent
 

@@ -1,4 +1,6 @@
-"""Shared fixtures: the Mitsuba variant is set once per session; tiny scenes come from factory.py."""
+"""Shared fixtures: the Mitsuba variant is set once per session; tiny scenes come from factory.py,
+fake report run folders from fakes.py (test modules import builders from those two, never from
+each other)."""
 from __future__ import annotations
 
 import sys
@@ -19,3 +21,10 @@ def _variant():
 def tiny_scene(tmp_path):
     from factory import make_tiny_scene
     return make_tiny_scene(tmp_path / "tiny")
+
+
+@pytest.fixture
+def fake_sweep(tmp_path) -> Path:
+    """A sweep folder with 2 methods x 3 seeds of fake runs (fakes.make_fake_sweep)."""
+    from fakes import make_fake_sweep
+    return make_fake_sweep(tmp_path / "sweep")

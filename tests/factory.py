@@ -1,4 +1,5 @@
-"""Tiny seeded scenes for the tests: a ground quad and a box under sky and sun, 16x16 views."""
+"""Shared builders of the tests: tiny seeded scenes (a ground quad and a box under sky and sun,
+16x16 views), problems, method runs, and the Monte Carlo statistics the tolerances are built on."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -81,11 +82,12 @@ def method_config(name: str, **overrides):
     return cfg
 
 
-def tiny_problem(root, *, kernels=("diffuse",), spp=16, budget=100, n_views=1, obs_spp=256):
+def tiny_problem(root, *, kernels=("diffuse",), spp=16, budget=100, n_views=1, obs_spp=256, seed=0):
     """A Problem on make_tiny_scene: observations rendered at the references, ``obs_spp``, odd seed.
 
     Observations use ``max_depth = N_max + 1`` (N_max = 3), as the inversions do, so the
-    estimates are unbiased up to Monte-Carlo noise.
+    estimates are unbiased up to Monte-Carlo noise. ``seed`` is both the observation stream and
+    the run's seed (the tests use 0; the tolerance audits vary it).
     """
     from framework.config import RunSettings
     from framework.observe import render_references
@@ -93,8 +95,8 @@ def tiny_problem(root, *, kernels=("diffuse",), spp=16, budget=100, n_views=1, o
     from framework.scene import load_scene
     scene = load_scene(make_tiny_scene(root, kernels=kernels, n_views=n_views))
     cams = list(scene.cameras)
-    obs = render_references(scene, cams, spp=obs_spp, max_depth=4, seed=0)
-    settings = RunSettings(spp=spp, max_bounces=3, budget_renders=budget, seed=0, cache_dir=None)
+    obs = render_references(scene, cams, spp=obs_spp, max_depth=4, seed=seed)
+    settings = RunSettings(spp=spp, max_bounces=3, budget_renders=budget, seed=seed, cache_dir=None)
     return Problem(scene=scene, cameras=cams, observed={c.name: o for c, o in zip(cams, obs)},
                    parameters=scene.parameters(), settings=settings)
 
@@ -123,3 +125,36 @@ def run_method(name: str, problem, **overrides):
 
 def run_symbolic(problem, **overrides):
     return run_method("symbolic", problem, **overrides)
+
+
+def run_iterative(problem, **overrides):
+    return run_method("iterative", problem, **overrides)
+
+
+def run_differentiable(problem, **overrides):
+    return run_method("differentiable", problem, **overrides)
+
+
+def max_error(problem, result) -> float:
+    """max |ρ - ρ_ref| over the parameters and channels of a method's result."""
+    return float(np.max(np.abs(result.estimate - problem.scene.reference(problem.parameters))))
+
+
+# ------------------------------------------------------------------------------------------------
+# Monte Carlo statistics
+# ------------------------------------------------------------------------------------------------
+def mean_and_se(samples, axis=0) -> tuple[np.ndarray, np.ndarray]:
+    """Sample mean along ``axis`` and its standard error std / sqrt(n) (std with ddof 0: the
+    samples are many identically distributed pixels or BSDF draws)."""
+    x = np.asarray(samples)
+    return x.mean(axis), x.std(axis) / np.sqrt(x.shape[axis])
+
+
+def mean_difference(a, b) -> tuple[np.ndarray, np.ndarray]:
+    """Two sets of independent repetitions of two estimators (repetitions along axis 0): the
+    difference of their means and its standard error sqrt(var_a / R_a + var_b / R_b), from the
+    sample variances (ddof 1) of the repetitions."""
+    a, b = np.asarray(a), np.asarray(b)
+    diff = a.mean(0) - b.mean(0)
+    se = np.sqrt(a.var(0, ddof=1) / a.shape[0] + b.var(0, ddof=1) / b.shape[0])
+    return diff, se

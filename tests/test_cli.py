@@ -9,12 +9,12 @@ import sys
 from pathlib import Path
 
 import pytest
+from factory import make_tiny_scene
 
 from framework.config import compose
 from framework.experiment import run_experiment
 from framework.registry import available_methods
 
-ROOT = Path(__file__).resolve().parents[1]
 FAST = ["render.spp=8", "observe.spp=32", "budget.renders=12", "report=false",
         "method.solver.starts=1"]
 METHOD_FAST = {"iterative": ["method.max_eval=2", "method.noise=fixed"],
@@ -97,7 +97,6 @@ def test_cli_run_writes_run_folder(tiny_scene, tmp_path):
 
 def test_rgb_then_mono_scene_in_one_process(tmp_path):
     """Plugins are per Mitsuba variant: an rgb and a mono symbolic run share one process."""
-    from factory import make_tiny_scene
     for ch in ("rgb", "mono", "rgb"):
         scene = make_tiny_scene(tmp_path / ch, channels=ch)
         cfg = compose(["method=symbolic", f"scene.dir={scene}", f"cache.dir={tmp_path / 'c'}", *FAST])

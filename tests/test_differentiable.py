@@ -3,13 +3,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from factory import run_method, tiny_problem
+from factory import max_error, run_differentiable, tiny_problem
 
 from framework.errors import ConfigError
-
-
-def run_differentiable(problem, **overrides):
-    return run_method("differentiable", problem, **overrides)
 
 
 def test_differentiable_recovers_diffuse(tmp_path):
@@ -20,8 +16,7 @@ def test_differentiable_recovers_diffuse(tmp_path):
     """
     problem = tiny_problem(tmp_path / "s", spp=16, budget=200)
     result = run_differentiable(problem)
-    ref = problem.scene.reference(problem.parameters)
-    assert np.max(np.abs(result.estimate - ref)) <= 0.05
+    assert max_error(problem, result) <= 0.05
     assert result.renders <= 200
     assert result.renders == 2 * result.extras["iterations"] + 1
     assert len(result.cost_history) == len(result.cost_times_s) == result.extras["iterations"]

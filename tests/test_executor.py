@@ -7,7 +7,7 @@ from omegaconf import OmegaConf
 
 from framework.errors import ConfigError
 from framework.executor import SerialExecutor, make_executor
-from factory import make_problem, run_symbolic
+from factory import make_problem, make_tiny_scene, run_symbolic
 
 
 def test_make_executor_defaults_and_errors():
@@ -24,7 +24,6 @@ def test_dask_local_cluster_equals_serial_and_fills_cache(tmp_path):
     serial run's within 1e-6 relative (only the summation order of the Gram systems may differ);
     the driver stores the workers' views in the cache, so a serial rerun reads both from it and
     gives the same estimates."""
-    from factory import make_tiny_scene
     root = make_tiny_scene(tmp_path / "s", kernels=("diffuse",))
     serial = run_symbolic(make_problem(root))
     cache = f"cache.dir={tmp_path / 'cache'}"

@@ -7,13 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from factory import run_method, tiny_problem
+from factory import max_error, run_iterative, tiny_problem
 
 from framework.errors import ConfigError
-
-
-def run_iterative(problem, **overrides):
-    return run_method("iterative", problem, **overrides)
 
 
 def expected_renders(result, D: int) -> int:
@@ -30,8 +26,7 @@ def test_iterative_recovers_diffuse(tmp_path):
     """
     problem = tiny_problem(tmp_path / "s", spp=64, budget=200)
     result = run_iterative(problem, noise="fixed")
-    ref = problem.scene.reference(problem.parameters)
-    assert np.max(np.abs(result.estimate - ref)) <= 0.05
+    assert max_error(problem, result) <= 0.05
     assert result.renders <= 200
     assert result.renders == expected_renders(result, D=len(problem.parameters))
     assert len(result.cost_history) == len(result.cost_times_s) == result.extras["evaluations"]
@@ -177,5 +172,4 @@ def test_iterative_init_lambertian_prior(tmp_path):
     problem = tiny_problem(tmp_path / "s", budget=4, obs_spp=64)
     result = run_iterative(problem, init="lambertian_prior")
     assert 2 <= result.renders <= 4
-    ref = problem.scene.reference(problem.parameters)
-    assert np.max(np.abs(result.estimate - ref)) <= 0.1
+    assert max_error(problem, result) <= 0.1

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from factory import mean_and_se
 
 from framework import kernels as K
 from framework.render import kernel_bsdf as KB
@@ -53,8 +54,7 @@ def test_forward_bsdf_white_furnace_albedo():
     sampler = mi.load_dict({"type": "independent"})
     sampler.seed(3, n)
     _, w = b.sample(mi.BSDFContext(), _si(n, [0.0, 0.6, 0.8]), sampler.next_1d(), sampler.next_2d())
-    w = np.array(w).T
-    mean, se = w.mean(0), w.std(0) / np.sqrt(n)
+    mean, se = mean_and_se(np.array(w).T)
     np.testing.assert_allclose(mean, RHO.sum(0), atol=5 * se.max() + 1e-6)
 
 

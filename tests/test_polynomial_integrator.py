@@ -14,6 +14,7 @@ framework.render.backend.set_variant("llvm_ad_rgb")
 import mitsuba as mi  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+from factory import mean_and_se, mean_difference  # noqa: E402
 
 from framework import kernels as K  # noqa: E402
 from framework.render import kernel_bsdf as KB  # noqa: E402
@@ -60,7 +61,7 @@ def test_plane_diffuse_and_specular_kernels():
                                             np.array([[0.6] * 3, [0.3] * 3]), max_bounces=3)
     c = integ.coefficients(scene, spp=16, seed=1)
     for m in (1, 2):
-        mean, se = c[:, m].mean(0), c[:, m].std(0) / np.sqrt(c.shape[0])
+        mean, se = mean_and_se(c[:, m])
         assert np.all(np.abs(mean - L_ENV) < 4 * se + 1e-6), (m, mean, se)
     assert np.abs(c[:, [0] + list(range(3, c.shape[1]))]).max() == 0.0
     # mirror: each sample is 0 or L/q_s exactly, so γ(ρ_s)/L is a multiple of 1/(q_s spp)
@@ -93,7 +94,7 @@ def test_furnace_sphere():
     np.testing.assert_allclose(c[:, 0], Le, rtol=1e-6)
     for k in range(1, N + 1):
         m = integ.basis.index([0] * k)
-        mean, se = c[:, m].mean(0), c[:, m].std(0) / np.sqrt(c.shape[0])
+        mean, se = mean_and_se(c[:, m])
         assert np.all(np.abs(mean - Le) < 4 * se + 0.005 * Le), (k, mean, se)
         assert np.all(se < 0.05 * Le)     # the test has power
 
@@ -131,9 +132,24 @@ def cornell(rho, res=32):
 
 def _z(a, b):
     """(R, ...) repetitions of two estimators -> z score of the difference of their means."""
-    ma, mb = a.mean(0), b.mean(0)
-    va, vb = a.var(0, ddof=1) / a.shape[0], b.var(0, ddof=1) / b.shape[0]
-    return (ma - mb) / np.sqrt(va + vb)
+    diff, se = mean_difference(a, b)
+    return diff / se
+
+
+def _polynomial_image(integ, scene, rho, spp, seed, res):
+    """The polynomial of one pass (``seed``) evaluated at ``rho``: a (res, res, 3) image."""
+    c = integ.coefficients(scene, spp=spp, seed=seed)
+    img = np.stack([c[:, :, ch] @ integ.basis.evaluate(rho[:, ch]) for ch in range(3)], -1)
+    return img.reshape(res, res, 3)
+
+
+def _assert_same_expectation(poly, ref):
+    """(R, res, res, 3) repetitions of two estimators: image means and 2x2-quadrant means per
+    channel agree at |z| < 4."""
+    R, res = poly.shape[0], poly.shape[1]
+    quads = lambda x: x.reshape(R, 2, res // 2, 2, res // 2, 3).mean((2, 4))
+    assert np.all(np.abs(_z(poly.mean((1, 2)), ref.mean((1, 2)))) < 4)
+    assert np.all(np.abs(_z(quads(poly), quads(ref))) < 4)
 
 
 @pytest.mark.parametrize("guess", ["near", "far"])
@@ -155,14 +171,10 @@ def test_cornell_matches_path(guess):
     R, spp, res = 4, 32, 32
     poly, ref = [], []
     for r in range(R):
-        c = integ.coefficients(scene, spp=spp, seed=10 + r)
-        img = np.stack([c[:, :, ch] @ integ.basis.evaluate(rho[:, ch]) for ch in range(3)], -1)
-        poly.append(img.reshape(res, res, 3))
+        poly.append(_polynomial_image(integ, scene, rho, spp, 10 + r, res))
         ref.append(np.asarray(mi.render(scene, integrator=path, spp=spp, seed=100 + r)))
     poly, ref = np.array(poly), np.array(ref)
-    quads = lambda x: x.reshape(R, 2, res // 2, 2, res // 2, 3).mean((2, 4))
-    assert np.all(np.abs(_z(poly.mean((1, 2)), ref.mean((1, 2)))) < 4)
-    assert np.all(np.abs(_z(quads(poly), quads(ref))) < 4)
+    _assert_same_expectation(poly, ref)
     assert abs(poly.mean() / ref.mean() - 1) < 0.05   # and close in absolute terms
 
     if guess == "near":
@@ -186,15 +198,11 @@ def test_tail_is_exact_at_the_guesses():
     short = mi.load_dict({"type": "path", "max_depth": N + 1, "rr_depth": 1000})
     poly, ref, trunc = [], [], []
     for r in range(R):
-        c = integ.coefficients(scene, spp=spp, seed=10 + r)
-        img = np.stack([c[:, :, ch] @ integ.basis.evaluate(rho[:, ch]) for ch in range(3)], -1)
-        poly.append(img.reshape(res, res, 3))
+        poly.append(_polynomial_image(integ, scene, rho, spp, 10 + r, res))
         ref.append(np.asarray(mi.render(scene, integrator=deep, spp=spp, seed=100 + r)))
         trunc.append(np.asarray(mi.render(scene, integrator=short, spp=spp, seed=100 + r)))
     poly, ref, trunc = np.array(poly), np.array(ref), np.array(trunc)
-    quads = lambda x: x.reshape(R, 2, res // 2, 2, res // 2, 3).mean((2, 4))
-    assert np.all(np.abs(_z(poly.mean((1, 2)), ref.mean((1, 2)))) < 4)
-    assert np.all(np.abs(_z(quads(poly), quads(ref))) < 4)
+    _assert_same_expectation(poly, ref)
     assert np.all(_z(poly.mean((1, 2)), trunc.mean((1, 2))) > 8)
     with pytest.raises(ConfigError, match="tail_bounces=-1"):
         PolynomialPathIntegrator.create(shape_segments, SEGMENTS, 5, rho, tail_bounces=-1)

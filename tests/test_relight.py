@@ -3,17 +3,15 @@ from __future__ import annotations
 
 import numpy as np
 import yaml
-from factory import make_problem, run_symbolic
+from factory import make_problem, make_tiny_scene, mean_difference, run_symbolic
 
 from framework.relight import reflectance_images, relit_scene, render_relit, sun
+from framework.scene import load_scene
 
 NEW_SUN = [-0.5, 0.2, -0.84]
 
 
 def _scene(tmp_path):
-    from factory import make_tiny_scene
-
-    from framework.scene import load_scene
     return load_scene(make_tiny_scene(tmp_path / "s", kernels=("diffuse",)))
 
 
@@ -32,7 +30,6 @@ def test_relit_matches_path_render_of_relit_scene_folder(tmp_path):
     sample variances; the channel means over the image agree within 4σ (σ from the per-pixel
     variances), and ≥ 99 % of pixels agree within 4σ (per pixel); the relit image is also
     significantly different (> 4σ) from the original illumination on > 2 % of pixel channels."""
-    from framework.scene import load_scene
     scene = _scene(tmp_path)
     params = scene.parameters()
     rho = scene.reference(params)
@@ -46,14 +43,15 @@ def test_relit_matches_path_render_of_relit_scene_folder(tmp_path):
     a = np.stack([render_relit(relit, cam, rho, params, spp=16, seed=2 * k)[cam[0].name] for k in range(8)])
     b = np.stack([render_relit(truth_scene, cam, rho, params, spp=16, seed=2 * k + 1)[cam[0].name]
                   for k in range(8)])
-    diff = a.mean(0) - b.mean(0)
-    var = (a.var(0, ddof=1) + b.var(0, ddof=1)) / 8
+    diff, se = mean_difference(a, b)
+    var = se ** 2
     n = var[..., 0].size
     assert np.all(np.abs(diff.mean((0, 1))) <= 4 * np.sqrt(var.sum((0, 1))) / n)
-    z = np.abs(diff) / np.sqrt(np.maximum(var, 1e-12))
+    z = np.abs(diff) / np.maximum(se, 1e-6)
     assert np.mean(z <= 4) >= 0.99
     orig = np.stack([render_relit(scene, cam, rho, params, spp=16, seed=2 * k)[cam[0].name] for k in range(8)])
-    z0 = np.abs(a.mean(0) - orig.mean(0)) / np.sqrt(np.maximum((a.var(0, ddof=1) + orig.var(0, ddof=1)) / 8, 1e-12))
+    diff0, se0 = mean_difference(a, orig)
+    z0 = np.abs(diff0) / np.maximum(se0, 1e-6)
     assert np.mean(z0 > 4) > 0.02     # null rate ~0.1 % (t, 14 dof); the moved sun moves shadows
 
 
@@ -76,7 +74,6 @@ def test_reflectance_image_is_segment_weight(tmp_path):
 def test_symbolic_relight_option(tmp_path):
     """``method.relight.enabled`` puts ``<view>.relit`` and ``<view>.reflectance`` arrays into
     extras["relit_images"] and times them."""
-    from factory import make_tiny_scene
     problem = make_problem(make_tiny_scene(tmp_path / "s", kernels=("diffuse",)))
     res = run_symbolic(problem, relight={"enabled": True, "sun_direction": NEW_SUN, "spp": 4,
                                          "sun_irradiance": None, "sky_radiance": None, "reflectance": "diffuse"})

@@ -7,8 +7,7 @@ from pathlib import Path
 from reports import write_comparison, write_run_report
 from reports.__main__ import main
 from reports.data import fmt_num
-from test_report_fakes import (REPORT_REFS, REPORT_SEEDS, fake_sweep,  # noqa: F401 (fixture)
-                               make_fake_run, report_error_of)
+from fakes import REPORT_REFS, REPORT_SEEDS, make_fake_run, report_error_of
 
 
 def _referenced_files(text: str, pattern: str) -> list[str]:

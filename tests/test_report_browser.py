@@ -2,7 +2,8 @@
 
 The pages carry an inline script that, on load, writes on <body> the image and table
 counts and the images with naturalWidth == 0; ``--dump-dom`` gives us the result.
-Screenshots go to ``test-artifacts/`` (ignored by git) for a person to look at.
+Screenshots go to ``.cache/test-artifacts/`` (``.cache/`` is ignored by git) for a person to
+look at.
 """
 import re
 import shutil
@@ -13,9 +14,9 @@ import pytest
 
 from reports import write_run_report
 from reports.__main__ import main
-from test_report_fakes import fake_sweep, make_fake_run  # noqa: F401 (fixture)
+from fakes import make_fake_run
 
-ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"
+ARTIFACTS = Path(__file__).resolve().parents[1] / ".cache" / "test-artifacts"
 CHROMIUM_FLAGS = ("--headless=new", "--no-sandbox", "--disable-gpu", "--no-first-run",
                   "--disable-dev-shm-usage", "--hide-scrollbars")
 
@@ -51,7 +52,7 @@ def _page_check(html_path: Path, tmp_path) -> dict:
 
 
 def _screenshot(html_path: Path, name: str, tmp_path) -> Path:
-    ARTIFACTS.mkdir(exist_ok=True)
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
     shot = ARTIFACTS / name
     shot.unlink(missing_ok=True)
     _run_chromium(["--virtual-time-budget=5000", f"--screenshot={shot}", "--window-size=1200,2000",

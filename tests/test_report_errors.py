@@ -5,7 +5,7 @@ import pytest
 
 from reports import ReportError, write_run_report
 from reports.__main__ import main
-from test_report_fakes import make_fake_run
+from fakes import make_fake_run
 
 
 def _assert_refused(argv, capsys, path_text, out_dir):

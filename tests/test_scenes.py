@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from factory import mean_and_se
 
 from scenes import BUNDLED_DIR, bundled_names
 from scenes import build as scene_build
@@ -219,26 +220,24 @@ def test_urban_canyon_lit_and_shadowed_facades():
     assert means[0] > 1.5 * means[1]
 
 
-def _mean_render(name: str, max_depth: int, spp: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per-channel mean and its standard error over the pixels of a path render."""
+def _assert_closed_form(name: str, bounces: int, expected) -> None:
+    """The per-channel mean over the pixels of a path render (max_depth = bounces + 1, 32 spp)
+    equals the closed form within 4 standard errors (pixels identically distributed) + 1e-4."""
     from scenes.preview import render
 
-    img = render(BUNDLED_DIR / name, 0, spp=spp, seed=3, max_depth=max_depth).reshape(-1, 1 if name == "furnace" else 3)
-    return img.mean(0), img.std(0) / np.sqrt(len(img))
+    img = render(BUNDLED_DIR / name, 0, spp=32, seed=3, max_depth=bounces + 1)
+    mean, sem = mean_and_se(img.reshape(-1, img.shape[-1]))
+    assert np.all(np.abs(mean - expected) < 4 * sem + 1e-4), (mean, expected, sem)
 
 
 @pytest.mark.parametrize("bounces", [1, 3])
 def test_plane_sky_closed_form(bounces):
-    mean, sem = _mean_render("plane_sky", bounces + 1, spp=32)
-    expected = plane_sky.expected_pixel(bounces)
-    assert np.all(np.abs(mean - expected) < 4 * sem + 1e-4), (mean, expected, sem)
+    _assert_closed_form("plane_sky", bounces, plane_sky.expected_pixel(bounces))
 
 
 @pytest.mark.parametrize("bounces", [0, 1, 3])
 def test_furnace_closed_form(bounces):
-    mean, sem = _mean_render("furnace", bounces + 1, spp=32)
-    expected = furnace.expected_pixel(bounces)
-    assert np.all(np.abs(mean - expected) < 4 * sem + 1e-4), (mean, expected, sem)
+    _assert_closed_form("furnace", bounces, furnace.expected_pixel(bounces))
 
 
 def test_cornell_box_matches_mitsuba_original():
@@ -261,6 +260,5 @@ def test_cornell_box_matches_mitsuba_original():
 
 @pytest.mark.parametrize("name", NAMES)
 def test_framework_loads_bundled_scene(name):
-    scene_mod = pytest.importorskip("framework.scene")
-    scene = scene_mod.load_scene(BUNDLED_DIR / name)
+    scene = load_scene(BUNDLED_DIR / name)
     assert scene is not None

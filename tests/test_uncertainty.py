@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from factory import make_problem, run_symbolic
+from factory import make_problem, make_tiny_scene, quad, run_symbolic
 
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.gram import GramSystem
@@ -20,7 +20,6 @@ from methods.symbolic.uncertainty import observable_parameters, parameter_uncert
 def make_pit_scene(root: Path) -> Path:
     """Tiny diffuse scene plus the hidden ``pit`` segment and the camera ``view_9`` under it."""
     import yaml
-    from factory import make_tiny_scene, quad
 
     from framework.scene.write import pinhole_camera, write_colmap, write_mesh, write_scene_yaml
     from scenes.cameras import look_at
@@ -121,8 +120,6 @@ def test_degenerate_direction_gives_nan_std():
 def test_joint_inversion_equals_solve_of_summed_gram_systems(tmp_path):
     """Joint inversion of two views = the solve of the sum of the two views' Gram systems (PSD-projected, the
     per-view systems are those of the pass; the solver is deterministic: identical to 1e-12)."""
-    from factory import make_tiny_scene
-
     from framework.cache import Cache
     from methods._common import segment_groups
     from methods.symbolic.polynomial_pass import polynomial_pass

@@ -14,13 +14,17 @@ import logging
 import time
 from dataclasses import dataclass, field
 
+import drjit as dr
 import numpy as np
 import scipy.sparse as sp
 
 from framework.cache import Cache
+from framework.executor import SerialExecutor, TreeSum, init_worker
 from framework.observe import inversion_seed
+from framework.render.mitsuba_scene import MitsubaScene
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.gram import GramSystem
+from methods.symbolic.integrator import integrator_class
 
 log = logging.getLogger(__name__)
 BYTES_COPIES = 3   # an event buffer lives in Dr.Jit, compacted on the device, and in numpy
@@ -90,7 +94,6 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
     -------
     PassResult
     """
-    from framework.executor import SerialExecutor, TreeSum
 
     executor = executor or SerialExecutor()
     C = problem.n_channels
@@ -146,14 +149,12 @@ def render_view_task(task: dict, *, variant: str, threads: int | None = None
     Selects ``variant``, caps Dr.Jit at ``threads`` threads, builds (or reuses) the Mitsuba
     scene and the polynomial integrator, and returns the view's Gram system and coefficients.
     """
-    from framework.executor import init_worker
     init_worker(variant, threads)
     ms, integrator = _scene_and_integrator(task, variant)
     cam = task["cameras"][task["view"]]
     if _WORKER_STATE.get("last_view") not in (None, cam.name):
         # Dr.Jit keeps freed buffers for reuse, but their sizes change with the view (its number
         # of events): without this the cache grew over the first views (measured +75 MiB at 16).
-        import drjit as dr
         dr.flush_malloc_cache()
     _WORKER_STATE["last_view"] = cam.name
     return _render_view(integrator, ms, task["view"], cam, task["observed"], task["spp"], task["seed"],
@@ -161,8 +162,6 @@ def render_view_task(task: dict, *, variant: str, threads: int | None = None
 
 
 def _scene_and_integrator(task: dict, variant: str):
-    from framework.render.mitsuba_scene import MitsubaScene
-    from methods.symbolic.integrator import PolynomialPathIntegrator
     scene, params = task["scene"], task["parameters"]
     key = (variant, scene.content_hash, scene.root, tuple(c.name for c in task["cameras"]), task["spp"],
            task["guesses"].tobytes(), task["prob_floor"], task["max_bounces"], task["tile_pixels"],
@@ -173,7 +172,7 @@ def _scene_and_integrator(task: dict, variant: str):
         ms = MitsubaScene(scene, task["cameras"], spp=task["spp"])
         segment_kernels = [[(p.kernel, p.index) for p in params if p.segment == s]
                            for s in range(len(scene.segments))]
-        integrator = PolynomialPathIntegrator.create(
+        integrator = integrator_class().create(
             ms.shape_segments, segment_kernels, len(params), task["guesses"],
             max_bounces=task["max_bounces"], prob_floor=task["prob_floor"], tile_pixels=task["tile_pixels"],
             tail_bounces=task.get("tail_bounces", 0))

@@ -1,12 +1,12 @@
 """Fake run folders for the report tests (no rendering): known numbers, 32x32 EXRs.
 
-Holds no tests; the report test modules import ``make_fake_run`` and ``fake_sweep``.
+The report test modules import ``make_fake_run``, ``report_error_of`` and the REPORT_*
+constants from here; the ``fake_sweep`` fixture (conftest.py) is built with ``make_fake_sweep``.
 """
 import json
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 REPORT_REFS = {("wall", "diffuse"): [0.72, 0.70, 0.68], ("wall", "specular"): [0.08, 0.08, 0.08],
                ("asphalt", "diffuse"): [0.20, 0.19, 0.18]}
@@ -77,10 +77,9 @@ def make_fake_run(root, *, method: str = "symbolic", seed: int = 0, size: int = 
     return run
 
 
-@pytest.fixture
-def fake_sweep(tmp_path) -> Path:
+def make_fake_sweep(sweep) -> Path:
     """A sweep folder with 2 methods x 3 seeds of fake runs."""
-    sweep = tmp_path / "sweep"
+    sweep = Path(sweep)
     for method in REPORT_METHODS:
         for seed in REPORT_SEEDS:
             make_fake_run(sweep / f"{method}_seed{seed}", method=method, seed=seed)
