@@ -69,9 +69,21 @@ class Method(ABC):
     def __init__(self, cfg):
         self.cfg = cfg
 
+    def parameters(self, problem: Problem) -> list[Parameter]:
+        """The unknowns this method estimates (default: all of ``problem.parameters``); the
+        weights of kernels it leaves out are 0 in its model."""
+        return list(problem.parameters)
+
     @abstractmethod
     def run(self, problem: Problem) -> MethodResult:
         ...
+
+    @abstractmethod
+    def render_at(self, problem: Problem, rho: np.ndarray, *, seed: int = 0) -> dict[str, np.ndarray]:
+        """The selected views as this method's own forward model renders them at ρ ((P, C), in
+        ``problem.parameters`` order; kernels outside :meth:`parameters` count as 0): what its
+        cost compares with the observations. One render at ``problem.settings.spp``, seeded by
+        ``seed``. Tests use it to check that every method renders the scene it claims."""
 
 
 REGISTRY: dict[str, type[Method]] = {}

@@ -10,6 +10,7 @@
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable, Mapping
 
@@ -176,6 +177,11 @@ def render_pass(ms, *, spp: int, seeds: list[int], ledger: RenderLedger) -> list
     images = [ms.render(v, spp=spp, seed=s) for v, s in enumerate(seeds)]
     ledger.spend(1, time.perf_counter() - t0)
     return images
+
+
+def with_seed(problem, seed: int):
+    """``problem`` with the run seed ``seed`` (its renders then use other Mitsuba seeds)."""
+    return dataclasses.replace(problem, settings=dataclasses.replace(problem.settings, seed=int(seed)))
 
 
 def max_depth(problem) -> int:

@@ -88,6 +88,16 @@ class DifferentiableMethod(Method):
                     "spp_grad": opts["spp_grad"], "projection": "clip + simplex face",
                     "zero_gradient": frozen})
 
+    def render_at(self, problem: Problem, rho: np.ndarray, *, seed: int = 0) -> dict[str, np.ndarray]:
+        """The primal pass of the fit's own AD renderer at ρ, weights written as the fit writes them."""
+        problem = C.with_seed(problem, seed)
+        ledger = C.RenderLedger(1, desc="differentiable render")
+        try:
+            images = _Fit(problem, ledger, _options(self.cfg, problem)).final_render(rho)
+        finally:
+            ledger.close()
+        return {c.name: img for c, img in zip(problem.cameras, images)}
+
 
 def _options(cfg, problem) -> dict:
     """The validated options; :class:`ConfigError` naming the first bad key."""

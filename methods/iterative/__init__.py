@@ -93,6 +93,16 @@ class IterativeMethod(Method):
                     "gradient_evaluations": objective.n_grad, "renders_per_gradient": objective.grad_renders,
                     "fd": opts["fd"], "step": opts["step"], "noise": opts["noise"]})
 
+    def render_at(self, problem: Problem, rho: np.ndarray, *, seed: int = 0) -> dict[str, np.ndarray]:
+        """One pass of the objective's own renderer (what every cost evaluation renders)."""
+        problem = C.with_seed(problem, seed)
+        ledger = C.RenderLedger(1, desc="iterative render")
+        try:
+            images = _Objective(problem, ledger, _options(self.cfg, problem)).render(rho)
+        finally:
+            ledger.close()
+        return {c.name: img for c, img in zip(problem.cameras, images)}
+
 
 def _options(cfg, problem) -> dict:
     """The validated options; :class:`ConfigError` naming the first bad key."""

@@ -135,9 +135,7 @@ class SymbolicMethod(Method):
             solve_s += time.perf_counter() - t_solve     # PSD projection, nlopt and uncertainty
             stages = {name: stages.get(name, 0.0) + t for name, t in fit["stages_s"].items()}
         estimate = fit["estimate"]
-        filled = np.nan_to_num(estimate)           # unobservable weights: their monomials are all 0
-        mu = np.stack([basis.evaluate(filled[:, c]) for c in range(problem.n_channels)])
-        recon = {cam.name: result.image(cam.name, mu, (cam.height, cam.width)) for cam in problem.cameras}
+        recon = _images(result, basis, np.nan_to_num(estimate), problem.cameras)   # unobservable: monomials 0
         sol = fit["solve"]
         extras = {"n_monomials": basis.size, "solver_evaluations": sol.n_evals if sol else 0,
                   "solver_evaluations_from_guess": sol.guess_evals if sol else 0,
@@ -155,6 +153,17 @@ class SymbolicMethod(Method):
             timings_s=timings, std=fit["std"], observable=fit["observable"],
             cost_history=list(sol.cost_history) if sol else [],
             cost_times_s=list(sol.eval_times_s) if sol else [], extras=extras)
+
+    def render_at(self, problem, rho: np.ndarray, *, seed: int = 0) -> dict[str, np.ndarray]:
+        """One polynomial pass at the initial guess, evaluated at ρ (restricted to this method's
+        kernels): the images the solve compares with the observations."""
+        params = self.parameters(problem)
+        index = {(p.segment, p.kernel): p.index for p in problem.parameters}
+        sub = dataclasses.replace(problem, parameters=params)
+        x0, _ = initial_guess(self.cfg, sub, prior=_lambertian_prior)
+        basis = MonomialBasis(len(params), problem.settings.max_bounces)
+        result = self._pass(sub, params, x0, basis, seed=seed)
+        return _images(result, basis, rho[[index[(p.segment, p.kernel)] for p in params]], problem.cameras)
 
     def _pass(self, problem, params, x0, basis, *, seed: int):
         """The polynomial pass of every view with guesses ``x0`` (one render)."""
@@ -218,3 +227,9 @@ def _lambertian_prior(problem) -> MethodResult:
     """``method.init=lambertian_prior``: the symbolic inversion of the diffuse weights with the
     ``lambertian_prior`` method's shipped options (that method is this class with diffuse kernels)."""
     return SymbolicMethod(method_defaults("lambertian_prior")).run(problem)
+
+
+def _images(result, basis: MonomialBasis, rho: np.ndarray, cameras) -> dict[str, np.ndarray]:
+    """Every view's polynomial evaluated at ρ (P, C): (H, W, C) images."""
+    mu = np.stack([basis.evaluate(rho[:, c]) for c in range(rho.shape[1])])
+    return {cam.name: result.image(cam.name, mu, (cam.height, cam.width)) for cam in cameras}
