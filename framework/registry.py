@@ -56,6 +56,9 @@ class MethodResult:
     observable: np.ndarray | None = None       # (P,) bool, where known
     extras: dict[str, Any] = field(default_factory=dict)        # method-specific, JSON-able
     parameters: list[Parameter] | None = None  # the unknowns estimated; None: problem.parameters
+    #: one entry per iterate: {"time_s": since the method started, "renders": spent so far,
+    #: "estimate": (P, C) nested lists in ``parameters`` order, None where unobservable}
+    trace: list[dict] = field(default_factory=list)
 
 
 class Method(ABC):

@@ -88,6 +88,7 @@ def results_dict(problem: Problem, result: MethodResult, *, method: str, setting
         "renders": int(result.renders),
         "cost_history": [float(c) for c in result.cost_history],
         "cost_times_s": [float(t) for t in result.cost_times_s],
+        "trace": result.trace,
         "image_rmse": image_rmse(problem, result),
         "settings": settings,
         "segments": [s.name for s in problem.scene.segments],

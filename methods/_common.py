@@ -179,6 +179,30 @@ def render_pass(ms, *, spp: int, seeds: list[int], ledger: RenderLedger) -> list
     return images
 
 
+class Trace:
+    """The iterates of a method, for error-against-time curves (results.json ``trace``).
+
+    ``record(renders, estimate)`` at each iterate (the estimate the method would return if it
+    stopped there); :meth:`entries` thins to at most ``at_most`` entries, evenly in order,
+    always keeping the first and the last.
+    """
+
+    def __init__(self, started: float):
+        self.started = started
+        self._items: list[tuple[float, int, np.ndarray]] = []
+
+    def record(self, renders: int, estimate: np.ndarray, *, at: float | None = None) -> None:
+        now = time.perf_counter() if at is None else at
+        self._items.append((now - self.started, int(renders), np.array(estimate, dtype=float)))
+
+    def entries(self, at_most: int = 500) -> list[dict]:
+        n = len(self._items)
+        keep = range(n) if n <= at_most else np.unique(np.linspace(0, n - 1, at_most).round().astype(int))
+        return [{"time_s": self._items[i][0], "renders": self._items[i][1],
+                 "estimate": [[None if not np.isfinite(v) else float(v) for v in row]
+                              for row in self._items[i][2]]} for i in keep]
+
+
 def with_seed(problem, seed: int):
     """``problem`` with the run seed ``seed`` (its renders then use other Mitsuba seeds)."""
     return dataclasses.replace(problem, settings=dataclasses.replace(problem.settings, seed=int(seed)))
@@ -191,13 +215,13 @@ def max_depth(problem) -> int:
 
 
 def loop_result(problem, ledger: RenderLedger, *, started: float, rho: np.ndarray, costs: list[float],
-                times: list[float], reconstructions: list[np.ndarray], extras: dict):
+                times: list[float], reconstructions: list[np.ndarray], extras: dict, trace: Trace):
     """The :class:`~framework.registry.MethodResult` of a render-in-the-loop method: Mitsuba time
     is ``render``, the rest of the wall time since ``started`` is ``solve``."""
     total = time.perf_counter() - started
     return MethodResult(
         estimate=rho, renders=ledger.used,
         timings_s={"render": ledger.render_s, "solve": total - ledger.render_s},
-        cost_history=costs, cost_times_s=times,
+        cost_history=costs, cost_times_s=times, trace=trace.entries(),
         reconstructions={c.name: img for c, img in zip(problem.cameras, reconstructions)},
         extras=extras)

@@ -12,7 +12,7 @@ import sys
 from functools import partial
 from pathlib import Path
 
-from scenes import BUNDLED_DIR, cornell_box, furnace, plane_sky, urban_canyon
+from scenes import BUNDLED_DIR, cornell_box, furnace, plane_sky, street_block, urban_canyon
 from scenes.preview import write_preview
 
 BUILDERS = {
@@ -21,6 +21,7 @@ BUILDERS = {
     "cornell_box": cornell_box.build,
     "plane_sky": plane_sky.build,
     "furnace": furnace.build,
+    "street_block": partial(street_block.build, buildings=2, seed=0),
 }
 
 

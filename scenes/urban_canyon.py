@@ -34,6 +34,7 @@ UPPER = (0.7, 0.6, 2.4)                           # half width, sill and lintel 
 SUN_ELEVATION, SUN_AZIMUTH, TURBIDITY = 45.0, 245.0, 3.0
 SKY_SIZE = (64, 128)
 IMAGE, FOV = 200, 65.0
+SIDES = ((1, "north"), (-1, "south"))             # (side, tag) of the two buildings
 
 REFERENCES = {  # name: (rgb diffuse, rgb specular, Table 2 diffuse, Table 2 specular)
     "roof": ([0.24, 0.19, 0.17], 0.0, 0.2, 0.0),
@@ -139,17 +140,32 @@ def ground() -> g.Mesh:
     return g.quad([-60.0, -40.0, 0.0], [120.0, 0, 0], [0, 80.0, 0])
 
 
+def side_meshes(side: int) -> dict[str, g.Mesh]:
+    """The building behind facade ``side`` (+1 north, -1 south) by element.
+
+    Parameters
+    ----------
+    side : int
+        +1 for the north building (facade at y = +5), -1 for the south one.
+
+    Returns
+    -------
+    dict of str to Mesh
+        ``wall`` (facade with openings, recess sides, end and back walls), ``roof``,
+        ``window`` (the glass), ``balcony`` and ``awning``, in that order.
+    """
+    walls, roof = building_shell(side)
+    sides, glass = recesses(side)
+    return {"wall": g.merge([facade_wall(side), sides, walls]), "roof": roof, "window": glass,
+            "balcony": balconies(side), "awning": awnings(side)}
+
+
 def meshes() -> dict[str, list[tuple[str, g.Mesh]]]:
     """Segment name -> [(mesh file stem, mesh)], one file per building and part."""
     out: dict[str, list] = {k: [] for k in REFERENCES}
-    for side, tag in ((1, "north"), (-1, "south")):
-        walls, roof = building_shell(side)
-        sides, glass = recesses(side)
-        out["wall"].append((f"wall_{tag}", g.merge([facade_wall(side), sides, walls])))
-        out["roof"].append((f"roof_{tag}", roof))
-        out["window"].append((f"window_{tag}", glass))
-        out["balcony"].append((f"balcony_{tag}", balconies(side)))
-        out["awning"].append((f"awning_{tag}", awnings(side)))
+    for side, tag in SIDES:
+        for element, mesh in side_meshes(side).items():
+            out[element].append((f"{element}_{tag}", mesh))
     out["asphalt"].append(("asphalt", ground()))
     return out
 
@@ -203,18 +219,54 @@ def build(folder: Path, channels: str = "rgb", *, n_street: int = 8, image: int 
     :func:`cameras`; the benchmark's 16-view scenes); the defaults write the bundled scene.
     """
     folder = Path(folder)
-    files = {seg: [str(write_mesh(folder / "meshes" / f"{stem}.ply", *m).relative_to(folder))
-                   for stem, m in parts] for seg, parts in meshes().items()}
+    files = {seg: write_mesh_files(folder, parts) for seg, parts in meshes().items()}
+    emitters = write_lighting(folder, channels)
+    write_colmap(folder / "sparse", cameras(n_street, image), landmarks())
+    scene = {"name": folder.name, "channels": channels, "segments": segments(channels, files),
+             "emitters": emitters}
+    write_scene_yaml(folder / "scene.yaml", scene, _comment(channels))
+    return folder
+
+
+def write_mesh_files(folder: Path, parts: list[tuple[str, g.Mesh]]) -> list[str]:
+    """Write ``meshes/<stem>.ply`` for each (stem, mesh) of ``parts``.
+
+    Parameters
+    ----------
+    folder : Path
+        The scene folder.
+    parts : list of (str, Mesh)
+        File stems and meshes.
+
+    Returns
+    -------
+    list of str
+        The PLY paths relative to ``folder``, as ``scene.yaml`` lists them.
+    """
+    return [str(write_mesh(folder / "meshes" / f"{stem}.ply", *m).relative_to(folder)) for stem, m in parts]
+
+
+def write_lighting(folder: Path, channels: str) -> list[dict]:
+    """Bake the sky into ``folder/sky.exr``; the street's emitters (sky and sun) for ``scene.yaml``.
+
+    Parameters
+    ----------
+    folder : Path
+        The scene folder.
+    channels : str
+        ``rgb`` or ``mono`` (the 550 nm band).
+
+    Returns
+    -------
+    list of dict
+        An ``envmap`` emitter naming ``sky.exr`` and the ``directional`` sun.
+    """
     sun = sun_vector(SUN_ELEVATION, SUN_AZIMUTH)
     write_exr(folder / "sky.exr", bake_sky(sun, *SKY_SIZE, channels, TURBIDITY), ("R", "G", "B") if channels == "rgb" else ("Y",))
     e_sun = sun_irradiance(sun, channels, TURBIDITY)
-    write_colmap(folder / "sparse", cameras(n_street, image), landmarks())
-    scene = {"name": folder.name, "channels": channels, "segments": segments(channels, files),
-             "emitters": [{"type": "envmap", "file": "sky.exr", "scale": 1.0},
-                          {"type": "directional", "direction": (-sun).tolist(),
-                           "irradiance": e_sun.tolist() if channels == "rgb" else float(e_sun[0])}]}
-    write_scene_yaml(folder / "scene.yaml", scene, _comment(channels))
-    return folder
+    return [{"type": "envmap", "file": "sky.exr", "scale": 1.0},
+            {"type": "directional", "direction": (-sun).tolist(),
+             "irradiance": e_sun.tolist() if channels == "rgb" else float(e_sun[0])}]
 
 
 def _comment(channels: str) -> str:

@@ -18,7 +18,7 @@ from scenes import furnace, plane_sky, urban_canyon
 from framework.images import read_exr, write_exr
 from framework.scene import load_scene
 
-NAMES = ["urban_canyon", "urban_canyon_mono", "cornell_box", "plane_sky", "furnace"]
+NAMES = ["urban_canyon", "urban_canyon_mono", "cornell_box", "plane_sky", "furnace", "street_block"]
 CONF = Path(__file__).resolve().parents[1] / "framework" / "conf" / "scene"
 
 
@@ -204,7 +204,9 @@ def test_sun_matches_sky():
 
 
 def test_urban_canyon_lit_and_shadowed_facades():
-    """North facade (lit by the sun) is brighter than the south one (in shadow)."""
+    """North facade (lit by the sun) is brighter than the south one (in shadow): wall-pixel mean
+    ratio > 1.5. Measured over render seeds 1-6 (48 px, 8 spp): 1.86-1.93 (seed 1: 1.86), image
+    means 0.061-0.063 and 0.035, inside the asserted (0.01, 1.0)."""
     from scenes.cameras import resized
     from scenes.preview import render, segment_ids
 
@@ -241,7 +243,12 @@ def test_furnace_closed_form(bounces):
 
 
 def test_cornell_box_matches_mitsuba_original():
-    """Our converted folder renders like Mitsuba's own ``cornell_box()`` dict (64 px, box filter)."""
+    """Our converted folder renders like Mitsuba's own ``cornell_box()`` dict (64 px, box filter).
+
+    Measured over 6 seed pairs (ours 5, 15, ..., 55; theirs 7, 17, ..., 57; the test uses 5, 7):
+    channel means differ by 0.3-1.7 % (seeds 5, 7: 0.8 %), tolerance rtol 0.03 = 1.8x the worst;
+    mean |8x8 block difference| / image mean 0.011-0.021 (seeds 5, 7: 0.013), tolerance 0.04 =
+    1.9x the worst."""
     from scenes.preview import load, render
 
     ours = render(BUNDLED_DIR / "cornell_box", 0, spp=64, seed=5, max_depth=8)
@@ -255,7 +262,7 @@ def test_cornell_box_matches_mitsuba_original():
     np.testing.assert_allclose(ours.mean((0, 1)), theirs.mean((0, 1)), rtol=0.03)
     # coarse spatial agreement: 8x8 block means
     block = lambda x: x.reshape(8, 8, 8, 8, 3).mean((1, 3))
-    assert np.abs(block(ours) - block(theirs)).mean() < 0.05 * theirs.mean()
+    assert np.abs(block(ours) - block(theirs)).mean() < 0.04 * theirs.mean()
 
 
 @pytest.mark.parametrize("name", NAMES)

@@ -1,4 +1,5 @@
-"""Scene folders: the model (:mod:`.model`), the reader (:mod:`.load`), the writer that scene
+"""Scene folders: the model (:mod:`.model`), the reader (:mod:`.load`) with the schema of
+scene.yaml (:mod:`.schema`) and the COLMAP reader (:mod:`.colmap`), the writer that scene
 builders use (:mod:`.write`), and checked image input (:mod:`.exr`).
 
 The format is documented in ``docs/scene-format.md``.

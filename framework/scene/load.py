@@ -1,32 +1,35 @@
 """The scene loader (``docs/scene-format.md``).
 
-:func:`load_scene` reads a scene folder — ``scene.yaml``, Open3D meshes, a COLMAP model
-(pycolmap), EXR images and environment maps — checks everything a user can get wrong, and
-returns an immutable :class:`~framework.scene.model.Scene`. Every problem raises
-:class:`~framework.errors.SceneError` with one line naming the file and the fix; nothing in the
-folder is ever written.
+:func:`load_scene` reads a scene folder and returns an immutable
+:class:`~framework.scene.model.Scene`. It checks ``scene.yaml`` completely first
+(:mod:`framework.scene.schema`), before it opens anything heavy; then it reads the Open3D
+meshes, the environment maps, the COLMAP model (:mod:`framework.scene.colmap`) and the observed
+EXR images. Every problem raises :class:`~framework.errors.SceneError` with one line naming the
+file and the fix; nothing in the folder is ever written.
 """
 from __future__ import annotations
 
 import hashlib
 import os
-from pathlib import Path
+import sys
+import tempfile
+import threading
+from contextlib import contextmanager
+from pathlib import Path, PurePosixPath
+from typing import Iterator
 
 import numpy as np
-import yaml
 
-from framework import kernels as kernel_registry
 from framework.errors import SceneError
+from framework.scene.colmap import read_model
 from framework.scene.exr import read_exr_checked
-from framework.scene.model import CHANNELS, Camera, Emitter, Mesh, Scene, Segment
+from framework.scene.model import Emitter, Mesh, Scene
+from framework.scene.schema import EmitterSpec, SceneSpec, one_line, read_scene_yaml
 
-EMITTER_TYPES = ("envmap", "constant", "directional", "area")
-PINHOLE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE")
+# One redirection of the process's stderr at a time: two threads interleaving their dup2 calls
+# would leave stderr pointing at a deleted temporary file.
+_STDERR_LOCK = threading.Lock()
 
-
-# ----------------------------------------------------------------------------------------------
-# Loading
-# ----------------------------------------------------------------------------------------------
 
 def load_scene(directory: str | os.PathLike) -> Scene:
     """Load and check a scene folder (``docs/scene-format.md``).
@@ -34,7 +37,8 @@ def load_scene(directory: str | os.PathLike) -> Scene:
     Parameters
     ----------
     directory : path-like
-        Folder holding ``scene.yaml``, ``meshes/``, ``sparse/`` and optionally ``images/``.
+        Folder holding ``scene.yaml``, ``sparse/`` and optionally ``images/``; the meshes may
+        lie anywhere ``scene.yaml`` points to.
 
     Returns
     -------
@@ -46,133 +50,55 @@ def load_scene(directory: str | os.PathLike) -> Scene:
         With one line naming the offending file and the fix.
     """
     root = Path(directory).expanduser().resolve()
-    desc = _read_yaml(root)
-    channels = _channels(desc, root)
-    segments = tuple(_segment(s, i, root, channels) for i, s in enumerate(_list(desc, "segments", root)))
-    if not segments:
-        raise SceneError(f"{root / 'scene.yaml'}: 'segments' is empty; list at least one segment")
-    emitters, area = _emitters(desc, root, channels)
-    meshes = _meshes(root, segments, area)
-    cameras = _cameras(root)
-    images = _images(root, cameras, channels)
+    spec = read_scene_yaml(root)
+    meshes = tuple(Mesh(path, *_read_mesh(root / path), segment=s, radiance=radiance)
+                   for path, s, radiance in _mesh_table(root, spec))
+    _check_surfaces(spec, meshes)
+    emitters = tuple(_emitter(root, e, spec.channels) for e in spec.emitters)
+    model = read_model(root)
+    images = _images(root, model.cameras, spec.channels)
     if images is None and not all(s.reference is not None and set(s.reference) == set(s.kernels)
-                                  for s in segments):
+                                  for s in spec.segments):
         raise SceneError(f"{root}: no images/ folder and not every segment has a reference for each "
                          "kernel; add images/<view>.exr or references to scene.yaml")
-    return Scene(name=str(desc.get("name") or root.name), root=root, channels=channels,
-                 segments=segments, meshes=meshes, emitters=emitters, cameras=cameras,
-                 images=images, content_hash=_content_hash(root))
+    inputs = _inputs(root, spec, meshes, model.files, model.cameras if images is not None else ())
+    return Scene(name=spec.name or root.name, root=root, channels=spec.channels,
+                 segments=spec.segments, meshes=meshes, emitters=emitters, cameras=model.cameras,
+                 images=images, content_hash=_content_hash(inputs), pose_source=model.pose_source)
 
 
-def _read_yaml(root: Path) -> dict:
-    path = root / "scene.yaml"
-    if not root.is_dir():
-        raise SceneError(f"{root}: scene directory does not exist; pass scene.dir=<folder with scene.yaml>")
-    if not path.is_file():
-        raise SceneError(f"{path}: missing; a scene folder needs scene.yaml (docs/scene-format.md)")
-    try:
-        desc = yaml.safe_load(path.read_text())
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        line = getattr(getattr(exc, "problem_mark", None), "line", None)
-        where = f" line {line + 1}" if line is not None else ""
-        raise SceneError(f"{path}:{where} is not valid YAML; fix the syntax") from None
-    if not isinstance(desc, dict):
-        raise SceneError(f"{path}: must be a mapping with keys name, channels, segments, emitters")
-    return desc
+# ----------------------------------------------------------------------------------------------
+# Meshes and emitters
+# ----------------------------------------------------------------------------------------------
 
-
-def _list(desc: dict, key: str, root: Path) -> list:
-    value = desc.get(key)
-    if not isinstance(value, list):
-        raise SceneError(f"{root / 'scene.yaml'}: '{key}' must be a list")
-    return value
-
-
-def _channels(desc: dict, root: Path) -> tuple[str, ...]:
-    name = desc.get("channels", "rgb")
-    if name not in CHANNELS:
-        raise SceneError(f"{root / 'scene.yaml'}: channels '{name}' unknown; use rgb or mono")
-    return CHANNELS[name]
-
-
-def _values(value, channels, *, what: str, root: Path, unit: bool = False) -> np.ndarray:
-    """One number or one per channel, as a (C,) array; ``unit`` demands [0, 1]."""
-    where = f"{root / 'scene.yaml'}: {what}"
-    try:
-        v = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise SceneError(f"{where} must be a number or a list of {len(channels)} numbers") from None
-    if v.ndim == 0:
-        v = np.full(len(channels), float(v))
-    if v.shape != (len(channels),):
-        raise SceneError(f"{where} has {v.size} values; give one number or {len(channels)} "
-                         f"(one per channel {','.join(channels)})")
-    if not np.all(np.isfinite(v)) or (unit and (v.min() < 0 or v.max() > 1)):
-        raise SceneError(f"{where} = {v.tolist()} is outside [0, 1]; reflectances lie in [0, 1]"
-                         if unit else f"{where} must be finite")
-    return v
-
-
-def _segment(s, i: int, root: Path, channels) -> Segment:
-    where = f"{root / 'scene.yaml'}: segment {i}"
-    if not isinstance(s, dict) or not s.get("name"):
-        raise SceneError(f"{where} needs a name")
-    name = str(s["name"])
-    meshes = s.get("meshes") or []
-    if not meshes:
-        raise SceneError(f"{root / 'scene.yaml'}: segment '{name}' has no meshes; list its PLY files")
-    ks = s.get("kernels") or ["diffuse"]
-    for k in ks:
-        kernel_registry.get(k)
-    if len(set(ks)) != len(ks):
-        raise SceneError(f"{root / 'scene.yaml'}: segment '{name}' lists a kernel twice: {ks}")
-    ref = s.get("reference")
-    if ref is not None:
-        if not isinstance(ref, dict) or not set(ref) <= set(ks):
-            raise SceneError(f"{root / 'scene.yaml'}: segment '{name}' reference must map its kernels "
-                             f"{ks} to values")
-        ref = {k: _values(v, channels, what=f"segment '{name}' reference {k}", root=root, unit=True)
-               for k, v in ref.items()}
-    return Segment(name, tuple(str(m) for m in meshes), tuple(ks), ref)
-
-
-def _emitters(desc: dict, root: Path, channels):
-    emitters, area = [], {}
-    for i, e in enumerate(desc.get("emitters") or []):
-        t = e.get("type") if isinstance(e, dict) else None
-        if t not in EMITTER_TYPES:
-            raise SceneError(f"{root / 'scene.yaml'}: emitter {i} type '{t}' unknown; use one of "
-                             f"{', '.join(EMITTER_TYPES)}")
-        val = lambda key: _values(e.get(key), channels, what=f"emitter {i} ({t}) {key}", root=root)
-        if t == "constant":
-            emitters.append(Emitter(t, radiance=val("radiance")))
-        elif t == "directional":
-            d = np.asarray(e.get("direction"), dtype=float)
-            if d.shape != (3,) or not np.isfinite(d).all() or np.linalg.norm(d) == 0:
-                raise SceneError(f"{root / 'scene.yaml'}: emitter {i} direction must be 3 finite numbers")
-            emitters.append(Emitter(t, direction=d / np.linalg.norm(d), irradiance=val("irradiance")))
-        elif t == "envmap":
-            image = read_exr_checked(root / str(e.get("file")), channels=channels)
-            emitters.append(Emitter(t, image=image, scale=float(e.get("scale", 1.0)), file=str(e.get("file"))))
-        else:
-            for m in e.get("meshes") or []:
-                area[str(m)] = val("radiance")
-            emitters.append(Emitter(t, radiance=val("radiance")))
-    if not emitters:
-        raise SceneError(f"{root / 'scene.yaml'}: no emitters; the illumination must be known")
-    return tuple(emitters), area
-
-
-def _meshes(root: Path, segments, area: dict) -> tuple[Mesh, ...]:
-    owner: dict[str, int] = {}
-    for s, seg in enumerate(segments):
+def _mesh_table(root: Path, spec: SceneSpec) -> list[tuple[str, int | None, np.ndarray | None]]:
+    """(path as written, segment index or None, area radiance or None) of every mesh, segments'
+    meshes first. Meshes are told apart by the file they resolve to, so ``./meshes/a.ply`` and
+    ``meshes/a.ply`` are one mesh."""
+    owner: dict[Path, tuple[str, int | None]] = {}
+    for s, seg in enumerate(spec.segments):
         for m in seg.meshes:
-            if m in owner:
-                raise SceneError(f"{root / 'scene.yaml'}: mesh {m} is in segments "
-                                 f"'{segments[owner[m]].name}' and '{seg.name}'; a mesh belongs to one")
-            owner[m] = s
-    paths = list(owner) + [m for m in area if m not in owner]
-    return tuple(Mesh(m, *_read_mesh(root / m), segment=owner.get(m), radiance=area.get(m)) for m in paths)
+            file = (root / m).resolve()
+            if file in owner:
+                raise SceneError(_shared_mesh(spec, m, seg.name, *owner[file]))
+            owner[file] = (m, s)
+    radiance: dict[Path, np.ndarray] = {}
+    for e in spec.emitters:
+        for m in e.meshes:
+            file = (root / m).resolve()
+            if file in radiance:
+                raise SceneError(f"{spec.path}: mesh {m} is listed twice by area emitters; list it once")
+            radiance[file] = e.radiance
+            owner.setdefault(file, (m, None))
+    return [(m, s, radiance.get(file)) for file, (m, s) in owner.items()]
+
+
+def _shared_mesh(spec: SceneSpec, m: str, segment: str, first: str, s: int) -> str:
+    """The message for a mesh file listed by two segments (or twice by one)."""
+    other = spec.segments[s].name
+    where = f"twice in segment '{segment}'" if other == segment else f"in segments '{other}' and '{segment}'"
+    alias = "" if first == m else f" (as {first} and {m}: the same file)"
+    return f"{spec.path}: mesh {first} is {where}{alias}; a mesh belongs to one segment: split it in two files"
 
 
 def _read_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -180,11 +106,16 @@ def _read_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
         raise SceneError(f"{path}: mesh file missing; fix the path in scene.yaml")
     import open3d as o3d
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
-    mesh = o3d.io.read_triangle_mesh(str(path))
+    with _c_stderr_captured() as printed:
+        mesh = o3d.io.read_triangle_mesh(str(path))
     v = np.asarray(mesh.vertices, dtype=float)
     f = np.asarray(mesh.triangles, dtype=np.int64)
+    complaint = one_line(printed[0])            # RPly's own error, if any
     if len(f) == 0:
-        raise SceneError(f"{path}: no triangles (unreadable or empty PLY); export a triangle mesh")
+        why = f": {complaint}" if complaint else ""
+        raise SceneError(f"{path}: no triangles (unreadable or empty PLY{why}); export a triangle mesh")
+    if complaint:
+        raise SceneError(f"{path}: corrupt or truncated PLY ({complaint}); re-export the mesh")
     if not np.isfinite(v).all():
         raise SceneError(f"{path}: vertices with NaN/Inf coordinates; clean the mesh")
     if f.min() < 0 or f.max() >= len(v):
@@ -192,51 +123,91 @@ def _read_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return v, f.astype(np.int32)
 
 
-def _cameras(root: Path) -> tuple[Camera, ...]:
-    sparse = root / "sparse"
-    if not any((sparse / f).is_file() for f in ("cameras.txt", "cameras.bin")):
-        raise SceneError(f"{sparse}: missing COLMAP model; add cameras/images/points3D (.txt or .bin)")
-    import pycolmap
-    try:
-        rec = pycolmap.Reconstruction(str(sparse))
-    except Exception as exc:  # pycolmap raises plain RuntimeError/ValueError with long text
-        raise SceneError(f"{sparse}: unreadable COLMAP model ({str(exc).splitlines()[0][:120]}); "
-                         "re-export it with COLMAP") from None
-    cams = []
-    for image in rec.images.values():
-        c = rec.cameras[image.camera_id]
-        model = c.model.name
-        if model not in PINHOLE_MODELS:
-            raise SceneError(f"{sparse}: camera {image.camera_id} of image {image.name} is {model}; "
-                             "undistort the images to a PINHOLE camera (colmap image_undistorter)")
-        fx, fy = c.focal_length_x, c.focal_length_y
-        if abs(fx - fy) > 1e-6 * fx:
-            raise SceneError(f"{sparse}: camera {image.camera_id} of image {image.name} has fx={fx} != "
-                             f"fy={fy}; resample the images to square pixels")
-        T = np.asarray(image.cam_from_world().matrix(), dtype=float)
-        cams.append(Camera(image.name, int(c.width), int(c.height), float(fx),
-                           float(c.principal_point_x), float(c.principal_point_y), T))
-    if not cams:
-        raise SceneError(f"{sparse}: the COLMAP model has no images; register at least one")
-    return tuple(sorted(cams, key=lambda c: c.name))
+@contextmanager
+def _c_stderr_captured() -> Iterator[list[str]]:
+    """Redirect the process's stderr (file descriptor 2) to a temporary file; on exit the list
+    yielded holds what was printed there.
 
+    Open3D's PLY reader (RPly) prints its errors straight to the C stderr; the user must see
+    only our one line, and the text still serves in that line.
+    """
+    printed: list[str] = []
+    sys.stderr.flush()
+    with _STDERR_LOCK, tempfile.TemporaryFile() as sink:
+        saved = os.dup(2)
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield printed
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            sink.seek(0)
+            printed.append(sink.read().decode(errors="replace"))
+
+
+def _check_surfaces(spec: SceneSpec, meshes: tuple[Mesh, ...]) -> None:
+    """A segment whose triangles all have zero area has no surface: nothing to estimate."""
+    for s, seg in enumerate(spec.segments):
+        own = [m for m in meshes if m.segment == s]
+        if sum(m.area for m in own) == 0:
+            raise SceneError(f"{spec.path}: segment '{seg.name}': all {sum(len(m.faces) for m in own)} "
+                             f"triangles of {', '.join(m.path for m in own)} have zero area; fix the mesh")
+
+
+def _emitter(root: Path, e: EmitterSpec, channels: tuple[str, ...]) -> Emitter:
+    if e.type == "envmap":
+        image = read_exr_checked(root / e.file, channels=channels)
+        return Emitter(e.type, image=image, scale=e.scale, file=e.file)
+    return Emitter(e.type, radiance=e.radiance, direction=e.direction, irradiance=e.irradiance)
+
+
+# ----------------------------------------------------------------------------------------------
+# Observed images and the content hash
+# ----------------------------------------------------------------------------------------------
 
 def image_file(root: Path, camera_name: str) -> Path:
-    """``images/street_003.exr`` for the COLMAP image ``street_003.png``."""
-    return root / "images" / (Path(camera_name).stem + ".exr")
+    """The observed EXR of a COLMAP image: its name with the extension replaced by ``.exr``,
+    under ``images/`` (``street_003.png`` -> ``images/street_003.exr``,
+    ``left/top_000.png`` -> ``images/left/top_000.exr``)."""
+    return root / "images" / PurePosixPath(camera_name).with_suffix(".exr")
 
 
 def _images(root: Path, cameras, channels) -> dict[str, np.ndarray] | None:
     if not (root / "images").is_dir():
         return None
+    owner: dict[Path, str] = {}
+    for c in cameras:
+        path = image_file(root, c.name)
+        if path in owner:
+            raise SceneError(f"{path}: the images {owner[path]} and {c.name} would both read it; rename "
+                             "one in the COLMAP model so their names differ beyond the extension")
+        owner[path] = c.name
     return {c.name: read_exr_checked(image_file(root, c.name), channels=channels,
                                      size=(c.height, c.width)) for c in cameras}
 
 
-def _content_hash(root: Path) -> str:
-    """SHA-256 over every file of the scene (names and bytes): the key of every cache entry."""
+def _inputs(root: Path, spec: SceneSpec, meshes, model_files: dict[str, Path], cameras) -> dict[str, Path]:
+    """Every file the loader read, by its name in the scene (as scene.yaml writes it, or relative
+    to the folder): the scene description, meshes, environment maps, COLMAP files and, when
+    ``cameras`` is not empty, their observed images."""
+    inputs = {"scene.yaml": spec.path}
+    inputs.update({m.path: root / m.path for m in meshes})
+    inputs.update({e.file: root / e.file for e in spec.emitters if e.type == "envmap"})
+    inputs.update({path.relative_to(root).as_posix(): path for path in model_files.values()})
+    inputs.update({image_file(root, c.name).relative_to(root).as_posix(): image_file(root, c.name)
+                   for c in cameras})
+    return inputs
+
+
+def _content_hash(inputs: dict[str, Path]) -> str:
+    """SHA-256 over the files read (names and bytes): the key of every cache entry.
+
+    A file outside the folder (``../x.ply``, an absolute path, a symlinked folder) counts by the
+    bytes of the file it resolves to, so editing it renders the observations again; where the
+    folder lies does not count, and files the loader does not read (``preview.png``) neither.
+    """
     h = hashlib.sha256()
-    for p in sorted(q for q in root.rglob("*") if q.is_file() and q.name != "preview.png"):
-        h.update(str(p.relative_to(root)).encode())
-        h.update(hashlib.sha256(p.read_bytes()).digest())
+    for name in sorted(inputs):
+        h.update(name.encode() + b"\0")
+        h.update(hashlib.sha256(inputs[name].read_bytes()).digest())
     return h.hexdigest()[:16]

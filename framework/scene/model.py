@@ -37,7 +37,7 @@ class Segment:
 class Mesh:
     """A triangle mesh; ``segment`` is None for a mesh that only emits."""
 
-    path: str                      # relative to the scene directory
+    path: str                      # as scene.yaml writes it: relative to the scene directory, or absolute
     vertices: np.ndarray           # (V, 3) float64, metres, +z up
     faces: np.ndarray              # (F, 3) int32
     segment: int | None
@@ -92,7 +92,11 @@ class Scene:
     emitters: tuple[Emitter, ...]
     cameras: tuple[Camera, ...]               # sorted by name
     images: dict[str, np.ndarray] | None      # camera name -> (H, W, C); None: synthesise
-    content_hash: str = field(default="", compare=False)
+    content_hash: str = field(default="", compare=False)   # of every file read (load._content_hash)
+    #: the COLMAP file the camera poses came from, relative to ``root``: ``sparse/frames.txt``
+    #: when the model has rigs and frames (pycolmap then ignores the poses of images.txt),
+    #: ``sparse/images.txt`` otherwise (or their ``.bin`` twins)
+    pose_source: str = field(default="", compare=False)
 
     def parameters(self, *, kernels: tuple[str, ...] | None = None):
         """The unknowns (segment, kernel) in segment order; ``kernels`` restricts the kernel set."""

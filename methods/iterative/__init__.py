@@ -79,7 +79,8 @@ class IterativeMethod(Method):
         t0 = time.perf_counter()
         rho0, spent = C.initial_guess(self.cfg, problem, prior=lambertian_prior)
         ledger = C.RenderLedger(problem.settings.budget_renders, desc="iterative", spent=spent)
-        objective = _Objective(problem, ledger, opts)
+        objective = _Objective(problem, ledger, opts, trace=C.Trace(t0))
+        objective.trace.record(ledger.used, rho0)
         try:
             best_x, status = _optimise(objective, rho0, problem, opts)
             rho = best_x.reshape(rho0.shape)
@@ -87,7 +88,7 @@ class IterativeMethod(Method):
         finally:
             ledger.close()
         return C.loop_result(
-            problem, ledger, started=t0, rho=rho, costs=objective.costs, times=objective.times,
+            problem, ledger, started=t0, rho=rho, costs=objective.costs, times=objective.times, trace=objective.trace,
             reconstructions=recon,
             extras={"status": status, "evaluations": len(objective.costs),
                     "gradient_evaluations": objective.n_grad, "renders_per_gradient": objective.grad_renders,
@@ -132,7 +133,7 @@ def _optimise(objective: "_Objective", rho0: np.ndarray, problem: Problem, opts:
 class _Objective:
     """``(x, need_grad) -> (cost, gradient)`` by re-rendering; counts renders, records costs."""
 
-    def __init__(self, problem: Problem, ledger: C.RenderLedger, opts: dict):
+    def __init__(self, problem: Problem, ledger: C.RenderLedger, opts: dict, *, trace: C.Trace | None = None):
         self.problem, self.ledger, self.opts = problem, ledger, opts
         self.spp = problem.settings.spp
         self.ms = MitsubaScene(problem.scene, problem.cameras, spp=self.spp,
@@ -141,7 +142,9 @@ class _Objective:
         self.shape = (len(problem.parameters), problem.n_channels)
         self.grad_renders = len(problem.parameters) * (2 if opts["fd"] == "central" else 1)
         self.costs: list[float] = []
-        self.times: list[float] = []
+        self.times: list[float] = []     # seconds since the method started, at each evaluation
+        self.trace = trace or C.Trace(time.perf_counter())
+        self._best = (np.inf, None)      # nlopt returns the best point evaluated: so does the trace
         self.n_grad = 0
         self._counter = 0
 
@@ -152,12 +155,14 @@ class _Objective:
     def __call__(self, x: np.ndarray, need_grad: bool):
         if not self.affordable(need_grad=need_grad):
             raise StopOptimization
-        t0 = time.perf_counter()
         rho = np.asarray(x, dtype=float).reshape(self.shape)
         base = self.channel_costs(rho)
         grad = self.gradient(rho, base) if need_grad else None
         self.costs.append(float(base.sum()))
-        self.times.append(time.perf_counter() - t0)
+        self.times.append(time.perf_counter() - self.trace.started)
+        if self.costs[-1] < self._best[0]:
+            self._best = (self.costs[-1], rho.copy())
+        self.trace.record(self.ledger.used, self._best[1])
         return float(base.sum()), grad
 
     def channel_costs(self, rho: np.ndarray) -> np.ndarray:

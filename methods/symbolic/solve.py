@@ -45,6 +45,10 @@ class SolveResult:
         guess changes (the random starts do not depend on it).
     solve_s : float
         Wall time of the whole solve.
+    iterates : list of (float, numpy.ndarray)
+        At each evaluation: its ``time.perf_counter()`` and the ``(D, C)`` estimate the solve
+        would return if it stopped there (per channel the best point seen so far; channels not
+        yet solved at ``x0``).
     """
 
     estimate: np.ndarray
@@ -54,6 +58,7 @@ class SolveResult:
     n_evals: int = 0
     guess_evals: int = 0
     solve_s: float = 0.0
+    iterates: list = field(default_factory=list)
 
 
 class ChannelCost:
@@ -184,7 +189,8 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
     rng = np.random.default_rng(seed)
 
     t_start = time.perf_counter()
-    history, times = [], []
+    history, times, iterates = [], [], []
+    current = x0.copy()                       # the estimate if the solve stopped now
     estimate = np.empty((D, C))
     best_cost = np.empty(C)
     used = system.used_monomials()
@@ -195,10 +201,17 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
     for c in range(C):
         others = ref_cost.sum() - ref_cost[c]
 
+        best_f = np.inf
+
         def cost_grad(x, need_grad, c=c):
+            nonlocal best_f
             f, g = costs[c](x)
+            now = time.perf_counter()
             history.append(f + others)
-            times.append(time.perf_counter() - t_start)
+            times.append(now - t_start)
+            if f < best_f:
+                best_f, current[:, c] = f, np.clip(x, 0.0, 1.0)
+            iterates.append((now, current.copy()))
             return f, g
 
         best = None
@@ -219,4 +232,5 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
         ref_cost[c] = best.f
 
     return SolveResult(estimate=estimate, cost=best_cost, cost_history=history, eval_times_s=times,
-                       n_evals=n_evals, guess_evals=guess_evals, solve_s=time.perf_counter() - t_start)
+                       n_evals=n_evals, guess_evals=guess_evals, solve_s=time.perf_counter() - t_start,
+                       iterates=iterates)

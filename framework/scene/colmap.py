@@ -1,0 +1,286 @@
+"""The COLMAP model of a scene folder (``sparse/``, ``docs/scene-format.md``), read with pycolmap.
+
+pycolmap reports a broken text model with bare C++ failures (``unordered_map::at``, ``Rig with
+ID 7 does not exist``, ``Check failed: inserted``). :func:`read_model` therefore first parses the
+text files minimally (field counts, ids, names, frames) to name the file, the line and the fix
+itself, and reduces whatever pycolmap still raises to one line.
+
+Where the poses come from: pycolmap 4.2.1 (COLMAP >= 3.12) reads ``rigs.txt`` and
+``frames.txt`` when both exist and then takes each image's pose from its frame
+(``sensor_from_rig · rig_from_world``): the pose written in ``images.txt`` is parsed and
+dropped. Without those files every pose comes from ``images.txt``. The loader keeps pycolmap's
+choice, records the file (:attr:`ColmapModel.pose_source`, then ``Scene.pose_source``) and
+refuses a text model whose ``images.txt`` disagrees with its frames, since an edit of
+``images.txt`` alone would otherwise be ignored without a word.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+
+import numpy as np
+
+from framework.errors import SceneError
+from framework.scene.model import Camera
+from framework.scene.schema import one_line
+
+log = logging.getLogger(__name__)
+
+PINHOLE_PARAMS = {"SIMPLE_PINHOLE": ("f", "cx", "cy"), "PINHOLE": ("fx", "fy", "cx", "cy")}
+CORE = ("cameras", "images", "points3D")
+RIG = ("rigs", "frames")
+# Relative agreement of an images.txt pose with its frame: text models hold 17 digits, so
+# rounding stays far below it and any real edit far above.
+POSE_TOLERANCE = 1e-6
+IMAGE_LINE = "IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME"
+
+
+@dataclass(frozen=True)
+class ColmapModel:
+    """The views of a scene folder and where they were read from."""
+
+    cameras: tuple[Camera, ...]     # sorted by name
+    files: dict[str, Path]          # what pycolmap read: cameras, images, points3D[, rigs, frames]
+    pose_source: str                # the file the poses came from, relative to the scene folder
+
+
+@dataclass(frozen=True)
+class _ImageLine:
+    """The first line of an image in ``images.txt``."""
+
+    number: int                     # line number in the file
+    image_id: int
+    pose: np.ndarray                # QW QX QY QZ TX TY TZ
+    camera_id: int
+    name: str
+
+
+def read_model(root: Path) -> ColmapModel:
+    """Read and check the COLMAP model ``root/sparse``.
+
+    Parameters
+    ----------
+    root : Path
+        The scene folder.
+
+    Returns
+    -------
+    ColmapModel
+
+    Raises
+    ------
+    SceneError
+        One line naming the file (and line) and the fix.
+    """
+    sparse = root / "sparse"
+    files = _model_files(sparse)
+    lines = _check_text(files) if files["images"].suffix == ".txt" else None
+    rec = _reconstruction(sparse)
+    if lines is None:
+        _check_names([image.name for image in rec.images.values()], files["images"])
+    cameras = tuple(sorted((_camera(rec, image, files["cameras"]) for image in rec.images.values()),
+                           key=lambda c: c.name))
+    if not cameras:
+        raise SceneError(f"{files['images']}: the COLMAP model has no images; register at least one")
+    pose_file = files.get("frames", files["images"])
+    if lines is not None and "frames" in files:
+        _check_poses_agree(rec, lines, files)
+    source = pose_file.relative_to(root).as_posix()
+    log.info("%s: camera poses read from %s", root.name, source)
+    return ColmapModel(cameras, files, source)
+
+
+def _model_files(sparse: Path) -> dict[str, Path]:
+    """The files pycolmap reads, by kind: binary when cameras, images and points3D ``.bin`` all
+    exist, text otherwise; rigs and frames of the same format where present."""
+    for ext in (".bin", ".txt"):
+        files = {kind: sparse / f"{kind}{ext}" for kind in CORE + RIG}
+        if all(files[kind].is_file() for kind in CORE):
+            lone = [files[kind] for kind in RIG if files[kind].is_file()]
+            if len(lone) == 1:
+                other = next(files[kind].name for kind in RIG if files[kind] != lone[0])
+                raise SceneError(f"{lone[0]}: present without {other}; pycolmap reads the two together: "
+                                 f"add {other}, or delete {lone[0].name} to take every pose from images{ext}")
+            return {kind: path for kind, path in files.items() if path.is_file()}
+    found = sorted(p.name for p in sparse.glob("*.*") if p.stem in CORE + RIG) if sparse.is_dir() else []
+    raise SceneError(f"{sparse}: missing COLMAP model (found: {', '.join(found) or 'nothing'}); add cameras, "
+                     "images and points3D, all .txt or all .bin (an empty points3D.txt will do)")
+
+
+def _reconstruction(sparse: Path):
+    import pycolmap
+    try:
+        return pycolmap.Reconstruction(str(sparse))
+    except Exception as exc:  # pycolmap raises RuntimeError/ValueError/IndexError with C++ text
+        raise SceneError(f"{sparse}: unreadable COLMAP model ({one_line(exc)}); fix that file or "
+                         "re-export the model with COLMAP") from None
+
+
+def _camera(rec, image, cameras_file: Path) -> Camera:
+    """The pinhole :class:`Camera` of ``image``, checked."""
+    c = rec.cameras[image.camera_id]
+    what = f"{cameras_file}: camera {image.camera_id} (of image {image.name})"
+    if c.model.name not in PINHOLE_PARAMS:
+        raise SceneError(f"{what} is {c.model.name}; undistort the images to a PINHOLE camera "
+                         "(colmap image_undistorter)")
+    if c.width <= 0 or c.height <= 0:
+        raise SceneError(f"{what} is {c.width}x{c.height} pixels; give its WIDTH and HEIGHT (> 0)")
+    fx, fy = c.focal_length_x, c.focal_length_y
+    if not (np.isfinite([fx, fy]).all() and fx > 0 and fy > 0):
+        raise SceneError(f"{what} has focal length {fx:g}, {fy:g}; focal lengths are > 0 pixels "
+                         "(flip a mirrored image instead)")
+    if abs(fx - fy) > 1e-6 * fx:
+        raise SceneError(f"{what} has fx={fx} != fy={fy}; resample the images to square pixels")
+    T = np.asarray(image.cam_from_world().matrix(), dtype=float)
+    if not np.isfinite(T).all():
+        raise SceneError(f"{cameras_file.parent}: image {image.name} has a NaN/Inf pose; fix its pose")
+    return Camera(image.name, int(c.width), int(c.height), float(fx),
+                  float(c.principal_point_x), float(c.principal_point_y), T)
+
+
+def _check_names(names: list[str], images_file: Path) -> None:
+    """Image names are paths below ``images/`` (``left/top_000.png``), listed once each; an
+    absolute name or one with ``..`` would read outside the scene folder."""
+    seen = set()
+    for name in names:
+        parts = PurePosixPath(name.replace("\\", "/"))
+        if parts.is_absolute() or ".." in parts.parts:
+            raise SceneError(f"{images_file}: image name '{name}' leaves the scene folder (absolute or "
+                             "'..'); name images by paths inside images/, e.g. left/top_000.png")
+        if name in seen:
+            raise SceneError(f"{images_file}: image '{name}' is listed twice; list each image once")
+        seen.add(name)
+
+
+# ----------------------------------------------------------------------------------------------
+# The text model, checked before pycolmap reads it
+# ----------------------------------------------------------------------------------------------
+
+def _check_text(files: dict[str, Path]) -> dict[int, _ImageLine]:
+    """Check what pycolmap reports badly or not at all; the images of ``images.txt`` by id."""
+    camera_ids = _camera_ids(files["cameras"])
+    images = _image_lines(files["images"])
+    for image in images.values():
+        if image.camera_id not in camera_ids:
+            raise SceneError(f"{files['images']}: line {image.number}: image {image.name} uses camera "
+                             f"{image.camera_id}, which {files['cameras'].name} does not define; add the "
+                             "camera or fix the image's CAMERA_ID")
+    _check_names([image.name for image in images.values()], files["images"])
+    if "frames" in files:
+        _check_frames(files, images)
+    return images
+
+
+def _data_lines(path: Path):
+    """(line number, fields) of every line that is neither blank nor a ``#`` comment."""
+    for n, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
+        if line.strip() and not line.lstrip().startswith("#"):
+            yield n, line.split()
+
+
+def _camera_ids(path: Path) -> dict[int, int]:
+    """Camera id -> line number of ``cameras.txt``."""
+    ids: dict[int, int] = {}
+    for n, f in _data_lines(path):
+        if len(f) < 4 or not all(_reads_as(int, x) for x in (f[0], f[2], f[3])):
+            raise SceneError(f"{path}: line {n} is not 'CAMERA_ID MODEL WIDTH HEIGHT PARAMS...'; fix it")
+        cid, expected = int(f[0]), PINHOLE_PARAMS.get(f[1])
+        if cid in ids:
+            raise SceneError(f"{path}: line {n}: camera {cid} is already defined on line {ids[cid]}; "
+                             "give each camera its own CAMERA_ID")
+        if expected and len(f) - 4 != len(expected):
+            raise SceneError(f"{path}: line {n}: a {f[1]} camera has {len(expected)} parameters "
+                             f"({' '.join(expected)}), this line {len(f) - 4}; fix the line")
+        ids[cid] = n
+    return ids
+
+
+def _image_lines(path: Path) -> dict[int, _ImageLine]:
+    """The images of ``images.txt`` by id. Like COLMAP, the line after an image's line is its
+    2D points (possibly empty); COLMAP drops an image without it, we refuse it."""
+    lines = path.read_text(errors="replace").splitlines()
+    images: dict[int, _ImageLine] = {}
+    number = 0                                  # of the line read last, counted from 1
+    while number < len(lines):
+        text = lines[number].strip()
+        number += 1
+        if not text or text.startswith("#"):
+            continue
+        image = _image_line(text.split(), number, path)
+        if number == len(lines):
+            raise SceneError(f"{path}: line {number}: image {image.name} has no second line (its 2D "
+                             "points, may be empty); add an empty line after it, or pycolmap drops the image")
+        number += 1
+        _check_points_line(lines[number - 1], image, number, path)
+        if image.image_id in images:
+            first = images[image.image_id]
+            raise SceneError(f"{path}: line {image.number}: image id {image.image_id} ({image.name}) is "
+                             f"already used on line {first.number} ({first.name}); list each image once, "
+                             "with its own IMAGE_ID")
+        images[image.image_id] = image
+    return images
+
+
+def _image_line(f: list[str], n: int, path: Path) -> _ImageLine:
+    try:
+        if len(f) != 10:
+            raise ValueError
+        return _ImageLine(n, int(f[0]), np.array([float(x) for x in f[1:8]]), int(f[8]), f[9])
+    except ValueError:
+        raise SceneError(f"{path}: line {n} is not '{IMAGE_LINE}' ({len(f)} fields; 10 expected, "
+                         "image names cannot contain spaces); fix the line") from None
+
+
+def _check_points_line(line: str, image: _ImageLine, n: int, path: Path) -> None:
+    """The 2D points line: triples ``X Y POINT3D_ID``; an image line here means a missing
+    empty line, which would make COLMAP read that image as points."""
+    f = line.split()
+    if len(f) % 3 or not all(_reads_as(float, x) for x in f):
+        raise SceneError(f"{path}: line {n} should be the 2D points of image {image.name} (X Y POINT3D_ID "
+                         "..., may be empty) but is not; add an empty line after each image line")
+
+
+def _reads_as(kind: type, text: str) -> bool:
+    try:
+        kind(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _check_frames(files: dict[str, Path], images: dict[int, _ImageLine]) -> None:
+    """Every image is in a frame of ``frames.txt``, taken by its own camera."""
+    taken: dict[int, tuple[int, int]] = {}      # image id -> (camera id, line of frames.txt)
+    for n, f in _data_lines(files["frames"]):
+        try:
+            data = f[10:10 + 3 * int(f[9])]
+            for j in range(0, len(data), 3):
+                if data[j] == "CAMERA":
+                    taken[int(data[j + 2])] = (int(data[j + 1]), n)
+        except (IndexError, ValueError):
+            raise SceneError(f"{files['frames']}: line {n} is not 'FRAME_ID RIG_ID QW QX QY QZ TX TY TZ "
+                             "NUM_DATA_IDS (SENSOR_TYPE SENSOR_ID DATA_ID)...'; fix it") from None
+    for image in images.values():
+        where = f"{files['images']}: line {image.number}: image {image.image_id} ({image.name})"
+        if image.image_id not in taken:
+            raise SceneError(f"{where} is in no frame of {files['frames'].name}; add it there, or delete "
+                             "frames.txt and rigs.txt to take every pose from images.txt")
+        camera, n = taken[image.image_id]
+        if camera != image.camera_id:
+            raise SceneError(f"{where} has camera {image.camera_id}, line {n} of {files['frames'].name} "
+                             f"camera {camera}; make the two files agree")
+
+
+def _check_poses_agree(rec, lines: dict[int, _ImageLine], files: dict[str, Path]) -> None:
+    """pycolmap took the poses from frames.txt; images.txt must say the same."""
+    import pycolmap
+    for image in rec.images.values():
+        line = lines[image.image_id]
+        qw, qx, qy, qz = line.pose[:4]
+        written = pycolmap.Rigid3d(pycolmap.Rotation3d(np.array([qx, qy, qz, qw])), line.pose[4:]).matrix()
+        used = np.asarray(image.cam_from_world().matrix())
+        if np.abs(written - used).max() > POSE_TOLERANCE * (1 + np.abs(used).max()):
+            raise SceneError(f"{files['images']} (line {line.number}) and {files['frames']} give image "
+                             f"{image.name} different poses; pycolmap takes the pose from frames.txt: make "
+                             "the two agree, or delete frames.txt and rigs.txt to use images.txt alone")

@@ -1,0 +1,318 @@
+"""Bad scene folders, one way each: a SceneError whose message is one line naming the file and
+the key (segment, emitter, image, line) and saying how to fix it; and what the loader reads
+(image sub-folders, the file the poses come from, the content hash of every file read)."""
+from __future__ import annotations
+
+import logging
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from factory import quad
+
+from framework.errors import SceneError
+from framework.images import write_exr
+from framework.scene import load_scene
+from framework.scene.write import write_mesh
+
+
+def _edit(root: Path, fn) -> None:
+    path = root / "scene.yaml"
+    desc = yaml.safe_load(path.read_text())
+    fn(desc)
+    path.write_text(yaml.safe_dump(desc, sort_keys=False))
+
+
+def _replace(path: Path, old: str, new: str) -> None:
+    text = path.read_text()
+    assert old in text, old
+    path.write_text(text.replace(old, new))
+
+
+def _message(root: Path, match: str) -> str:
+    """The SceneError message of loading ``root``: it matches ``match`` and is one line."""
+    with pytest.raises(SceneError, match=match) as info:
+        load_scene(root)
+    message = str(info.value)
+    assert "\n" not in message and "\r" not in message
+    return message
+
+
+def _tree(root: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def _images(root: Path, names=("view_0", "view_1")) -> None:
+    for name in names:
+        (root / "images" / name).parent.mkdir(parents=True, exist_ok=True)
+        write_exr(root / "images" / f"{name}.exr", np.full((16, 16, 3), 0.2, np.float32), ("R", "G", "B"))
+
+
+# ----------------------------------------------------------------------------------------------
+# scene.yaml: keys, types, names
+# ----------------------------------------------------------------------------------------------
+
+def test_segment_key_typo_is_refused(tiny_scene):
+    """``kernel:`` instead of ``kernels:`` used to drop the specular kernel silently."""
+    _edit(tiny_scene, lambda d: d["segments"][0].update(kernel=d["segments"][0].pop("kernels")))
+    msg = _message(tiny_scene, r"segment 'ground': unknown key 'kernel' \(did you mean 'kernels'\?\); "
+                               r"allowed keys: name, meshes, kernels, reference$")
+    assert msg.startswith(str(tiny_scene / "scene.yaml"))
+
+
+@pytest.mark.parametrize("edit, match", [
+    (lambda d: d.update(segment=d.pop("segments")),
+     r"scene.yaml: unknown key 'segment' \(did you mean 'segments'\?\); allowed keys: name, channels, "),
+    (lambda d: d["emitters"][0].update(irradiance=1.0),
+     r"emitter 0 \(constant\): unknown key 'irradiance' \(did you mean 'radiance'\?\); "
+     r"allowed keys: type, radiance$"),
+    (lambda d: d["segments"][1]["reference"].update(glossy=0.1),
+     r"segment 'block' reference: unknown key 'glossy'; allowed keys: diffuse, specular$"),
+], ids=["top-level", "emitter", "reference"])
+def test_unknown_keys_are_refused(tiny_scene, edit, match):
+    _edit(tiny_scene, edit)
+    _message(tiny_scene, match)
+
+
+def test_key_given_twice_is_refused(tiny_scene):
+    """PyYAML keeps the last of two equal keys; the loader refuses them."""
+    _replace(tiny_scene / "scene.yaml", "  kernels: [diffuse, specular]\n  reference:\n    diffuse: [0.5",
+             "  kernels: [diffuse, specular]\n  kernels: [diffuse]\n  reference:\n    diffuse: [0.5")
+    _message(tiny_scene, r"scene.yaml: line 7 is not valid YAML \(key 'kernels' is given twice in one "
+                         r"mapping, keep one\); fix the syntax$")
+
+
+def test_duplicate_segment_names_are_refused(tiny_scene):
+    _edit(tiny_scene, lambda d: d["segments"][1].update(name="ground"))
+    _message(tiny_scene, r"scene.yaml: segments 0 and 1 are both named 'ground'; give each segment its own name")
+
+
+def test_one_mesh_in_two_segments_through_two_spellings(tiny_scene):
+    _edit(tiny_scene, lambda d: d["segments"][1].update(meshes=["./meshes/ground.ply"]))
+    _message(tiny_scene, r"scene.yaml: mesh meshes/ground.ply is in segments 'ground' and 'block' \(as "
+                         r"meshes/ground.ply and ./meshes/ground.ply: the same file\); a mesh belongs to one")
+
+
+@pytest.mark.parametrize("kernels, match", [
+    ([], r"segment 'ground' kernels is empty; list at least one kernel, e.g. \[diffuse\]"),
+    (5, r"segment 'ground' kernels must be a list, e.g. \[diffuse\]; got 5$"),
+    ("diffuse", r"segment 'ground' kernels must be a list, e.g. \[diffuse\]; got the string 'diffuse'$"),
+], ids=["empty", "number", "string"])
+def test_bad_kernels_value(tiny_scene, kernels, match):
+    _edit(tiny_scene, lambda d: d["segments"][0].update(kernels=kernels, reference={"diffuse": 0.5}))
+    _message(tiny_scene, match)
+
+
+def test_segment_meshes_as_a_string(tiny_scene):
+    _edit(tiny_scene, lambda d: d["segments"][0].update(meshes="meshes/ground.ply"))
+    _message(tiny_scene, r"segment 'ground' meshes must be a list, e.g. \[meshes/ground.ply\]; got the "
+                         r"string 'meshes/ground.ply'$")
+
+
+def test_area_emitter_meshes_as_a_string(tiny_scene):
+    _edit(tiny_scene, lambda d: d["emitters"].append(
+        {"type": "area", "meshes": "meshes/block.ply", "radiance": 1.0}))
+    _message(tiny_scene, r"emitter 2 \(area\) meshes must be a list, e.g. \[meshes/block.ply\]; got the string")
+
+
+def test_emitters_as_a_string(tiny_scene):
+    _edit(tiny_scene, lambda d: d.update(emitters="constant"))
+    _message(tiny_scene, r"scene.yaml: emitters must be a list, e.g. \[\{type: constant, radiance: 1.0\}\]; "
+                         r"got the string 'constant'$")
+
+
+def test_envmap_scale_not_a_number(tiny_scene):
+    _edit(tiny_scene, lambda d: d["emitters"].append({"type": "envmap", "file": "sky.exr", "scale": "bright"}))
+    _message(tiny_scene, r"emitter 2 \(envmap\) scale must be a number >= 0; got the string 'bright'$")
+
+
+@pytest.mark.parametrize("emitter, match", [
+    ({"type": "constant", "radiance": [0.3, -0.35, 0.45]},
+     r"emitter 2 \(constant\) radiance = \[0.3, -0.35, 0.45\] is negative; light is >= 0"),
+    ({"type": "directional", "direction": [0, 0, -1], "irradiance": -3.0},
+     r"emitter 2 \(directional\) irradiance = \[-3.0, -3.0, -3.0\] is negative; light is >= 0"),
+    ({"type": "envmap", "file": "sky.exr", "scale": -1},
+     r"emitter 2 \(envmap\) scale = -1.0 must be finite and >= 0"),
+], ids=["radiance", "irradiance", "envmap-scale"])
+def test_negative_light_is_refused(tiny_scene, emitter, match):
+    _edit(tiny_scene, lambda d: d["emitters"].append(emitter))
+    _message(tiny_scene, match)
+
+
+def test_reference_sum_above_one(tiny_scene):
+    _edit(tiny_scene, lambda d: d["segments"][1]["reference"].update(specular=[0.2, 0.5, 0.2]))
+    _message(tiny_scene, r"segment 'block' reference: diffuse \+ specular = 1.1 > 1 in channel G; a segment's "
+                         r"weights sum to at most 1 per channel \(energy conservation\)")
+
+
+# ----------------------------------------------------------------------------------------------
+# Meshes
+# ----------------------------------------------------------------------------------------------
+
+def test_segment_of_zero_area(tiny_scene):
+    collinear = [[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]]
+    write_mesh(tiny_scene / "meshes/block.ply", collinear, [[0, 1, 2], [1, 2, 3]])
+    _message(tiny_scene, r"scene.yaml: segment 'block': all 2 triangles of meshes/block.ply have zero area; "
+                         r"fix the mesh$")
+
+
+@pytest.mark.parametrize("keep, match", [
+    (500, r"block.ply: corrupt or truncated PLY \(RPly: Error reading value number 1 of 'vertex_indices' of "
+          r"'face' number 8\); re-export the mesh$"),
+    (300, r"block.ply: no triangles \(unreadable or empty PLY: RPly: Error reading 'x' of 'vertex' number 4\)"),
+], ids=["in-faces", "in-vertices"])
+def test_truncated_ply_prints_nothing_else(tiny_scene, capfd, keep, match):
+    """Open3D's reader (RPly) prints its own error on the C stderr: the loader keeps it quiet."""
+    ply = tiny_scene / "meshes/block.ply"
+    ply.write_bytes(ply.read_bytes()[:keep])
+    capfd.readouterr()
+    _message(tiny_scene, match)
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""
+
+
+def test_cli_prints_one_line_for_a_truncated_ply(tiny_scene, tmp_path):
+    ply = tiny_scene / "meshes/block.ply"
+    ply.write_bytes(ply.read_bytes()[:500])
+    before = _tree(tiny_scene)
+    run_dir = tmp_path / "run"
+    proc = subprocess.run([sys.executable, "-m", "framework.run", f"scene.dir={tiny_scene}",
+                           f"hydra.run.dir={run_dir}", f"cache.dir={tmp_path / 'c'}"], cwd=tmp_path,
+                          env=dict(os.environ, HYDRA_FULL_ERROR="0"), capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2
+    assert proc.stderr.splitlines() == [f"error: {ply}: corrupt or truncated PLY (RPly: Error reading value "
+                                        "number 1 of 'vertex_indices' of 'face' number 8); re-export the mesh"]
+    assert not (run_dir / "results.json").exists() and _tree(tiny_scene) == before
+
+
+# ----------------------------------------------------------------------------------------------
+# The COLMAP model
+# ----------------------------------------------------------------------------------------------
+
+F = "13.856406460551019"
+
+
+@pytest.mark.parametrize("file, old, new, match", [
+    ("cameras.txt", f"1 PINHOLE 16 16 {F} {F}", "1 PINHOLE 16 16 -59.7 -59.7",
+     r"cameras.txt: camera 1 \(of image view_0.png\) has focal length -59.7, -59.7; focal lengths are > 0"),
+    ("cameras.txt", "1 PINHOLE 16 16", "1 PINHOLE 0 16",
+     r"cameras.txt: camera 1 \(of image view_0.png\) is 0x16 pixels; give its WIDTH and HEIGHT \(> 0\)$"),
+    ("cameras.txt", "1 PINHOLE 16 16", "1 PINHOLE 16 0",
+     r"cameras.txt: camera 1 \(of image view_0.png\) is 16x0 pixels; give its WIDTH and HEIGHT \(> 0\)$"),
+    ("images.txt", " 1 view_0.png", " 7 view_0.png",
+     r"images.txt: line 5: image view_0.png uses camera 7, which cameras.txt does not define; add the "
+     r"camera or fix the image's CAMERA_ID$"),
+    ("images.txt", "\n2 0.5466", "\n1 0.5466",
+     r"images.txt: line 7: image id 1 \(view_1.png\) is already used on line 5 \(view_0.png\); list each "
+     r"image once, with its own IMAGE_ID$"),
+], ids=["negative-focal", "zero-width", "zero-height", "camera-missing", "image-id-twice"])
+def test_colmap_text_errors(tiny_scene, file, old, new, match):
+    _replace(tiny_scene / "sparse" / file, old, new)
+    _message(tiny_scene, match)
+
+
+def test_image_listed_twice(tiny_scene):
+    images = tiny_scene / "sparse/images.txt"
+    first = next(line for line in images.read_text().splitlines() if line.endswith("view_0.png"))
+    images.write_text(images.read_text() + "3" + first[1:] + "\n\n")
+    _message(tiny_scene, r"images.txt: image 'view_0.png' is listed twice; list each image once$")
+
+
+def test_image_without_points_line(tiny_scene):
+    """pycolmap drops an image whose second line is missing; the loader says so."""
+    images = tiny_scene / "sparse/images.txt"
+    images.write_text(images.read_text().rstrip("\n") + "\n")
+    _message(tiny_scene, r"images.txt: line 7: image view_1.png has no second line")
+
+
+def test_frames_without_rigs(tiny_scene):
+    (tiny_scene / "sparse/rigs.txt").unlink()
+    _message(tiny_scene, r"frames.txt: present without rigs.txt; pycolmap reads the two together")
+
+
+def test_image_in_no_frame(tiny_scene):
+    (tiny_scene / "sparse/images.txt").write_text(
+        (tiny_scene / "sparse/images.txt").read_text() + "3 1 0 0 0 0 0 5 1 view_2.png\n\n")
+    _message(tiny_scene, r"images.txt: line 9: image 3 \(view_2.png\) is in no frame of frames.txt; add it "
+                         r"there, or delete frames.txt and rigs.txt")
+
+
+def test_images_txt_disagrees_with_frames_txt(tiny_scene):
+    """pycolmap takes the poses from frames.txt: an edit of images.txt alone is refused."""
+    _replace(tiny_scene / "sparse/images.txt", "8.7436830490481672 1 view_0.png", "9.5 1 view_0.png")
+    msg = _message(tiny_scene, r"images.txt \(line 5\) and .*frames.txt give image view_0.png different "
+                               r"poses; pycolmap takes the pose from frames.txt")
+    assert str(tiny_scene / "sparse/frames.txt") in msg
+
+
+def test_pose_source_is_recorded(tiny_scene, caplog):
+    with caplog.at_level(logging.INFO, logger="framework.scene.colmap"):
+        scene = load_scene(tiny_scene)
+    assert scene.pose_source == "sparse/frames.txt"
+    assert "camera poses read from sparse/frames.txt" in caplog.text
+    (tiny_scene / "sparse/frames.txt").unlink()
+    (tiny_scene / "sparse/rigs.txt").unlink()
+    _replace(tiny_scene / "sparse/images.txt", "8.7436830490481672 1 view_0.png", "9.5 1 view_0.png")
+    scene = load_scene(tiny_scene)
+    assert scene.pose_source == "sparse/images.txt"
+    assert scene.camera("view_0.png").cam_from_world[2, 3] == 9.5
+
+
+# ----------------------------------------------------------------------------------------------
+# Image names
+# ----------------------------------------------------------------------------------------------
+
+def test_image_name_with_a_sub_folder_is_read(tiny_scene):
+    _replace(tiny_scene / "sparse/images.txt", " view_0.png", " left/top_000.png")
+    _images(tiny_scene, names=("left/top_000", "view_1"))
+    scene = load_scene(tiny_scene)
+    assert set(scene.images) == {"left/top_000.png", "view_1.png"}
+
+
+@pytest.mark.parametrize("name", ["../top_000.png", "left/../../top_000.png", "/top_000.png"])
+def test_image_name_leaving_the_folder(tiny_scene, name):
+    _replace(tiny_scene / "sparse/images.txt", " view_0.png", f" {name}")
+    _message(tiny_scene, rf"images.txt: image name '{name}' leaves the scene folder \(absolute or '..'\); "
+                         r"name images by paths inside images/")
+
+
+# ----------------------------------------------------------------------------------------------
+# What is read: never written, all hashed
+# ----------------------------------------------------------------------------------------------
+
+def test_failed_load_leaves_the_folder_untouched(tiny_scene):
+    _edit(tiny_scene, lambda d: d["segments"][0].update(kernels="diffuse"))
+    before = _tree(tiny_scene)
+    _message(tiny_scene, "must be a list")
+    assert _tree(tiny_scene) == before
+
+
+def test_content_hash_covers_meshes_outside_the_folder(tiny_scene):
+    outside = tiny_scene.parent / "outside"
+    write_mesh(outside / "x.ply", *quad(-1, 1, -1, 1, z=3.0))
+    _edit(tiny_scene, lambda d: d["emitters"].append({"type": "area", "meshes": ["../outside/x.ply"],
+                                                       "radiance": 1.0}))
+    h0 = load_scene(tiny_scene).content_hash
+    (tiny_scene / "notes.txt").write_text("not read by the loader")
+    assert load_scene(tiny_scene).content_hash == h0
+    write_mesh(outside / "x.ply", *quad(-1, 1, -1, 1, z=3.5))
+    assert load_scene(tiny_scene).content_hash != h0
+
+
+def test_content_hash_follows_symlinked_folders(tiny_scene):
+    real = tiny_scene.parent / "real_meshes"
+    (tiny_scene / "meshes").rename(real)
+    (tiny_scene / "meshes").symlink_to(real, target_is_directory=True)
+    h0 = load_scene(tiny_scene).content_hash
+    write_mesh(real / "ground.ply", *quad(-5, 5, -5, 4))
+    assert load_scene(tiny_scene).content_hash != h0
+
+
+def test_content_hash_does_not_depend_on_the_folder_location(tiny_scene):
+    h0 = load_scene(tiny_scene).content_hash
+    moved = tiny_scene.rename(tiny_scene.parent / "elsewhere")
+    assert load_scene(moved).content_hash == h0
