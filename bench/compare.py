@@ -12,9 +12,7 @@ from pathlib import Path
 
 from bench.common import compose, seed_cache, views_override
 from bench.render_ratio import build_problem
-from framework.cache import Cache
 from framework.experiment import run_experiment
-from framework.observe import observed_images
 
 #: (label, method overrides, iterative-type: budget reduced on all views)
 METHODS = [
@@ -64,8 +62,7 @@ def warm_observations(sizes, root: Path, scene: str, n_views: int) -> float:
     cfg = compose([f"scene={scene}", views, f"observe.spp={sizes.cmp_observe_spp}",
                    f"cache.dir={root / 'cache' / 'observed' / scene / vtag}"])
     t = time.perf_counter()
-    problem, _ = build_problem(cfg)
-    observed_images(problem.scene, problem.cameras, cfg, cache=Cache(cfg.cache.dir))
+    build_problem(cfg)                         # renders the observations into the cache
     return time.perf_counter() - t
 
 

@@ -6,6 +6,7 @@ import math
 from bench.common import error_stats, observable_keys, param_errors
 from bench.compare import FAILED
 from bench.paper import PAPER_TOTAL_MIN, TABLE1, TABLE2, TARGET
+from reports.convergence import equal_error_rows, error_curve
 
 RATIO_TARGET, SOLVE_TARGET = 1.5, 0.05
 SPEEDUP_TARGET = {"iterative (noise fresh)": 100, "iterative (noise fixed)": 100, "differentiable": 20}
@@ -132,6 +133,26 @@ def _speedup_verdicts(rows: list[dict], keys: set) -> list[str]:
     return out
 
 
+def _equal_error(rows: list[dict], keys: set) -> list[str]:
+    """Per baseline: the time (and renders) its iterates need to reach the symbolic run's final
+    worst error, and the error it levels off at, from the results' ``trace``."""
+    curves = {r["label"]: [c] for r in rows if (c := error_curve(r["results"], keys)) is not None}
+    out = []
+    for row in equal_error_rows(curves, "symbolic"):
+        if row["method"] not in SPEEDUP_TARGET:
+            continue
+        reach = (f"{f(row['time_s'], 1)} s ({row['renders']} renders), {f(row['ratio'], 1)} x symbolic"
+                 if row["time_s"] is not None else
+                 f"not reached in {row['max_renders']} renders / {f(row['max_time_s'], 1)} s")
+        out.append([row["method"], f(row["target"]), reach, f(row["floor"])])
+    if not out:
+        return []
+    return (["At equal error (from each run's iterates, results.json `trace`): the time a baseline needs "
+             "to reach the symbolic run's final worst |error|, and its floor (median worst |error| over "
+             "the last 10 % of its iterates).", ""]
+            + table(["method", "symbolic worst |error|", "time to reach it", "floor"], out) + [""])
+
+
 def section_compare(rows: list[dict], sizes, report_path) -> list[str]:
     lines = ["## 3. Method comparison at equal spp", "",
              f"urban_canyon, render.spp = {sizes.cmp_spp}, observe.spp = {sizes.cmp_observe_spp}, "
@@ -152,7 +173,7 @@ def section_compare(rows: list[dict], sizes, report_path) -> list[str]:
         lines += [f"### {'Single view (default)' if vtag == 'single' else 'All views'}", ""]
         lines += table(["method", "views", "budget", "total (s)", "renders", "worst abs. error", "mean abs. error",
                         "time / symbolic"], [_cmp_row(r, base if r is not base else None, keys) for r in sub])
-        lines += [""] + _speedup_verdicts(sub, keys) + [""]
+        lines += [""] + _speedup_verdicts(sub, keys) + [""] + _equal_error(sub, keys)
     for scene, vtag, label, err in FAILED:
         lines.append(f"- FAILED: {scene} {vtag} {label}: `{err}` (no numbers)")
     return lines + ([""] if FAILED else [])

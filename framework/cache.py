@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from framework.errors import ConfigError
+
 
 def key_digest(key: dict) -> str:
     """Stable hex digest of a JSON-able key (sorted keys)."""
@@ -49,6 +51,28 @@ class Cache:
 
     def __init__(self, directory: str | os.PathLike | None):
         self.dir = Path(directory).expanduser().resolve() if directory else None
+
+    def check_writable(self) -> None:
+        """Create the cache folder (and its parents) if missing and write a probe file in it.
+
+        Checked up front because a cache that cannot be written would fail only after the first
+        rendering.
+
+        Raises
+        ------
+        ConfigError
+            If the folder is a file, cannot be created or is not writable (the OS reason given).
+        """
+        if self.dir is None:
+            return
+        try:
+            self.dir.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryFile(dir=self.dir, prefix=".probe."):
+                pass
+        except OSError as exc:
+            reason = "it is a file" if self.dir.is_file() else exc.strerror
+            raise ConfigError(f"cache.dir={self.dir} is not a writable folder ({reason}): choose "
+                              "another cache.dir, or cache.dir=null to run without a cache") from None
 
     def path(self, kind: str, key: dict) -> Path | None:
         return None if self.dir is None else self.dir / kind / f"{key_digest(key)}.npz"

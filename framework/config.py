@@ -11,6 +11,7 @@ Importing this module registers the ``scene_label`` resolver that the run folder
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,21 +28,23 @@ BUNDLED_SCENES = Path(__file__).resolve().parents[1] / "scenes"
 
 
 def scene_label(name, directory) -> str:
-    """Run-folder label of a scene: the bundled name, or the folder's name for ``scene.dir``."""
-    return Path(str(directory)).name if directory else str(name)
+    """Run-folder label of a scene: the bundled name, or the folder's name for ``scene.dir``
+    (made absolute first, so that ``scene.dir=.`` is labelled too)."""
+    return Path(os.path.abspath(Path(str(directory)).expanduser())).name if directory else str(name)
 
 
 if not OmegaConf.has_resolver("scene_label"):
     OmegaConf.register_new_resolver("scene_label", scene_label)
 
 
-def compose(overrides: list[str] | tuple[str, ...] = ()) -> DictConfig:
+def compose(overrides: list[str] | tuple[str, ...] = (), *, hydra_config: bool = False) -> DictConfig:
     """The configuration ``python -m framework.run`` would build from ``overrides`` (inside a
-    running Hydra application, from its already initialised config search path)."""
+    running Hydra application, from its already initialised config search path); with
+    ``hydra_config``, Hydra's own node ``hydra`` too (the run folder ``hydra.run.dir``)."""
     if GlobalHydra.instance().is_initialized():
-        return hydra_compose("config", overrides=list(overrides))
+        return hydra_compose("config", overrides=list(overrides), return_hydra_config=hydra_config)
     with initialize_config_module("framework.conf", version_base=None):
-        return hydra_compose("config", overrides=list(overrides))
+        return hydra_compose("config", overrides=list(overrides), return_hydra_config=hydra_config)
 
 
 def method_defaults(name: str) -> DictConfig:
@@ -51,18 +54,81 @@ def method_defaults(name: str) -> DictConfig:
 
 
 def scene_dir(cfg: DictConfig) -> Path:
-    """``scene.dir`` if given, else the bundled folder of ``scene.name``."""
-    if cfg.scene.get("dir"):
-        return Path(str(cfg.scene.dir)).expanduser()
-    return BUNDLED_SCENES / str(cfg.scene.name)
+    """``scene.dir`` if given, else the bundled folder of ``scene.name``.
+
+    An empty ``scene.dir=`` is refused (ConfigError) rather than read as null: it would silently
+    run the bundled scene instead of the one the user meant to name.
+    """
+    directory = cfg.scene.get("dir")
+    if directory is None:
+        return BUNDLED_SCENES / str(cfg.scene.name)
+    if not str(directory).strip():
+        raise ConfigError("scene.dir is empty: give a scene folder (scene.dir=path/to/scene), "
+                          "or scene.dir=null for the bundled scene")
+    return Path(str(directory)).expanduser()
 
 
-def _integer(key: str, value, lo: int, hi: int | None = None) -> int:
-    """``value`` if it is an integer in [lo, hi]; else ConfigError naming ``key`` and the range."""
-    if isinstance(value, bool) or not isinstance(value, int) or value < lo or (hi is not None and value > hi):
-        rng = f"[{lo}, {hi}]" if hi is not None else f">= {lo}"
+#: Largest samples per pixel: Mitsuba's ``sample_count`` is a 32-bit unsigned integer.
+SPP_MAX = 2**32 - 1
+_SPP_WHY = " (Mitsuba's sample_count is a 32-bit unsigned integer)"
+
+
+def _integer(key: str, value, lo: int, hi: int | None = None, why: str = "") -> int:
+    """``value`` if it is an integer in [lo, hi]; else ConfigError naming ``key``, the range and
+    ``why`` (the reason for the range, when it is not obvious)."""
+    rng = (f"[{lo}, {hi}]" if hi is not None else f">= {lo}") + why
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ConfigError(f"{key}={value} is not an integer: use an integer {rng}")
+    if value < lo or (hi is not None and value > hi):
         raise ConfigError(f"{key}={value} is out of range: use an integer {rng}")
     return int(value)
+
+
+def _max_depth(value) -> int:
+    """``observe.max_depth``: -1 or >= 2. Mitsuba's max_depth 0 renders nothing and 1 only the
+    emitters seen directly, so the observations would not depend on any weight."""
+    depth = _integer("observe.max_depth", value, -1)
+    if depth in (0, 1):
+        raise ConfigError(f"observe.max_depth={depth} renders {'nothing' if depth == 0 else 'only the emitters'}"
+                          " (Mitsuba max_depth): use -1 (unbounded) or an integer >= 2")
+    return depth
+
+
+def _noise(value) -> float:
+    """``observe.noise``: a finite number >= 0."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f"observe.noise={value} is not a number: use a number >= 0")
+    if not 0 <= value < float("inf"):
+        raise ConfigError(f"observe.noise={value} is out of range: use a finite number >= 0")
+    return float(value)
+
+
+def _variant(value) -> str:
+    """``variant``: scalar variants are refused (the methods trace whole images as Dr.Jit arrays)."""
+    variant = str(value)
+    if variant.startswith("scalar_"):
+        raise ConfigError(f"variant={variant} is a scalar variant, and the methods need a JIT one: "
+                          "use variant=auto, an llvm_ad_* or (NVIDIA GPU) a cuda_ad_* variant")
+    return variant
+
+
+def requested_views(cfg: DictConfig) -> list[str] | None:
+    """The view names ``views`` (or a bundled scene's ``scene.views``) asks for; None for all.
+
+    Raises ConfigError for an empty list or a name listed twice (its residual would count twice).
+    """
+    views, key = cfg.views, "views"
+    if views == "default":
+        views, key = (cfg.scene.get("views", "all"), "scene.views") if not cfg.scene.get("dir") else ("all", key)
+    if views == "all":
+        return None
+    names = [str(v) for v in views] if OmegaConf.is_list(views) or isinstance(views, list) else [str(views)]
+    if not names:
+        raise ConfigError(f"{key}=[] selects no view: name at least one image, or use views=all")
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ConfigError(f"{key} lists {', '.join(twice)} more than once: name each view once")
+    return names
 
 
 @dataclass(frozen=True)
@@ -70,18 +136,15 @@ class ObserveSettings:
     """Synthetic observations of scenes without ``images/`` (``observe.*``)."""
 
     spp: int = 512
-    max_depth: int = -1          # Mitsuba max_depth; -1 unbounded, as real light is
+    max_depth: int = -1          # Mitsuba max_depth; -1 unbounded, as real light is; never 0 or 1
     noise: float = 0.0           # additive Gaussian noise, std relative to the image mean
     seed: int = 0                # observation stream (odd Mitsuba seeds)
 
     @classmethod
     def from_config(cls, obs) -> ObserveSettings:
-        noise = obs.get("noise", 0.0)
-        if isinstance(noise, bool) or not isinstance(noise, (int, float)) or not noise >= 0:
-            raise ConfigError(f"observe.noise={noise} is out of range: use a number >= 0")
-        return cls(spp=_integer("observe.spp", obs.spp, 1),
-                   max_depth=_integer("observe.max_depth", obs.get("max_depth", -1), -1),
-                   noise=float(noise), seed=_integer("observe.seed", obs.get("seed", 0), 0))
+        return cls(spp=_integer("observe.spp", obs.spp, 1, SPP_MAX, _SPP_WHY),
+                   max_depth=_max_depth(obs.get("max_depth", -1)),
+                   noise=_noise(obs.get("noise", 0.0)), seed=_integer("observe.seed", obs.get("seed", 0), 0))
 
 
 @dataclass(frozen=True)
@@ -123,12 +186,12 @@ class RunSettings:
     @classmethod
     def from_config(cls, cfg: DictConfig, *, variant: str | None = None) -> RunSettings:
         """The checked settings of a composed configuration; ConfigError names the first bad key."""
-        return cls(spp=_integer("render.spp", cfg.render.spp, 1),
+        return cls(spp=_integer("render.spp", cfg.render.spp, 1, SPP_MAX, _SPP_WHY),
                    max_bounces=_integer("render.max_bounces", cfg.render.max_bounces, 1, 8),
                    tail_bounces=_integer("render.tail_bounces", cfg.render.get("tail_bounces", 0), 0, 16),
                    seed=_integer("seed", cfg.seed, 0),
                    budget_renders=_integer("budget.renders", cfg.budget.renders, 1),
-                   variant=str(variant or cfg.variant),
+                   variant=variant or _variant(cfg.variant),
                    executor=OmegaConf.to_container(cfg.executor, resolve=True) if cfg.get("executor") else
                    {"name": "serial"},
                    cache_dir=str(cfg.cache.dir) if cfg.cache.get("dir") else None,

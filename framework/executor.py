@@ -8,7 +8,9 @@ Configuration (``framework/conf/executor/*.yaml``, ``docs/cli.md``):
     ``address: null`` starts a ``distributed.LocalCluster(n_workers, threads_per_worker,
     processes=True)`` for the run and closes it afterwards; ``address: tcp://host:port`` joins
     an existing scheduler (``Client(address)``), whose workers must be able to import this
-    repository (same code, same Python environment). Each task receives plain picklable data
+    repository (same code, same Python environment). ``connect_timeout_s`` (default
+    :data:`CONNECT_TIMEOUT_S`) bounds the wait for that scheduler (distributed's own default,
+    30 s, made a wrong address look like a hang). Each task receives plain picklable data
     (the numpy :class:`~framework.scene.Scene` model, arrays, seeds), selects the Mitsuba variant
     itself and limits Dr.Jit to ``threads_per_worker`` threads (:func:`init_worker`), so the
     workers do not oversubscribe the cores.
@@ -22,10 +24,11 @@ from __future__ import annotations
 import logging
 from typing import Callable
 
-from framework.errors import ConfigError
+from framework.errors import ConfigError, EnvironmentSetupError
 from framework.render import backend
 
 log = logging.getLogger(__name__)
+CONNECT_TIMEOUT_S = 5.0
 
 
 def init_worker(variant: str, threads: int | None) -> None:
@@ -69,6 +72,7 @@ class SerialExecutor:
 
     name = "serial"
     threads_per_worker = None
+    tasks_here = 1          # tasks running at once on this machine (memory checks multiply by it)
 
     def imap(self, fn: Callable, items: list, **kwargs):
         """Values of ``fn(item)`` in item order, one at a time (the caller can drop each before
@@ -97,16 +101,26 @@ class DaskExecutor(SerialExecutor):
         Worker processes of the local cluster.
     threads_per_worker : int
         Threads per worker, and Dr.Jit threads each task may use.
+    connect_timeout_s : float
+        Seconds to wait for the scheduler at ``address`` (also distributed's reconnection window).
+
+    Raises
+    ------
+    framework.errors.EnvironmentSetupError
+        When no scheduler answers at ``address`` within ``connect_timeout_s``.
     """
 
     name = "dask"
 
-    def __init__(self, address: str | None = None, *, n_workers: int = 2, threads_per_worker: int = 1):
+    def __init__(self, address: str | None = None, *, n_workers: int = 2, threads_per_worker: int = 1,
+                 connect_timeout_s: float = CONNECT_TIMEOUT_S):
         from distributed import Client, LocalCluster
         self.threads_per_worker = int(threads_per_worker)
         self._cluster = None
+        # a remote scheduler's workers run elsewhere: this machine's memory is not theirs
+        self.tasks_here = 0 if address else int(n_workers)
         if address:
-            self.client = Client(str(address))
+            self.client = _connect(str(address), connect_timeout_s)
         else:
             self._cluster = LocalCluster(n_workers=int(n_workers), threads_per_worker=self.threads_per_worker,
                                          processes=True, dashboard_address=None)
@@ -129,13 +143,27 @@ class DaskExecutor(SerialExecutor):
             self._cluster.close()
 
 
+def _connect(address: str, timeout_s: float):
+    """``Client(address)``, or one line saying the scheduler is unreachable (distributed raises
+    OSError "Timed out trying to connect" after ``timeout_s``)."""
+    from distributed import Client
+    try:
+        return Client(address, timeout=float(timeout_s))
+    except (OSError, TimeoutError):
+        raise EnvironmentSetupError(f"the Dask scheduler at {address} is unreachable (no answer in "
+                                    f"{timeout_s:g} s): start one (dask scheduler) or drop executor.address"
+                                    ) from None
+
+
 def make_executor(cfg) -> SerialExecutor:
     """The executor of the run's ``executor`` config group (None or missing: serial).
 
     Raises
     ------
     framework.errors.ConfigError
-        For an unknown ``executor.name`` or bad worker counts.
+        For an unknown ``executor.name``, bad worker counts or connection timeout.
+    framework.errors.EnvironmentSetupError
+        When the scheduler at ``executor.address`` does not answer.
     """
     name = "serial" if cfg is None else str(cfg.get("name", "serial"))
     if name == "serial":
@@ -146,4 +174,8 @@ def make_executor(cfg) -> SerialExecutor:
     for key, value in (("n_workers", n_workers), ("threads_per_worker", threads)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise ConfigError(f"executor.{key}={value} is out of range: use an integer >= 1")
-    return DaskExecutor(cfg.get("address"), n_workers=n_workers, threads_per_worker=threads)
+    timeout = cfg.get("connect_timeout_s", CONNECT_TIMEOUT_S)
+    if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not timeout > 0:
+        raise ConfigError(f"executor.connect_timeout_s={timeout} is out of range: use a number of seconds > 0")
+    return DaskExecutor(cfg.get("address"), n_workers=n_workers, threads_per_worker=threads,
+                        connect_timeout_s=timeout)

@@ -14,7 +14,9 @@ from typing import Callable
 from omegaconf import DictConfig, OmegaConf
 
 from framework.cache import Cache
-from framework.config import RunSettings, scene_dir
+from framework.config import RunSettings, requested_views, scene_dir
+from framework.errors import ConfigError
+from framework.kernels import KERNELS
 from framework.observe import observed_images
 from framework.registry import Method, Problem, get_method
 from framework.render import backend
@@ -25,27 +27,87 @@ from framework.scene import load_scene
 log = logging.getLogger(__name__)
 
 
+#: Most samples Mitsuba traces in one render of a view: its sample indices are 32-bit.
+SAMPLES_PER_VIEW_MAX = 2**32 - 1
+
+
 def select_cameras(scene, cfg: DictConfig) -> list:
-    views = cfg.views
-    if views == "default":
-        views = cfg.scene.get("views", "all") if not cfg.scene.get("dir") else "all"
-    if views == "all":
-        return list(scene.cameras)
-    if isinstance(views, str):
-        views = [views]
-    return [scene.camera(str(v)) for v in views]
+    """The cameras of the views the configuration selects (all by default)."""
+    names = requested_views(cfg)
+    return list(scene.cameras) if names is None else [scene.camera(n) for n in names]
+
+
+def kernel_selection(method_cfg: DictConfig) -> tuple[str, ...] | None:
+    """The kernels ``method.kernels`` restricts a method to (None: all, or no such option).
+
+    Raises ConfigError for an unknown kernel name, an empty list, or a bare name.
+    """
+    kernels = method_cfg.get("kernels", "all")
+    if kernels == "all":
+        return None
+    if not OmegaConf.is_list(kernels):
+        raise ConfigError(f"method.kernels={kernels} is not a list: use all, or a list such as "
+                          f"method.kernels=[{kernels}]")
+    unknown = [str(k) for k in kernels if str(k) not in KERNELS]
+    if unknown or not kernels:
+        what = f"has unknown kernel(s) {', '.join(unknown)}" if unknown else "is empty"
+        raise ConfigError(f"method.kernels {what}: use all, or a list of the registered kernels "
+                          f"({', '.join(sorted(KERNELS))})")
+    return tuple(str(k) for k in kernels)
+
+
+def check_config(cfg: DictConfig) -> RunSettings:
+    """Every check of a composed configuration that needs no scene, before anything is loaded
+    or written; the command line runs it before Hydra creates the run folder.
+
+    Returns the checked settings (variant not resolved yet); ConfigError names the first bad key.
+    Writes nothing: whether the cache folder can be written is :meth:`Cache.check_writable`'s.
+    """
+    settings = RunSettings.from_config(cfg)
+    get_method(str(cfg.method.name))
+    requested_views(cfg)
+    kernel_selection(cfg.method)
+    cache, root = Cache(settings.cache_dir), scene_dir(cfg).resolve()
+    if cache.dir is not None and cache.dir.is_relative_to(root):
+        raise ConfigError(f"cache.dir={cache.dir} is inside the scene folder {root}, "
+                          "which runs never write to: choose a cache.dir outside it")
+    return settings
+
+
+def _check_samples(scene, cameras, settings: RunSettings) -> None:
+    """spp x pixels of the largest selected view within what one Mitsuba render can trace
+    (``observe.spp`` only when the observations are rendered)."""
+    view = max(cameras, key=lambda c: c.width * c.height)
+    pixels = view.width * view.height
+    spps = {"render.spp": settings.spp} | ({"observe.spp": settings.observe.spp} if scene.images is None else {})
+    for key, spp in spps.items():
+        if spp * pixels > SAMPLES_PER_VIEW_MAX:
+            raise ConfigError(f"{key}={spp} is too large for view {view.name} ({view.width}x{view.height} "
+                              f"pixels): Mitsuba renders at most 2**32 - 1 samples per view, so use "
+                              f"{key} <= {SAMPLES_PER_VIEW_MAX // pixels}")
+
+
+def _check_kernels_present(scene, kernels: tuple[str, ...] | None) -> None:
+    """``method.kernels`` selects at least one weight of the scene (else the method has nothing
+    to estimate and fails deep in the solve)."""
+    if kernels is not None and not scene.parameters(kernels=kernels):
+        present = sorted({k for s in scene.segments for k in s.kernels})
+        raise ConfigError(f"method.kernels={list(kernels)} selects no weight of scene {scene.name}, whose "
+                          f"kernels are {', '.join(present)}: list at least one of them")
 
 
 def prepare(cfg: DictConfig) -> tuple[Problem, Method, float]:
     """The problem and the method of a composed configuration, and the seconds spent rendering
     observations (0 when cached): the settings checked, the scene loaded, the variant set, the
     views selected, the observations read or rendered. ConfigError/SceneError on bad input."""
-    RunSettings.from_config(cfg)                # range checks before anything is loaded
+    Cache(check_config(cfg).cache_dir).check_writable()     # before anything is loaded
     method_cls = get_method(str(cfg.method.name))
     scene = load_scene(scene_dir(cfg))
     variant = backend.set_variant(str(cfg.variant), channels=scene.channels)
     settings = RunSettings.from_config(cfg, variant=variant)
     cameras = select_cameras(scene, cfg)
+    _check_samples(scene, cameras, settings)
+    _check_kernels_present(scene, kernel_selection(cfg.method))
     observed, t_observe = observed_images(scene, cameras, settings, cache=Cache(settings.cache_dir))
     problem = Problem(scene=scene, cameras=cameras, observed=observed, parameters=scene.parameters(),
                       settings=settings)

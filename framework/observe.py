@@ -16,6 +16,7 @@ import time
 import numpy as np
 
 from framework.cache import Cache
+from framework.render.checks import check_memory, check_views, film_bytes
 from framework.render.mitsuba_scene import MitsubaScene
 from framework.scene import Camera, Scene
 
@@ -40,7 +41,13 @@ def observed_images(scene: Scene, cameras: list[Camera], settings, *, cache: Cac
     ``settings`` is the run's :class:`~framework.config.RunSettings`: its ``observe`` holds
     ``spp``, ``max_depth``, ``noise`` (std of additive Gaussian noise relative to the image mean)
     and ``seed``; the cache key includes its ``variant``.
+
+    The views are checked first (:func:`framework.render.checks.check_views`, paths of any
+    length), observed images or not: every method renders them next, and a view set that sees
+    no lit segment is a :class:`~framework.errors.SceneError` here rather than a Dr.Jit failure
+    there.
     """
+    check_views(scene, cameras)
     if scene.images is not None:
         return {c.name: scene.images[c.name] for c in cameras}, 0.0
     obs = settings.observe
@@ -65,8 +72,14 @@ def observed_images(scene: Scene, cameras: list[Camera], settings, *, cache: Cac
 
 def render_references(scene: Scene, cameras: list[Camera], *, spp: int, max_depth: int, seed: int,
                       noise: float = 0.0) -> list[np.ndarray]:
-    """Path-traced images of ``cameras`` at the scene's reference weights."""
+    """Path-traced images of ``cameras`` at the scene's reference weights.
+
+    Raises :class:`~framework.errors.ConfigError` before rendering when the films do not fit in
+    memory (a path render's memory does not grow with ``spp``, only its time).
+    """
     from tqdm import tqdm
+    check_memory(film_bytes(cameras, len(scene.channels)), "the observation renders' films",
+                 "resample the views to fewer pixels")
     ms = MitsubaScene(scene, cameras, spp=spp, integrator={"type": "path", "max_depth": int(max_depth)})
     params = scene.parameters()
     ms.set_weights(np.nan_to_num(scene.reference(params)), params)

@@ -1,14 +1,129 @@
-"""results.json (``docs/results.md``) and the run folder's images."""
+"""The run folder: who may write it (:class:`RunFolder`), results.json (``docs/results.md``)
+and the images."""
 from __future__ import annotations
 
 import json
+import os
+import re
+import shutil
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from framework.cache import atomic_write_bytes
+from framework.errors import ConfigError
 from framework.images import write_exr
 from framework.registry import MethodResult, Problem
+
+RESULTS_NAME = "results.json"
+#: What a run writes into its folder besides Hydra's ``.hydra/`` and ``<job>.log``: a failed
+#: run removes these names only, so a file someone else put there meanwhile survives.
+OUTPUT_NAMES = ("images", "report.md", "report.html", "report_files", RESULTS_NAME)
+HYDRA_NAMES = (".hydra",)
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    """Whether ``path`` is ``folder`` or below it (symbolic links resolved)."""
+    return path.resolve().is_relative_to(folder.resolve())
+
+
+def _foreign_reason(foreign: list[str]) -> str:
+    """Why a run folder holding ``foreign`` entries is not this run's to write."""
+    if "scene.yaml" in foreign:
+        return "holds a scene (scene.yaml), which runs never write to"
+    if RESULTS_NAME in foreign:
+        return f"holds an earlier run ({RESULTS_NAME})"
+    shown = ", ".join(foreign[:3]) + (", ..." if len(foreign) > 3 else "")
+    return f"already holds files ({shown})"
+
+
+@dataclass(frozen=True)
+class RunFolder:
+    """The folder of one run, checked before anything is written into it.
+
+    A failed run calls :meth:`discard`, which removes what this run writes (``OUTPUT_NAMES``,
+    Hydra's files) and the folder itself if the run created it, never anything else: the folder
+    is refused up front when it holds anything else (:meth:`claim`).
+    """
+
+    path: Path
+    existed: bool
+    log_name: str = "run.log"
+
+    @classmethod
+    def claim(cls, path, *, scene_root, key: str = "hydra.run.dir", hydra_written=(),
+              log_name: str = "run.log") -> RunFolder:
+        """The run folder ``path``, if this run may write it: new, empty, or holding only the
+        ``hydra_written`` entries.
+
+        The command line claims the folder before Hydra starts (``hydra_written`` empty); a
+        sweep job can only be checked once Hydra has created its folder and written ``.hydra/``
+        and the log into it: those are ``hydra_written``, and the folder counts as this run's.
+
+        Raises
+        ------
+        ConfigError
+            If ``path`` is a file, lies in the scene folder ``scene_root``, or holds anything
+            else (a scene, an earlier run, other files); the message names ``key``, the setting
+            that chose the folder.
+        """
+        path = Path(os.path.abspath(path))      # as Hydra names it (runtime.output_dir)
+        where = f"run folder {path} ({key})"
+        if _inside(path, Path(scene_root)):
+            raise ConfigError(f"{where} is inside the scene folder {Path(scene_root).resolve()}, "
+                              "which runs never write to: choose a run folder outside it")
+        if path.exists() and not path.is_dir():
+            raise ConfigError(f"{where} is a file: choose a new or empty folder")
+        foreign = sorted(e.name for e in path.iterdir() if e.name not in hydra_written) if path.is_dir() else []
+        if foreign:
+            raise ConfigError(f"{where} {_foreign_reason(foreign)}: choose a new or empty folder, "
+                              "so that this run's files cannot mix with others")
+        return cls(path, path.is_dir() and not hydra_written, log_name)
+
+    def discard(self) -> None:
+        """Remove what this run wrote, after a failure; keep a finished run (results.json)."""
+        if not self.path.is_dir() or (self.path / RESULTS_NAME).exists():
+            return
+        for name in (*OUTPUT_NAMES, *HYDRA_NAMES, self.log_name):
+            entry = self.path / name
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry, ignore_errors=True)
+            else:
+                entry.unlink(missing_ok=True)
+        if not self.existed:
+            try:
+                self.path.rmdir()         # only when empty: anything added meanwhile stays
+            except OSError:
+                pass
+
+
+def image_paths(names) -> dict[str, str]:
+    """A path below ``images/`` for each image name, unique, that stays in the run folder.
+
+    Image names come from the scene's ``images.txt`` and may hold sub-folders (kept:
+    ``left/top_000.png``); empty, ``.`` and leading ``/`` parts are dropped, ``..`` parts
+    become ``__`` and control characters ``_``, so no name writes outside ``images/``.
+    results.json keeps the original names.
+    """
+    out, used = {}, set()
+    for name in names:
+        parts = [p for p in re.split(r"[\\/]+", str(name)) if p not in ("", ".")]
+        base = "/".join("__" if p == ".." else re.sub(r"[\x00-\x1f]", "_", p) for p in parts) or "view"
+        stem, n = base, 1
+        while stem.casefold() in used:           # two names made equal (or equal but for case)
+            n += 1
+            stem = f"{base}~{n}"
+        used.add(stem.casefold())
+        out[name] = f"images/{stem}"
+    return out
+
+
+def _target(run_dir: Path, rel: str) -> Path:
+    """``run_dir / rel`` with its folder created (image names may hold sub-folders)."""
+    path = run_dir / rel
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path
 
 
 def _listify(row: np.ndarray) -> list | None:
@@ -21,6 +136,7 @@ def _listify(row: np.ndarray) -> list | None:
 def parameter_rows(problem: Problem, result: MethodResult) -> list[dict]:
     params = result.parameters or problem.parameters
     ref = problem.scene.reference(params)
+    ill = result.extras.get("ill_determined")       # (P,) bools, from methods with a std
     rows = []
     for p in params:
         est = result.estimate[p.index]
@@ -33,6 +149,8 @@ def parameter_rows(problem: Problem, result: MethodResult) -> list[dict]:
             row["std"] = _listify(result.std[p.index]) if observable else None
         if result.observable is not None:
             row["observable"] = observable
+        if ill is not None:
+            row["ill_determined"] = bool(ill[p.index])
         rows.append(row)
     return rows
 
@@ -50,9 +168,10 @@ def write_view_images(run_dir: Path, problem: Problem, result: MethodResult, seg
     """Observed / reconstruction EXRs and segment maps under ``images/``; their entries for results.json."""
     entries = []
     (run_dir / "images").mkdir(parents=True, exist_ok=True)
+    paths = image_paths(c.name for c in problem.cameras)
     for cam in problem.cameras:
-        base = f"images/{cam.name}"
-        write_exr(run_dir / f"{base}.observed.exr", problem.observed[cam.name], problem.scene.channels)
+        base = paths[cam.name]
+        write_exr(_target(run_dir, f"{base}.observed.exr"), problem.observed[cam.name], problem.scene.channels)
         entry = {"name": cam.name, "observed": f"{base}.observed.exr", "reconstruction": None, "segments": None}
         if cam.name in result.reconstructions:
             write_exr(run_dir / f"{base}.reconstruction.exr", result.reconstructions[cam.name],
@@ -70,9 +189,10 @@ def write_relit_images(run_dir: Path, problem: Problem, result: MethodResult) ->
     EXRs under ``images/`` and the ``relit`` entries of results.json."""
     images = result.extras.pop("relit_images", None) or {}
     entries = []
+    paths = image_paths(images)
     for name, image in images.items():
-        path = f"images/{name}.exr"
-        write_exr(run_dir / path, image, problem.scene.channels)
+        path = f"{paths[name]}.exr"
+        write_exr(_target(run_dir, path), image, problem.scene.channels)
         entries.append({"name": name, "image": path})
     return entries
 
@@ -100,6 +220,6 @@ def results_dict(problem: Problem, result: MethodResult, *, method: str, setting
 
 def write_results(run_dir: Path, results: dict) -> Path:
     """Write results.json atomically: it appears whole or not at all."""
-    path = Path(run_dir) / "results.json"
+    path = Path(run_dir) / RESULTS_NAME
     atomic_write_bytes(path, (json.dumps(results, indent=2, allow_nan=False) + "\n").encode())
     return path

@@ -30,7 +30,11 @@ def main(argv=None, *, prog: str = "python -m reports") -> int:
     try:
         md_path, html_path = write_comparison(args.dirs, out=args.out)
     except ReportError as exc:
-        print(f"report: {exc}", file=sys.stderr)
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:                   # e.g. an --out folder that cannot be written
+        print(f"error: cannot write the report in {exc.filename or args.out} ({exc.strerror}): "
+              "choose a writable folder with --out", file=sys.stderr)
         return 2
     print(f"wrote {md_path} and {html_path}")
     return 0

@@ -9,8 +9,9 @@ from pathlib import Path
 import numpy as np
 
 from reports.data import as_list, find_run_dirs, fmt_num, fmt_pm, kernel_label, load_results, seed_of
-from reports.doc import Doc, link_cell
-from reports.plots import plot_bars, plot_spread
+from reports.doc import Doc, link_cell, staged
+from reports.convergence import equal_error_rows, error_curve, observable_set
+from reports.plots import plot_bars, plot_error_time, plot_spread
 from reports.run import _safe, finite_or_none, mean_abs_error, write_run_report
 
 FILES_DIR = "comparison_files"
@@ -154,6 +155,36 @@ def _section_plots(doc: Doc, scene: _Scene, files: Path, rel: str) -> None:
     doc.figures(items[1:])
 
 
+def _section_error_time(doc: Doc, scene: _Scene, files: Path, rel: str) -> None:
+    """Worst and mean |error| against time for every method (from results.json ``trace``), and
+    each baseline's time to reach the symbolic method's final worst error."""
+    only = observable_set([r for _, r in scene.by_method.get(BASELINE, [])]) or None
+    curves = {m: [c for c in (error_curve(r, only) for _, r in scene.by_method[m]) if c is not None]
+              for m in scene.methods}
+    curves = {m: c for m, c in curves.items() if c}
+    if not curves:
+        doc.para("No run has a trace with references: nothing to plot.")
+        return
+    rows = equal_error_rows(curves, BASELINE)
+    target = rows[0]["target"] if rows else None
+    stem = _safe(scene.name)
+    plot_error_time(files / f"{stem}_error_time.png", curves, target=target,
+                    title=f"{scene.name}: error against time")
+    doc.figures([(f"{rel}/{stem}_error_time.png", "worst (solid) and mean (dashed) |error| against time")])
+    if rows:
+        doc.table(["Method", "Reached / runs", "Time to reach (s)", f"Time / {BASELINE}", "Renders to reach",
+                   "Floor (worst |error|)"],
+                  [[r["method"], f"{r['reached']} / {r['runs']}",
+                    fmt_num(r["time_s"], digits=3) if r["time_s"] is not None
+                    else f"not reached in {r['max_renders']} renders / {r['max_time_s']:.3g} s",
+                    f"×{r['ratio']:.3g}" if r["ratio"] else "—",
+                    fmt_num(r["renders"], digits=0), fmt_num(r["floor"])] for r in rows],
+                  left=1, caption=f"Errors over the parameters every {BASELINE} run estimates. "
+                  f"Target: the {BASELINE} method's final worst |error| "
+                  f"{fmt_num(target)} (median over its runs); time: median over the runs that reach it; "
+                  f"floor: median worst |error| over the last 10 % of the iterates.")
+
+
 def _section_runs(doc: Doc, scene: _Scene, out: Path) -> None:
     """One row per run with a link to its report."""
     rows = []
@@ -191,34 +222,37 @@ def write_comparison(dirs, *, out=None) -> tuple[Path, Path]:
     Raises
     ------
     ReportError
-        On bad input (nothing is written then).
+        On bad input (nothing is written then: every results.json is checked first, and the
+        comparison's files appear all at once).
     """
     runs = load_runs(dirs)
     out = Path(out) if out is not None else _default_out(dirs)
     for run_dir, _ in runs:
         if not (run_dir / "report.html").is_file():
             write_run_report(run_dir)
-    files = out / FILES_DIR
-    files.mkdir(parents=True, exist_ok=True)
     by_scene = defaultdict(list)
     for run in runs:
         by_scene[str(run[1]["scene"])].append(run)
     doc = Doc("Comparison of runs")
     doc.para(f"{len(runs)} runs, {len(by_scene)} scene(s); baseline for ratios: {BASELINE}.")
-    for name in sorted(by_scene):
-        scene = _Scene(name, by_scene[name])
-        doc.heading(f"Scene {name}")
-        _section_summary(doc, scene)
-        doc.heading("Parameter errors", level=3)
-        _section_errors(doc, scene)
-        doc.heading("Spread, time and renders", level=3)
-        _section_plots(doc, scene, files, FILES_DIR)
-        doc.heading("Runs", level=3)
-        _section_runs(doc, scene, out.resolve())
-    md_path, html_path = out / "comparison.md", out / "comparison.html"
-    md_path.write_text(doc.render_md(), encoding="utf-8")
-    html_path.write_text(doc.render_html(), encoding="utf-8")
-    return md_path, html_path
+    with staged(out, (FILES_DIR, "comparison.md", "comparison.html")) as tmp:
+        files = tmp / FILES_DIR              # figures, moved into out/ with the documents
+        files.mkdir()
+        for name in sorted(by_scene):
+            scene = _Scene(name, by_scene[name])
+            doc.heading(f"Scene {name}")
+            _section_summary(doc, scene)
+            doc.heading("Parameter errors", level=3)
+            _section_errors(doc, scene)
+            doc.heading("Spread, time and renders", level=3)
+            _section_plots(doc, scene, files, FILES_DIR)
+            doc.heading("Error against time", level=3)
+            _section_error_time(doc, scene, files, FILES_DIR)
+            doc.heading("Runs", level=3)
+            _section_runs(doc, scene, out.resolve())
+        (tmp / "comparison.md").write_text(doc.render_md(), encoding="utf-8")
+        (tmp / "comparison.html").write_text(doc.render_html(), encoding="utf-8")
+    return out / "comparison.md", out / "comparison.html"
 
 
 def _default_out(dirs) -> Path:

@@ -64,7 +64,64 @@ def check_results(path: Path, data) -> dict:
         if not isinstance(par, dict) or "segment" not in par or "kernel" not in par:
             raise ReportError(f"{path}: parameters[{i}] needs 'segment' and 'kernel' "
                               "(docs/results.md)")
+    for field, value, (shape, ok) in _typed_fields(data):
+        if not ok(value):
+            text = repr(value)
+            raise ReportError(f"{path}: {field} must be {shape}, got {text[:60] + '...' if len(text) > 63 else text}; "
+                              "re-run the method to rewrite it (docs/results.md)")
     return data
+
+
+def _number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def _numbers(x) -> bool:
+    """A list of numbers, null where unknown."""
+    return isinstance(x, list) and all(v is None or _number(v) for v in x)
+
+
+def _matrix(rows: int, cols: int):
+    """``(words, check)`` of a ``rows`` x ``cols`` list of lists of numbers."""
+    return (f"{rows} lists (one per parameter) of {cols} numbers",
+            lambda x: isinstance(x, list) and len(x) == rows and all(_numbers(r) and len(r) == cols for r in x))
+
+
+#: What the fields of results.json that the reports compute with may hold, as ``(words of the
+#: error message, check)``. The reports turn them into arrays and figures: checking them all
+#: first is what lets a bad file fail before any report file is written.
+NUMBER = ("a number", _number)
+NUMBER_OR_NULL = ("a number or null", lambda x: x is None or _number(x))
+PER_CHANNEL = ("numbers per channel or null", lambda x: x is None or _number(x) or _numbers(x))
+NUMBER_LIST = ("a list of numbers", _numbers)
+OBJECT_LIST = ("a list of objects", lambda x: isinstance(x, list) and all(isinstance(v, dict) for v in x))
+TOP_LEVEL = {
+    "renders": NUMBER_OR_NULL, "image_rmse": NUMBER_OR_NULL,
+    "cost_history": NUMBER_LIST, "cost_times_s": NUMBER_LIST,
+    "timings_s": ("an object of numbers",
+                  lambda x: isinstance(x, dict) and all(v is None or _number(v) for v in x.values())),
+    "settings": ("an object", lambda x: isinstance(x, dict)),
+    "correlation": ("an object", lambda x: isinstance(x, dict)),
+    "segments": ("a list", lambda x: isinstance(x, list)),
+    "views": OBJECT_LIST, "relit": OBJECT_LIST, "trace": OBJECT_LIST,
+}
+
+
+def _typed_fields(data: dict):
+    """``(field, value, (words, check))`` of every present, non-null field the reports compute with."""
+    yield from ((k, data[k], shape) for k, shape in TOP_LEVEL.items() if data.get(k) is not None)
+    for i, par in enumerate(data["parameters"]):
+        yield from ((f"parameters[{i}].{k}", par[k], PER_CHANNEL)
+                    for k in ("estimate", "reference", "error", "std") if k in par)
+    correlation = data.get("correlation")
+    if isinstance(correlation, dict) and "matrix" in correlation:
+        n = len(correlation["matrix"]) if isinstance(correlation["matrix"], list) else 0
+        yield "correlation.matrix", correlation["matrix"], (f"a {n} x {n} list of numbers", _matrix(n, n)[1])
+    estimate = _matrix(len(data["parameters"]), len(data["channels"]))
+    for i, entry in enumerate(data.get("trace") or []):
+        if isinstance(entry, dict):
+            yield f"trace[{i}].estimate", entry.get("estimate"), estimate
+            yield from ((f"trace[{i}].{k}", entry.get(k), NUMBER) for k in ("time_s", "renders"))
 
 
 def find_run_dirs(dirs) -> list[Path]:

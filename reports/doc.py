@@ -9,6 +9,11 @@ headless browser run with ``--dump-dom`` can check the page.
 from __future__ import annotations
 
 import html
+import os
+import shutil
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
 
 _CSS = """
 body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:1.5em auto;
@@ -167,3 +172,36 @@ class Doc:
 def link_cell(text: str, href: str) -> tuple[str, str]:
     """A table cell holding a link, as a (markdown, html) pair."""
     return f"[{text}]({href})", f'<a href="{html.escape(href)}">{html.escape(text)}</a>'
+
+
+@contextmanager
+def staged(out_dir, names):
+    """Write a report all at once: yield a temporary folder beside ``out_dir``'s files to write
+    ``names`` (files or folders) into; on success move each into ``out_dir``, replacing an older
+    one, folders first so the documents never point at missing figures. On failure (Ctrl-C
+    included) nothing is moved and ``out_dir`` is as it was; a folder it creates is removed.
+
+    Parameters
+    ----------
+    out_dir : path-like
+        The folder the report belongs in (created if missing).
+    names : sequence of str
+        What the report writes, in the order to move it into place.
+    """
+    out_dir = Path(out_dir)
+    created = not out_dir.exists()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(dir=out_dir, prefix=".report-"))
+    try:
+        yield tmp
+        for name in names:
+            if (tmp / name).is_dir() and (out_dir / name).is_dir():
+                os.replace(out_dir / name, tmp / f"{name}.old")   # removed with tmp below
+            if (tmp / name).exists():
+                os.replace(tmp / name, out_dir / name)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if created:
+            shutil.rmtree(out_dir, ignore_errors=True)
+        raise
+    shutil.rmtree(tmp, ignore_errors=True)

@@ -47,7 +47,8 @@ def plot_convergence(path, costs, *, times=None) -> None:
     costs : sequence of float
         Cost of each evaluation.
     times : sequence of float, optional
-        Wall time of each evaluation (seconds), same length as ``costs``.
+        Wall time of each evaluation, seconds since the method started, same length as
+        ``costs``.
     """
     costs = np.asarray(costs, dtype=float)
     with_time = times is not None and len(times) == len(costs)
@@ -59,8 +60,7 @@ def plot_convergence(path, costs, *, times=None) -> None:
     axes[0].plot(np.arange(costs.size), costs, marker=marker, ms=3)
     axes[0].set_xlabel("cost evaluation")
     if with_time:
-        axes[1].plot(np.cumsum(np.asarray(times, dtype=float)), costs, marker=marker, ms=3,
-                     color="#d62728")
+        axes[1].plot(np.asarray(times, dtype=float), costs, marker=marker, ms=3, color="#d62728")
         axes[1].set_xlabel("wall time (s)")
     for ax in axes:
         ax.set_ylabel("cost")
@@ -193,4 +193,38 @@ def plot_bars(path, labels, means, stds, *, ylabel: str, title: str = "") -> Non
     ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=10)
     ax.grid(True, axis="y", alpha=0.3)
+    _save(fig, path)
+
+
+def plot_error_time(path, curves: dict, *, target: float | None = None, title: str = "") -> None:
+    """Worst (solid) and mean (dashed) |error| against wall time, log-log, one colour per method.
+
+    Parameters
+    ----------
+    path : str or path-like
+        PNG to write.
+    curves : dict
+        Method name -> list of :class:`reports.convergence.ErrorCurve` (one per run).
+    target : float, optional
+        The symbolic method's final worst error, drawn as a horizontal line.
+    title : str, optional
+    """
+    fig = _new_figure(7.5, 4.2)
+    ax = fig.subplots()
+    for i, (method, runs) in enumerate(curves.items()):
+        colour = METHOD_COLOURS[i % len(METHOD_COLOURS)]
+        for k, c in enumerate(runs):
+            t = np.maximum(c.time_s, 1e-3)          # the first iterate can be at t = 0
+            ax.plot(t, c.worst, color=colour, lw=1.4, alpha=0.8, label=f"{method} worst" if k == 0 else None)
+            ax.plot(t, c.mean, color=colour, lw=1.0, ls="--", alpha=0.8, label=f"{method} mean" if k == 0 else None)
+    if target is not None:
+        ax.axhline(target, color="k", lw=0.8, ls=":", label="symbolic worst (final)")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("wall time since the method started (s)")
+    ax.set_ylabel("|estimate − reference|")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    if title:
+        ax.set_title(title, fontsize=9)
     _save(fig, path)

@@ -12,7 +12,7 @@ import numpy as np
 
 from framework import images
 from reports.data import RESULTS_NAME, as_list, check_results, fmt_num, kernel_label, load_results, seed_of
-from reports.doc import Doc
+from reports.doc import Doc, staged
 from reports.plots import plot_convergence, plot_correlation, plot_difference, plot_segments
 
 FILES_DIR = "report_files"
@@ -33,10 +33,10 @@ def _short(value, limit: int = 120) -> str:
 class _RunContext:
     """Paths and notes shared by the sections of one run report."""
 
-    def __init__(self, run_dir: Path, results: dict):
+    def __init__(self, run_dir: Path, results: dict, files: Path):
         self.run_dir = run_dir
         self.results = results
-        self.files = run_dir / FILES_DIR
+        self.files = files                  # where the figures go until the report is complete
         self.files.mkdir(exist_ok=True)
         self.metrics: list[tuple[str, dict]] = []
 
@@ -83,7 +83,7 @@ def parameter_rows(res: dict) -> tuple[list, list, list | None]:
     channels, params = list(res["channels"]), res["parameters"]
     nc = len(channels)
     has_std = any(p.get("std") is not None for p in params)
-    has_obs = any("observable" in p for p in params)
+    has_obs = any("observable" in p or "ill_determined" in p for p in params)
     per_ch = ["Ref.", "Estim.", "Error"] + (["Std"] if has_std else [])
     lead = ["Object", "Param."] + (["Observable"] if has_obs else [])
     columns = lead + per_ch * nc
@@ -95,7 +95,8 @@ def parameter_rows(res: dict) -> tuple[list, list, list | None]:
                (kernel_label(p["kernel"]), kernel_label(p["kernel"], html=True))]
         previous = obj
         if has_obs:
-            row.append("no" if p.get("observable") is False else "yes")
+            row.append("no" if p.get("observable") is False else
+                       "ill-determined" if p.get("ill_determined") else "yes")
         cols = [as_list(p.get(k), nc) for k in ("reference", "estimate", "error", "std")]
         for c in range(nc):
             row += [fmt_num(cols[0][c]), fmt_num(cols[1][c]), fmt_num(cols[2][c])]
@@ -261,28 +262,25 @@ def write_run_report(run_dir, results: dict | None = None) -> tuple[Path, Path]:
     Raises
     ------
     ReportError
-        If ``results.json`` is missing, unreadable or lacks a required key.
+        If ``results.json`` is missing, unreadable, lacks a required key or holds a field of
+        the wrong type; nothing is written then. The report's files appear all at once
+        (:func:`reports.doc.staged`).
     """
     start = time.perf_counter()
     run_dir = Path(run_dir)
     res = load_results(run_dir) if results is None else check_results(run_dir / RESULTS_NAME, results)
-    ctx = _RunContext(run_dir, res)
     seed = seed_of(res)
-    title = f"{res['method']} on {res['scene']}" + (f" (seed {seed})" if seed is not None else "")
-    doc = Doc(title)
-    _section_overview(doc, res)
-    _section_parameters(doc, res)
-    _section_timings(doc, res)
-    _section_convergence(doc, ctx)
-    _section_views(doc, ctx)
-    _section_correlation(doc, ctx)
-    _section_relit(doc, ctx)
-    elapsed = time.perf_counter() - start
-    doc.para(f"Report generated in {elapsed:.2f} s.", note=True)
-    md_path, html_path = run_dir / "report.md", run_dir / "report.html"
-    md_path.write_text(doc.render_md(), encoding="utf-8")
-    html_path.write_text(doc.render_html(), encoding="utf-8")
-    return md_path, html_path
+    doc = Doc(f"{res['method']} on {res['scene']}" + (f" (seed {seed})" if seed is not None else ""))
+    with staged(run_dir, (FILES_DIR, "report.md", "report.html")) as tmp:
+        ctx = _RunContext(run_dir, res, tmp / FILES_DIR)
+        for section in (_section_overview, _section_parameters, _section_timings):
+            section(doc, res)
+        for section in (_section_convergence, _section_views, _section_correlation, _section_relit):
+            section(doc, ctx)
+        doc.para(f"Report generated in {time.perf_counter() - start:.2f} s.", note=True)
+        (tmp / "report.md").write_text(doc.render_md(), encoding="utf-8")
+        (tmp / "report.html").write_text(doc.render_html(), encoding="utf-8")
+    return run_dir / "report.md", run_dir / "report.html"
 
 
 def finite_or_none(value):

@@ -53,6 +53,15 @@ def make_tiny_scene(root: Path, *, size: int = 16, channels: str = "rgb", n_view
     return root
 
 
+def edit_scene_yaml(root: Path, fn) -> None:
+    """Apply ``fn`` to the parsed ``root/scene.yaml`` (a dict, edited in place) and write it back."""
+    import yaml
+    path = Path(root) / "scene.yaml"
+    desc = yaml.safe_load(path.read_text())
+    fn(desc)
+    path.write_text(yaml.safe_dump(desc, sort_keys=False))
+
+
 def small_copy(name: str, dest: Path, *, size: int, views: list[str]) -> Path:
     """A copy of bundled scene ``name`` whose ``views`` are resampled to ``size`` x ``size`` pixels
     (same pose and field of view), for tests that must stay <= 64x64."""

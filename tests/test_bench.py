@@ -11,10 +11,14 @@ from bench.sizes import QUICK
 
 
 def _fake_results(err: float, observable: bool = True) -> dict:
-    return {"parameters": [{"segment": "wall", "kernel": "diffuse", "estimate": [0.7], "reference": [0.72],
+    """One observable and one unobservable parameter; the trace ends at the final estimate."""
+    return {"channels": ["Y"],
+            "parameters": [{"segment": "wall", "kernel": "diffuse", "estimate": [0.7], "reference": [0.72],
                             "error": [err], "observable": observable},
                            {"segment": "roof", "kernel": "diffuse", "estimate": None, "reference": [0.2],
                             "error": None, "observable": False}],
+            "trace": [{"time_s": 0.5, "renders": 1, "estimate": [[0.5], [None]]},
+                      {"time_s": 2.0, "renders": 1, "estimate": [[0.72 + err], [None]]}],
             "timings_s": {"total": 2.0}, "renders": 1}
 
 
@@ -57,5 +61,7 @@ def test_markdown_renders_from_fake_numbers():
                "python": "p", "platform": "x", "date": "today", "git": "g"}
     text = markdown.render(machine, "python -m bench --quick", 60.0, sizes, ratio, mem, rows, mono, "r.md")
     assert "python -m bench --quick" in text and "Table 2" in text and "**not met**" in text
+    # every method ends at the same error 0.01 at t = 2 s: the baselines reach the symbolic's there
+    assert "| differentiable | 0.010 | 2.0 s (1 renders), 1.0 x symbolic | 0.010 |" in text
     assert "| 4 | 64x64 | dask |" in text
     assert "32x32: +2 % (133 MiB at 1 view to 136 MiB at 4); 64x64: +2 % (165 MiB at 1 view to 168 MiB at 4)" in text

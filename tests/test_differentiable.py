@@ -1,4 +1,4 @@
-"""The differentiable-rendering baseline (methods/differentiable): prb gradients + Adam."""
+"""The differentiable-rendering baseline (methods/differentiable): prb_dirac gradients + Adam."""
 from __future__ import annotations
 
 import numpy as np
@@ -9,14 +9,16 @@ from framework.errors import ConfigError
 
 
 def test_differentiable_recovers_diffuse(tmp_path):
-    """16 spp, lr 0.02, budget 200 (99 iterations): |ρ - ρ_ref| <= 0.05.
+    """16 spp, lr 0.02, budget 200 (99 iterations): |ρ - ρ_ref| <= 0.03.
 
-    Tolerance source: measured max error 0.010 on this scene; Adam with a constant step ends
-    in a noise ball of radius ~lr = 0.02, so 0.05 = 2.5 lr.
+    Tolerance source: max error measured over seeds 0-5 (``tiny_problem(seed=s)``: observation
+    stream and run seed): 0.008-0.018 (seed 0: 0.010); 0.03 = 1.7x the worst seed (Adam with a
+    constant step ends in a noise ball of radius ~lr = 0.02). The last 10 costs average 0.20-0.23
+    of the first over the same seeds; asserted < 0.5.
     """
     problem = tiny_problem(tmp_path / "s", spp=16, budget=200)
     result = run_differentiable(problem)
-    assert max_error(problem, result) <= 0.05
+    assert max_error(problem, result) <= 0.03
     assert result.renders <= 200
     assert result.renders == 2 * result.extras["iterations"] + 1
     assert len(result.cost_history) == len(result.cost_times_s) == result.extras["iterations"]
@@ -41,13 +43,15 @@ def test_differentiable_two_views_gradient_direction(tmp_path):
     assert set(result.reconstructions) == {c.name for c in problem.cameras}
 
 
-def test_differentiable_specular_has_no_gradient(tmp_path):
-    """prb samples Dirac lobes detached: specular weights keep the guess and are reported."""
+def test_differentiable_specular_weights_move(tmp_path):
+    """Dirac-lobe (mirror) weights get gradients (prb_dirac; Mitsuba's prb gives none): every
+    channel of every specular weight leaves its guess in 3 Adam steps (each about lr = 0.02;
+    measured moves 0.04 .. 0.06). Gradient accuracy: test_differentiable_gradients."""
     problem = tiny_problem(tmp_path / "s", kernels=("diffuse", "specular"), budget=7, obs_spp=16)
-    result = run_differentiable(problem, guess={"diffuse": 0.5, "specular": 0.1})
-    assert result.extras["zero_gradient"] == ["ground/specular", "block/specular"]
+    result = run_differentiable(problem, guess={"diffuse": 0.3, "specular": 0.5}, lr=0.02)
+    assert "zero_gradient" not in result.extras
     spec = [p.index for p in problem.parameters if p.kernel == "specular"]
-    np.testing.assert_allclose(result.estimate[spec], 0.1)
+    assert np.all(np.abs(result.estimate[spec] - 0.5) > 0.01)
 
 
 @pytest.mark.parametrize("key, value", [

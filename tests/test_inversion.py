@@ -50,22 +50,32 @@ def test_symbolic_recovers_cornell_box(tmp_path):
 def test_symbolic_recovers_small_urban_canyon(tmp_path, small_canyon):
     """Kernel setting (diffuse + specular, 12 parameters), 3 views of 48x48, 64 spp.
 
-    Measured: |error| <= 0.011 for the diffuse weights of wall, roof, asphalt and balcony and
-    <= 0.04 for the window's specular weight; the small dark awning is worst (0.08).
-    Tolerances: 0.02, 0.06 and 0.12.
+    Max |error| measured over seeds 0-5, with ``observe.seed`` = seed and with it fixed at 0
+    (12 runs; seed 0 in brackets), and the tolerances (1.5x the worst run):
+    the diffuse weights of wall, roof, asphalt and balcony 0.008-0.031 [0.008] (worst roof ρ_d,
+    then balcony ρ_d 0.022): 0.045; the window's specular weight 0.007-0.039 [0.039]: 0.06;
+    every parameter but the roof's ρ_s 0.020-0.098 [0.039] (worst awning ρ_s): 0.15. The roof,
+    seen by the aerial view only, has an ill-posed ρ_d/ρ_s split (see the tests below): its ρ_s
+    (reference 0) was 0.0 [0.0] at seeds 0 and 4 but 0.11-0.40 at the others: 0.6.
     """
     r = _run(tmp_path, "k", ["method=symbolic", f"scene.dir={small_canyon}", "views=all", "render.spp=64",
                              "observe.spp=512"])
     big = [p for p in r["parameters"] if p["kernel"] == "diffuse" and p["segment"] in ("wall", "roof", "asphalt", "balcony")]
-    assert max(abs(e) for p in big for e in p["error"]) < 0.02
+    assert max(abs(e) for p in big for e in p["error"]) < 0.045
     window_s = next(p for p in r["parameters"] if p["segment"] == "window" and p["kernel"] == "specular")
     assert max(abs(e) for e in window_s["error"]) < 0.06
-    assert _errors(r).max() < 0.12
+    roof_s = [p for p in r["parameters"] if p["segment"] == "roof" and p["kernel"] == "specular"]
+    others = [p for p in r["parameters"] if p not in roof_s]
+    assert len(roof_s) == 1 and len(others) == 11
+    assert max(abs(e) for p in others for e in p["error"]) < 0.15
+    assert max(abs(e) for e in roof_s[0]["error"]) < 0.6
 
 
 def test_lambertian_prior_on_small_urban_canyon(tmp_path, small_canyon):
-    """The paper's Table 1 setting: segments without a specular part are recovered (measured
-    <= 0.008, tolerance 0.02); the window, 0.72 specular, is not (the paper's -0.67)."""
+    """The paper's Table 1 setting: segments without a specular part are recovered (max |error|
+    measured over seeds 0-5, ``seed`` and ``observe.seed``: 0.005-0.012, seed 0: 0.009;
+    tolerance 0.02 = 1.7x the worst seed); the window, 0.72 specular, is not (the paper's -0.67;
+    measured 0.51-0.52 over the same seeds, asserted > 0.1)."""
     r = _run(tmp_path, "l", ["method=lambertian_prior", f"scene.dir={small_canyon}", "views=all",
                              "render.spp=64", "observe.spp=512"])
     assert all(p["kernel"] == "diffuse" for p in r["parameters"])
@@ -93,13 +103,18 @@ def test_observations_rendered_once_and_cache_rebuilt_when_corrupt(tmp_path):
 
 
 @pytest.mark.parametrize("method,extra,tol", [
-    ("iterative", ["method.noise=fixed", "budget.renders=120"], 0.05),
-    ("differentiable", ["budget.renders=120", "render.spp=16"], 0.05),
-    ("lambertian_prior", [], 0.02),
+    ("iterative", ["method.noise=fixed", "budget.renders=120"], 0.1),
+    ("differentiable", ["budget.renders=120", "render.spp=16"], 0.035),
+    ("lambertian_prior", [], 0.04),
 ])
 def test_baselines_recover_cornell_box(tmp_path, method, extra, tol):
     """Each baseline within its own tolerance (iterative: forward differences of step 0.02
-    shift the optimum by ~step/2; differentiable: Adam noise), within its render budget."""
+    shift the optimum by ~step/2, plus the fixed 32-spp noise; differentiable: Adam noise),
+    within its render budget. Max |error| measured (``seed`` = ``observe.seed`` = s unless
+    stated; the test runs seed 0, where the errors are 0.021, 0.017 and 0.006):
+    iterative, seeds 0-9 and seeds 1-5 with observe.seed 0 (15 runs): 0.014-0.067 (seed 4),
+    tolerance 0.1 = 1.5x; differentiable, seeds 0-5: 0.011-0.020, tolerance 0.035 = 1.8x;
+    lambertian_prior, seeds 0-19: 0.004-0.028 (seed 7), tolerance 0.04 = 1.5x."""
     r = _run(tmp_path, method, [f"method={method}", "scene=cornell_box", "render.spp=32", "observe.spp=256",
                                 *extra])
     assert r["renders"] <= 120
@@ -109,7 +124,9 @@ def test_baselines_recover_cornell_box(tmp_path, method, extra, tol):
 def test_iterative_fresh_noise_spreads_more_than_symbolic(tmp_path):
     """The paper's claim (section 4.2): re-rendering with fresh noise at every evaluation makes
     the plain algorithm's estimates spread across seeds more than the symbolic method's.
-    3 seeds on the tiny diffuse scene at 4 spp; asserted as a ratio of standard deviations > 1.5."""
+    3 seeds on the tiny diffuse scene at 4 spp; asserted as a ratio of standard deviations > 1.5.
+    Measured on 5 disjoint seed triples (0-2, 3-5, ..., 12-14, with observe.seed 0-4): ratios
+    1.8-12.3 (seeds 0-2: 11.1); the claim's threshold 1.5 stays below the worst triple."""
     scene = make_tiny_scene(tmp_path / "tiny", kernels=("diffuse",))
     spread = {}
     for method, extra in (("iterative", ["method.noise=fresh", "budget.renders=40"]), ("symbolic", [])):

@@ -21,8 +21,9 @@ def expected_renders(result, D: int) -> int:
 def test_iterative_recovers_diffuse(tmp_path):
     """Fixed noise (common random numbers), forward FD, 64 spp: |ρ - ρ_ref| <= 0.05.
 
-    Tolerance source: measured max error 0.021 on this scene (forward differences shift the
-    optimum by about step/2 = 0.01, plus Monte-Carlo noise at 64 vs 256 spp); 0.05 leaves 2x.
+    Tolerance source: max error measured over seeds 0-5 (``tiny_problem(seed=s)``: observation
+    stream and run seed): 0.019-0.033 (seed 0: 0.021); forward differences shift the optimum by
+    about step/2 = 0.01, plus Monte-Carlo noise at 64 vs 256 spp. 0.05 = 1.5x the worst seed.
     """
     problem = tiny_problem(tmp_path / "s", spp=64, budget=200)
     result = run_iterative(problem, noise="fixed")
@@ -168,7 +169,10 @@ def test_project_feasible():
 
 
 def test_iterative_init_lambertian_prior(tmp_path):
-    """init: lambertian_prior starts from that method's diffuse estimates; its renders count."""
+    """init: lambertian_prior starts from that method's diffuse estimates; its renders count.
+
+    |ρ - ρ_ref| <= 0.1: max error measured over seeds 0-5 (``tiny_problem(seed=s)``, 64-spp
+    observations): 0.007-0.059 (seed 0: 0.023); 0.1 = 1.7x the worst seed."""
     problem = tiny_problem(tmp_path / "s", budget=4, obs_spp=64)
     result = run_iterative(problem, init="lambertian_prior")
     assert 2 <= result.renders <= 4

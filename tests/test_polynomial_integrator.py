@@ -76,7 +76,8 @@ def test_furnace_sphere():
     pixel spread (all pixels identically distributed) plus 0.5 % : Mitsuba's analytic sphere
     emitter is itself biased by ~0.27 % here (measured: ``path`` max_depth=2, 1024 spp, ρ = 0.5 gave
     1.05094 ± 0.00005 for the exact 1.05; this integrator 0.70194 for γ(ρ) = 0.7, the same excess).
-    ρ^0 is exact (Le seen directly)."""
+    ρ^0 is exact (Le seen directly). Power: the standard error was 0.042-0.050 % of Le over seeds
+    2-7 (the test uses 2), so se < 0.1 % of Le (2x the worst) keeps 4σ well below the 0.5 %."""
     Le = 0.7
     scene = mi.load_dict({
         "type": "scene",
@@ -96,7 +97,7 @@ def test_furnace_sphere():
         m = integ.basis.index([0] * k)
         mean, se = mean_and_se(c[:, m])
         assert np.all(np.abs(mean - Le) < 4 * se + 0.005 * Le), (k, mean, se)
-        assert np.all(se < 0.05 * Le)     # the test has power
+        assert np.all(se < 0.001 * Le)     # the test has power
 
 
 SEGMENTS = [[("diffuse", 0), ("diffuse", 1)],   # 0 white: two kernels (exercises selection)
@@ -158,7 +159,10 @@ def test_cornell_matches_path(guess):
     seeds. Each estimator is run R = 4 times (32x32, 32 spp); image means and 2x2-quadrant means per
     channel must agree at |z| < 4 (σ from the repetition variance). 'far': guesses 0.9 while the
     true white weights are ~0.1 (only the variance may change, not the expectation). Also checks
-    mi.render(polynomial integrator) (= polynomial at the guesses) against path at ρ = guesses."""
+    mi.render(polynomial integrator) (= polynomial at the guesses) against path at ρ = guesses.
+    The image means' ratio is also bounded in absolute terms: |ratio - 1| measured over 6 seed
+    offsets (seeds + 1000 k, k = 0-5; the test uses k = 0) was 0.0001-0.017 (near) and
+    0.0005-0.024 (far), tolerance 0.04 = 1.7x the worst."""
     rng = np.random.default_rng(5 if guess == "near" else 6)
     rho = rng.uniform(0.1, 0.45, (5, 3))
     if guess == "far":
@@ -175,7 +179,7 @@ def test_cornell_matches_path(guess):
         ref.append(np.asarray(mi.render(scene, integrator=path, spp=spp, seed=100 + r)))
     poly, ref = np.array(poly), np.array(ref)
     _assert_same_expectation(poly, ref)
-    assert abs(poly.mean() / ref.mean() - 1) < 0.05   # and close in absolute terms
+    assert abs(poly.mean() / ref.mean() - 1) < 0.04   # and close in absolute terms
 
     if guess == "near":
         scene_g, _ = cornell(guesses)
@@ -189,7 +193,8 @@ def test_cornell_matches_path(guess):
 def test_tail_is_exact_at_the_guesses():
     """tail_bounces T: at ρ = guesses the polynomial equals path with max_depth = N_max + T + 1
     (|z| < 4 on image and quadrant means, R = 4 x 32 spp), and holds visibly more light than the
-    truncated path (max_depth = N_max + 1): the test has power."""
+    truncated path (max_depth = N_max + 1): the test has power (z > 8 asserted; measured
+    z >= 38 over seed offsets + 1000 k, k = 0-5)."""
     rho = np.full((5, 3), 0.6) * [[1], [0.5], [1], [1], [1]]
     N, T, R, spp, res = 1, 3, 4, 32, 32
     scene, shape_segments = cornell(rho)

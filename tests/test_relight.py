@@ -2,8 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
-import yaml
-from factory import make_problem, make_tiny_scene, mean_difference, run_symbolic
+from factory import edit_scene_yaml, make_problem, make_tiny_scene, mean_difference, run_symbolic
 
 from framework.relight import reflectance_images, relit_scene, render_relit, sun
 from framework.scene import load_scene
@@ -29,13 +28,14 @@ def test_relit_matches_path_render_of_relit_scene_folder(tmp_path):
     new sun. Both are Monte Carlo: 8 seeded repetitions at 16 spp each give per-pixel means and
     sample variances; the channel means over the image agree within 4σ (σ from the per-pixel
     variances), and ≥ 99 % of pixels agree within 4σ (per pixel); the relit image is also
-    significantly different (> 4σ) from the original illumination on > 2 % of pixel channels."""
+    significantly different (> 4σ) from the original illumination on > 2 % of pixel channels.
+    The 4σ bounds are z-tests; the power threshold 2 % was checked over 6 seed sets (seeds
+    16j + 0..15, j = 0-5; the test uses j = 0): 4.0-4.7 % of pixel channels, and the fraction
+    within 4σ of the truth was 99.6-100 %."""
     scene = _scene(tmp_path)
     params = scene.parameters()
     rho = scene.reference(params)
-    desc = yaml.safe_load((scene.root / "scene.yaml").read_text())
-    desc["emitters"][1]["direction"] = NEW_SUN
-    (scene.root / "scene.yaml").write_text(yaml.safe_dump(desc, sort_keys=False))
+    edit_scene_yaml(scene.root, lambda d: d["emitters"][1].update(direction=NEW_SUN))
     truth_scene = load_scene(scene.root)
     relit = relit_scene(scene, [e for e in scene.emitters if e.type == "constant"]
                         + [sun(NEW_SUN, scene.emitters[1].irradiance, scene.channels)])

@@ -1,7 +1,6 @@
 """reports: per-run report and comparison content, from fake run folders."""
 import json
 import re
-import time
 from pathlib import Path
 
 from reports import write_comparison, write_run_report
@@ -67,14 +66,13 @@ def test_unobservable_parameter_and_missing_image(tmp_path):
     assert "reconstruction: cannot read images/gone.exr" in md
 
 
-def test_report_time_200px_single_view(tmp_path):
+def test_report_200px_single_view(tmp_path):
+    """A street-view-sized run gets its report (its time is in results.json timings_s.report and
+    the benchmark, not asserted here)."""
     run = make_fake_run(tmp_path / "big", size=200)
-    write_run_report(make_fake_run(tmp_path / "warm"))   # imports and font cache, as in a run
-    start = time.perf_counter()
-    write_run_report(run)
-    elapsed = time.perf_counter() - start
-    print(f"report generation, 200x200 single view: {elapsed:.2f} s")
-    assert elapsed < 2.0
+    md, html = write_run_report(run)
+    assert md.is_file() and html.is_file()
+    assert "report_files/" in md.read_text()
 
 
 def test_comparison_numbers(fake_sweep, capsys):

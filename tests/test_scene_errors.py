@@ -3,18 +3,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import yaml
+from factory import edit_scene_yaml
 
 from framework.errors import ConfigError, EnvironmentSetupError, SceneError
 from framework.images import write_exr
 from framework.scene import load_scene
-
-
-def _edit(root, fn):
-    path = root / "scene.yaml"
-    desc = yaml.safe_load(path.read_text())
-    fn(desc)
-    path.write_text(yaml.safe_dump(desc, sort_keys=False))
 
 
 def _images(root, *, shape=(16, 16, 3), value=0.2, names=("R", "G", "B"), skip=()):
@@ -66,22 +59,22 @@ def test_mesh_errors(tiny_scene):
 
 
 def test_segment_errors(tiny_scene):
-    _edit(tiny_scene, lambda d: d["segments"][1].update(meshes=[]))
+    edit_scene_yaml(tiny_scene, lambda d: d["segments"][1].update(meshes=[]))
     with pytest.raises(SceneError, match="segment 'block' has no meshes"):
         load_scene(tiny_scene)
-    _edit(tiny_scene, lambda d: d["segments"][1].update(meshes=["meshes/ground.ply"]))
+    edit_scene_yaml(tiny_scene, lambda d: d["segments"][1].update(meshes=["meshes/ground.ply"]))
     with pytest.raises(SceneError, match="meshes/ground.ply is in segments 'ground' and 'block'"):
         load_scene(tiny_scene)
-    _edit(tiny_scene, lambda d: d["segments"][1].update(meshes=["meshes/block.ply"], kernels=["glossy"]))
+    edit_scene_yaml(tiny_scene, lambda d: d["segments"][1].update(meshes=["meshes/block.ply"], kernels=["glossy"]))
     with pytest.raises(SceneError, match="unknown kernel 'glossy'"):
         load_scene(tiny_scene)
 
 
 def test_reference_errors(tiny_scene):
-    _edit(tiny_scene, lambda d: d["segments"][0]["reference"].update(diffuse=[0.5, 1.2, 0.3]))
+    edit_scene_yaml(tiny_scene, lambda d: d["segments"][0]["reference"].update(diffuse=[0.5, 1.2, 0.3]))
     with pytest.raises(SceneError, match=r"reference diffuse = \[0.5, 1.2, 0.3\] is outside \[0, 1\]"):
         load_scene(tiny_scene)
-    _edit(tiny_scene, lambda d: d["segments"][0]["reference"].update(diffuse=[0.5, 0.3]))
+    edit_scene_yaml(tiny_scene, lambda d: d["segments"][0]["reference"].update(diffuse=[0.5, 0.3]))
     with pytest.raises(SceneError, match="reference diffuse has 2 values; give one number or 3"):
         load_scene(tiny_scene)
 

@@ -11,20 +11,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
-from factory import quad
+from factory import edit_scene_yaml, quad
 
 from framework.errors import SceneError
 from framework.images import write_exr
 from framework.scene import load_scene
 from framework.scene.write import write_mesh
-
-
-def _edit(root: Path, fn) -> None:
-    path = root / "scene.yaml"
-    desc = yaml.safe_load(path.read_text())
-    fn(desc)
-    path.write_text(yaml.safe_dump(desc, sort_keys=False))
 
 
 def _replace(path: Path, old: str, new: str) -> None:
@@ -58,7 +50,7 @@ def _images(root: Path, names=("view_0", "view_1")) -> None:
 
 def test_segment_key_typo_is_refused(tiny_scene):
     """``kernel:`` instead of ``kernels:`` used to drop the specular kernel silently."""
-    _edit(tiny_scene, lambda d: d["segments"][0].update(kernel=d["segments"][0].pop("kernels")))
+    edit_scene_yaml(tiny_scene, lambda d: d["segments"][0].update(kernel=d["segments"][0].pop("kernels")))
     msg = _message(tiny_scene, r"segment 'ground': unknown key 'kernel' \(did you mean 'kernels'\?\); "
                                r"allowed keys: name, meshes, kernels, reference$")
     assert msg.startswith(str(tiny_scene / "scene.yaml"))
@@ -74,7 +66,7 @@ def test_segment_key_typo_is_refused(tiny_scene):
      r"segment 'block' reference: unknown key 'glossy'; allowed keys: diffuse, specular$"),
 ], ids=["top-level", "emitter", "reference"])
 def test_unknown_keys_are_refused(tiny_scene, edit, match):
-    _edit(tiny_scene, edit)
+    edit_scene_yaml(tiny_scene, edit)
     _message(tiny_scene, match)
 
 
@@ -87,12 +79,12 @@ def test_key_given_twice_is_refused(tiny_scene):
 
 
 def test_duplicate_segment_names_are_refused(tiny_scene):
-    _edit(tiny_scene, lambda d: d["segments"][1].update(name="ground"))
+    edit_scene_yaml(tiny_scene, lambda d: d["segments"][1].update(name="ground"))
     _message(tiny_scene, r"scene.yaml: segments 0 and 1 are both named 'ground'; give each segment its own name")
 
 
 def test_one_mesh_in_two_segments_through_two_spellings(tiny_scene):
-    _edit(tiny_scene, lambda d: d["segments"][1].update(meshes=["./meshes/ground.ply"]))
+    edit_scene_yaml(tiny_scene, lambda d: d["segments"][1].update(meshes=["./meshes/ground.ply"]))
     _message(tiny_scene, r"scene.yaml: mesh meshes/ground.ply is in segments 'ground' and 'block' \(as "
                          r"meshes/ground.ply and ./meshes/ground.ply: the same file\); a mesh belongs to one")
 
@@ -103,30 +95,30 @@ def test_one_mesh_in_two_segments_through_two_spellings(tiny_scene):
     ("diffuse", r"segment 'ground' kernels must be a list, e.g. \[diffuse\]; got the string 'diffuse'$"),
 ], ids=["empty", "number", "string"])
 def test_bad_kernels_value(tiny_scene, kernels, match):
-    _edit(tiny_scene, lambda d: d["segments"][0].update(kernels=kernels, reference={"diffuse": 0.5}))
+    edit_scene_yaml(tiny_scene, lambda d: d["segments"][0].update(kernels=kernels, reference={"diffuse": 0.5}))
     _message(tiny_scene, match)
 
 
 def test_segment_meshes_as_a_string(tiny_scene):
-    _edit(tiny_scene, lambda d: d["segments"][0].update(meshes="meshes/ground.ply"))
+    edit_scene_yaml(tiny_scene, lambda d: d["segments"][0].update(meshes="meshes/ground.ply"))
     _message(tiny_scene, r"segment 'ground' meshes must be a list, e.g. \[meshes/ground.ply\]; got the "
                          r"string 'meshes/ground.ply'$")
 
 
 def test_area_emitter_meshes_as_a_string(tiny_scene):
-    _edit(tiny_scene, lambda d: d["emitters"].append(
+    edit_scene_yaml(tiny_scene, lambda d: d["emitters"].append(
         {"type": "area", "meshes": "meshes/block.ply", "radiance": 1.0}))
     _message(tiny_scene, r"emitter 2 \(area\) meshes must be a list, e.g. \[meshes/block.ply\]; got the string")
 
 
 def test_emitters_as_a_string(tiny_scene):
-    _edit(tiny_scene, lambda d: d.update(emitters="constant"))
+    edit_scene_yaml(tiny_scene, lambda d: d.update(emitters="constant"))
     _message(tiny_scene, r"scene.yaml: emitters must be a list, e.g. \[\{type: constant, radiance: 1.0\}\]; "
                          r"got the string 'constant'$")
 
 
 def test_envmap_scale_not_a_number(tiny_scene):
-    _edit(tiny_scene, lambda d: d["emitters"].append({"type": "envmap", "file": "sky.exr", "scale": "bright"}))
+    edit_scene_yaml(tiny_scene, lambda d: d["emitters"].append({"type": "envmap", "file": "sky.exr", "scale": "bright"}))
     _message(tiny_scene, r"emitter 2 \(envmap\) scale must be a number >= 0; got the string 'bright'$")
 
 
@@ -139,12 +131,12 @@ def test_envmap_scale_not_a_number(tiny_scene):
      r"emitter 2 \(envmap\) scale = -1.0 must be finite and >= 0"),
 ], ids=["radiance", "irradiance", "envmap-scale"])
 def test_negative_light_is_refused(tiny_scene, emitter, match):
-    _edit(tiny_scene, lambda d: d["emitters"].append(emitter))
+    edit_scene_yaml(tiny_scene, lambda d: d["emitters"].append(emitter))
     _message(tiny_scene, match)
 
 
 def test_reference_sum_above_one(tiny_scene):
-    _edit(tiny_scene, lambda d: d["segments"][1]["reference"].update(specular=[0.2, 0.5, 0.2]))
+    edit_scene_yaml(tiny_scene, lambda d: d["segments"][1]["reference"].update(specular=[0.2, 0.5, 0.2]))
     _message(tiny_scene, r"segment 'block' reference: diffuse \+ specular = 1.1 > 1 in channel G; a segment's "
                          r"weights sum to at most 1 per channel \(energy conservation\)")
 
@@ -285,7 +277,7 @@ def test_image_name_leaving_the_folder(tiny_scene, name):
 # ----------------------------------------------------------------------------------------------
 
 def test_failed_load_leaves_the_folder_untouched(tiny_scene):
-    _edit(tiny_scene, lambda d: d["segments"][0].update(kernels="diffuse"))
+    edit_scene_yaml(tiny_scene, lambda d: d["segments"][0].update(kernels="diffuse"))
     before = _tree(tiny_scene)
     _message(tiny_scene, "must be a list")
     assert _tree(tiny_scene) == before
@@ -294,7 +286,7 @@ def test_failed_load_leaves_the_folder_untouched(tiny_scene):
 def test_content_hash_covers_meshes_outside_the_folder(tiny_scene):
     outside = tiny_scene.parent / "outside"
     write_mesh(outside / "x.ply", *quad(-1, 1, -1, 1, z=3.0))
-    _edit(tiny_scene, lambda d: d["emitters"].append({"type": "area", "meshes": ["../outside/x.ply"],
+    edit_scene_yaml(tiny_scene, lambda d: d["emitters"].append({"type": "area", "meshes": ["../outside/x.ply"],
                                                        "radiance": 1.0}))
     h0 = load_scene(tiny_scene).content_hash
     (tiny_scene / "notes.txt").write_text("not read by the loader")

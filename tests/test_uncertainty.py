@@ -142,10 +142,12 @@ def test_joint_inversion_equals_solve_of_summed_gram_systems(tmp_path):
 
 def test_hidden_segment_is_unobservable_and_a_view_makes_it_observable(tmp_path):
     """Views 0 and 1 never see ``pit``: observable False, estimate and std NaN, correlation
-    labels without it, and ground/block recovered within 0.05 of the reference (64 spp
+    labels without it, and ground/block recovered within 0.04 of the reference (64 spp
     inversion vs 64 spp observations with max_depth matched to N_max = 2; at 8 spp the noise of
-    the coefficients shrinks the estimates by ~10 % through G = Σγγᵀ, errors-in-variables). Adding ``view_9`` (below the ground) makes ``pit`` observable, recovered
-    within 0.05 as well, with a finite std."""
+    the coefficients shrinks the estimates by ~10 % through G = Σγγᵀ, errors-in-variables).
+    Adding ``view_9`` (below the ground) makes ``pit`` observable, recovered within 0.04 as
+    well, with a finite std. Tolerance source: max |error| measured over seeds 0-5 (``seed`` and
+    ``observe.seed``): 0.003-0.022 (seed 0: 0.014) in both runs; 0.04 = 1.8x the worst seed."""
     import json
 
     from framework.results import parameter_rows
@@ -156,12 +158,12 @@ def test_hidden_segment_is_unobservable_and_a_view_makes_it_observable(tmp_path)
     assert np.isnan(res.estimate[2]).all() and np.isnan(res.std[2]).all()
     assert np.isfinite(res.std[:2]).all() and (res.std[:2] > 0).all()
     ref = hidden.scene.reference(hidden.parameters)
-    np.testing.assert_allclose(res.estimate[:2], ref[:2], atol=0.05)
+    np.testing.assert_allclose(res.estimate[:2], ref[:2], atol=0.04)
     assert res.extras["correlation"]["labels"] == ["ground/diffuse", "block/diffuse"]
     rows = json.loads(json.dumps(parameter_rows(hidden, res)))
     assert rows[2]["observable"] is False and rows[2]["estimate"] is None and rows[2]["std"] is None
 
     seen = run_symbolic(make_problem(root, ["view_0.png", "view_1.png", "view_9.png"], "render.spp=64"))
     assert seen.observable.all() and np.isfinite(seen.std).all()
-    np.testing.assert_allclose(seen.estimate, ref, atol=0.05)
+    np.testing.assert_allclose(seen.estimate, ref, atol=0.04)
     assert len(seen.extras["correlation"]["labels"]) == 3

@@ -170,17 +170,24 @@ class MitsubaScene:
         out = np.array(img, dtype=np.float32)
         return out.reshape(out.shape[0], out.shape[1], -1)[..., : len(self.model.channels)]
 
+    def pixel_centre_rays(self, view: int = 0, pixels: np.ndarray | None = None):
+        """``mi.Ray3f`` through the centre of the ``pixels`` (row-major indices; default all, in
+        order) of sensor ``view``."""
+        import mitsuba as mi
+        cam = self.cameras[view]
+        if pixels is None:
+            pixels = np.arange(cam.width * cam.height)
+        y, x = np.divmod(np.asarray(pixels), cam.width)
+        pos = mi.Point2f(((x + 0.5) / cam.width).astype(np.float32), ((y + 0.5) / cam.height).astype(np.float32))
+        ray, _ = self.scene.sensors()[view].sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
+        return ray
+
     def segment_map(self, view: int = 0) -> np.ndarray:
         """(H, W) int32 segment index seen through each pixel centre (-1: sky or emitter only)."""
         import drjit as dr
         import mitsuba as mi
         cam = self.cameras[view]
-        sensor = self.scene.sensors()[view]
-        y, x = np.mgrid[0:cam.height, 0:cam.width]
-        pos = mi.Point2f(((x.ravel() + 0.5) / cam.width).astype(np.float32),
-                         ((y.ravel() + 0.5) / cam.height).astype(np.float32))
-        ray, _ = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
-        si = self.scene.ray_intersect(ray)
+        si = self.scene.ray_intersect(self.pixel_centre_rays(view))
         ids = np.array(dr.reinterpret_array(mi.UInt32, si.shape))
         table = {int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(s))[0]): seg for s, seg in self.shape_segments}
         uniq, inverse = np.unique(ids, return_inverse=True)

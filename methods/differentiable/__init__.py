@@ -1,28 +1,28 @@
-"""Differentiable rendering baseline: Mitsuba ``prb`` reverse-mode gradients and Adam."""
+"""Differentiable rendering baseline: path replay backpropagation (``prb_dirac``) and Adam."""
 from __future__ import annotations
 
-import logging
 import time
 
 import numpy as np
 
-from framework import kernels as K
 from framework.observe import inversion_seed
 from framework.registry import Method, MethodResult, Problem, register
 from framework.render.mitsuba_scene import MitsubaScene
 from methods import _common as C
+from methods.differentiable.integrator import integrator_dict
 from methods.lambertian_prior import lambertian_prior
-
-log = logging.getLogger(__name__)
 
 
 @register("differentiable")
 class DifferentiableMethod(Method):
     r"""Inverse rendering as most people would do it today: differentiable path tracing + Adam.
 
-    Each iteration renders every selected view with Mitsuba's ``prb`` integrator (path replay
-    backpropagation, ``max_depth = render.max_bounces + 1``) at the current weights ρ and
-    back-propagates the same cost as the other methods, eq. 6 with :math:`p = 2`, squared,
+    Each iteration renders every selected view with the ``prb_dirac`` integrator
+    (:class:`methods.differentiable.integrator.DiracPRBMixin`: Mitsuba's path replay
+    backpropagation ``prb``, whose adjoint also differentiates the sample weight of Dirac
+    lobes; ``max_depth = render.max_bounces + render.tail_bounces + 1``) at the current
+    weights ρ and back-propagates the same cost as the other methods, eq. 6 with
+    :math:`p = 2`, squared,
 
     .. math:: \epsilon(\rho) = \sum_{j} \sum_{i} \sum_{c}
               [L^{\text{synthetic}}_c(i, j, \rho) - L^{\text{acquired}}_c(i, j)]^2 ,
@@ -60,33 +60,37 @@ class DifferentiableMethod(Method):
         Start weights: one number in [0, 1] for every kernel (default 0.5) or a mapping
         kernel -> number, e.g. ``{diffuse: 0.5, specular: 0.1}``.
 
+    Every weight gets a gradient, Dirac-lobe kernels (``specular``, a perfect mirror)
+    included: Mitsuba's own ``prb`` gives those none (it attaches the gradient through
+    ``bsdf.eval``, which is 0 on a Dirac lobe) and, on a segment mixing a mirror with a smooth
+    kernel, biases the smooth weights' gradients (it differentiates the smooth kernels'
+    value at the mirror direction); ``prb_dirac`` differentiates the sample weight there
+    instead (``tests/test_differentiable_gradients.py`` checks both against finite
+    differences).
+
     Limitations
     -----------
-    ``prb`` samples BSDFs *detached*: the weight of a Dirac-lobe kernel (``specular``, a
-    perfect mirror) gets **no gradient** (Mitsuba's documentation: "the properties of ideal
-    specular objects cannot be optimized"). Such weights keep their initial guess (projected);
-    they are listed in ``extras["zero_gradient"]`` and a warning is logged. Adam with a
-    constant learning rate ends in a noise ball of radius about ``lr``; lower ``lr`` and raise
-    the budget for a tighter estimate.
+    Adam with a constant learning rate ends in a noise ball of radius about ``lr``; lower
+    ``lr`` and raise the budget for a tighter estimate.
     """
 
     def run(self, problem: Problem) -> MethodResult:
         opts = _options(self.cfg, problem)
-        frozen = _delta_parameters(problem)
         t0 = time.perf_counter()
         rho, spent = C.initial_guess(self.cfg, problem, prior=lambertian_prior)
         ledger = C.RenderLedger(problem.settings.budget_renders, desc="differentiable", spent=spent)
         try:
-            fit = _Fit(problem, ledger, opts)
+            fit = _Fit(problem, ledger, opts, trace=C.Trace(t0))
+            fit.trace.record(ledger.used, rho)
             rho = fit.optimise(rho)
             recon = fit.final_render(rho)
         finally:
             ledger.close()
         return C.loop_result(
             problem, ledger, started=t0, rho=rho, costs=fit.costs, times=fit.times, reconstructions=recon,
+            trace=fit.trace,
             extras={"iterations": len(fit.costs), "lr": opts["lr"], "spp": opts["spp"],
-                    "spp_grad": opts["spp_grad"], "projection": "clip + simplex face",
-                    "zero_gradient": frozen})
+                    "spp_grad": opts["spp_grad"], "projection": "clip + simplex face"})
 
     def render_at(self, problem: Problem, rho: np.ndarray, *, seed: int = 0) -> dict[str, np.ndarray]:
         """The primal pass of the fit's own AD renderer at ρ, weights written as the fit writes them."""
@@ -128,15 +132,16 @@ class _Adam:
 
 
 class _Fit:
-    """The Mitsuba scene with a ``prb`` integrator, its weight keys, and the optimisation loop."""
+    """The Mitsuba scene with a ``prb_dirac`` integrator, its weight keys, and the optimisation loop."""
 
-    def __init__(self, problem: Problem, ledger: C.RenderLedger, opts: dict):
+    def __init__(self, problem: Problem, ledger: C.RenderLedger, opts: dict, *, trace: C.Trace | None = None):
         self.problem, self.ledger, self.opts = problem, ledger, opts
         self.ms = MitsubaScene(problem.scene, problem.cameras, spp=opts["spp"],
-                               integrator={"type": "prb", "max_depth": C.max_depth(problem)})
+                               integrator=integrator_dict(C.max_depth(problem)))
         self.observed = C.observed_list(problem)
         self.costs: list[float] = []
-        self.times: list[float] = []
+        self.times: list[float] = []     # seconds since the method started, at each iteration
+        self.trace = trace or C.Trace(time.perf_counter())
 
     def optimise(self, rho: np.ndarray) -> np.ndarray:
         """Adam + projection until ``iterations`` or the budget (keeping one render for the end)."""
@@ -144,11 +149,11 @@ class _Fit:
         for it in range(self.opts["iterations"]):
             if not self.ledger.can_afford(2 + 1):
                 break
-            t0 = time.perf_counter()
             cost, grad = self.cost_and_gradient(rho, it)
             rho = C.project_feasible(adam.step(rho, grad), self.problem.parameters)
             self.costs.append(cost)
-            self.times.append(time.perf_counter() - t0)
+            self.times.append(time.perf_counter() - self.trace.started)
+            self.trace.record(self.ledger.used, rho)     # Adam's estimate is its last iterate
         return rho
 
     def cost_and_gradient(self, rho: np.ndarray, it: int) -> tuple[float, np.ndarray]:
@@ -185,21 +190,12 @@ class _Fit:
         return variables
 
     def final_render(self, rho: np.ndarray) -> list[np.ndarray]:
-        """The reconstruction at the estimate (primal ``prb`` pass, one render); empty if no budget."""
+        """The reconstruction at the estimate (primal pass, one render); empty if no budget."""
         if not self.ledger.can_afford(1):
             return []
         self.write(rho, grad=False)
         seeds = [self.seeds(len(self.costs), v)[0] for v in range(len(self.observed))]
         return C.render_pass(self.ms, spp=self.opts["spp"], seeds=seeds, ledger=self.ledger)
-
-
-def _delta_parameters(problem: Problem) -> list[str]:
-    """``segment/kernel`` of the parameters whose kernel is a Dirac lobe (no prb gradient); warns."""
-    names = [f"{p.segment_name}/{p.kernel}" for p in problem.parameters if K.get(p.kernel).delta]
-    if names:
-        log.warning("differentiable: prb gives no gradient to Dirac-lobe weights %s; they keep their "
-                    "initial guess", ", ".join(names))
-    return names
 
 
 def _to_numpy(value, n_channels: int) -> np.ndarray:

@@ -16,15 +16,17 @@ from framework.config import method_defaults
 from framework.executor import make_executor
 from framework.registry import Method, MethodResult, register
 from framework.relight import relight_outputs
-from methods._common import check_choice, check_number, initial_guess, segment_groups
+from methods._common import Trace, check_choice, check_number, initial_guess, segment_groups
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.polynomial_pass import polynomial_pass
 from methods.symbolic.solve import solve_polynomial
 from methods.symbolic.uncertainty import (
     correlation_extra,
+    ill_determined,
     observable_parameters,
     parameter_uncertainty,
     restrict_system,
+    score_meat,
 )
 
 
@@ -58,6 +60,17 @@ class SymbolicMethod(Method):
         the right ρ; it also makes the kernel selection match the estimate.
     memory_mb : float > 0, default 512
         Memory for the coefficient tiles of the pass; sets the tile size.
+    std : ``sandwich`` | ``residual``, default ``sandwich``
+        Standard errors (:mod:`methods.symbolic.uncertainty`). ``sandwich``: ``H⁺MH⁺`` with
+        ``M`` the covariance of the cost's gradient from each pixel's own term (image noise and
+        the coefficients' Monte Carlo noise, the latter from the pass's two half-sample
+        estimates, kept for it beside Γ); measured RMS z = (estimate - reference)/std 0.95 and
+        |z| < 2 for 96 % (tests/test_std_calibration.py). ``residual``: ``2σ²H⁺`` from the
+        image residual only (the formula before the sandwich): it misses the Monte Carlo noise
+        of the coefficients, RMS z 18 there, and is 0 where the cross Gram's cost at the
+        estimate is <= 0. Neither covers the bias of observations holding more than N_max
+        reflections (``observe.max_depth`` above N_max + 1) nor that of ``gram: plain``, whose
+        sandwich also lacks the halves (first-order noise only).
     solver.algorithm : ``LD_SLSQP`` | ``LD_MMA`` | ``LD_CCSAQ``, default ``LD_SLSQP``
         nlopt algorithm; all take the per-segment Σρ <= 1 constraints.
     solver.starts : int >= 1, default 4
@@ -83,9 +96,12 @@ class SymbolicMethod(Method):
     in Dask workers, :mod:`framework.executor`) of the main config.
 
     Uncertainty (:mod:`methods.symbolic.uncertainty`): parameters no pixel depends on are
-    ``observable`` False (estimate and std NaN) and left out of the solve; ``std`` is
-    ``sqrt(diag(2σ²_c H_c⁺))`` at the estimate; ``extras["correlation"]`` holds the labels
-    ``segment/kernel`` of the observable parameters and their channel-mean correlation matrix.
+    ``observable`` False (estimate and std NaN) and left out of the solve; ``std`` per the
+    ``std`` option (``extras["std_method"]``: the formula used); ``extras["correlation"]`` holds
+    the labels ``segment/kernel`` of the observable parameters and their channel-mean correlation
+    matrix; ``extras["ill_determined"]`` is a list of P bools, in ``parameters`` order: True for
+    an observable parameter whose std exceeds 0.05 in some channel or is NaN
+    (:func:`~methods.symbolic.uncertainty.ill_determined`).
     Limitations: kernel BRDFs only (paper section 4.3); N_e = C(D + N_max, N_max) monomials,
     so the solve costs O(N_e²) per evaluation.
     """
@@ -111,6 +127,8 @@ class SymbolicMethod(Method):
         check_choice(solver, "precondition", ("True", "False"), section=section)
         if "refine" in self.cfg:
             check_number(self.cfg, "refine", 0, 8, integer=True)
+        if "std" in self.cfg:
+            check_choice(self.cfg, "std", ("sandwich", "residual"))
         check_choice(solver, "algorithm", ("LD_SLSQP", "LD_MMA", "LD_CCSAQ"), section=section)
 
     def run(self, problem) -> MethodResult:
@@ -120,6 +138,8 @@ class SymbolicMethod(Method):
         sub = dataclasses.replace(problem, parameters=params)
         x0, renders = initial_guess(self.cfg, sub, prior=_lambertian_prior)
         guess0 = x0
+        trace = Trace(t0)
+        trace.record(renders, x0)
         settings = problem.settings
         basis = MonomialBasis(len(params), settings.max_bounces)
         render_s = solve_s = 0.0
@@ -130,7 +150,8 @@ class SymbolicMethod(Method):
             result = self._pass(sub, params, x0, basis, seed=int(problem.seed) + 7777 * renders)
             renders += 1
             t_solve = time.perf_counter()
-            fit = self._solve(result.system, basis, params, x0, problem)
+            fit = self._solve(result.system, basis, params, x0, problem, passed=result)
+            _record_iterates(trace, renders, fit)
             render_s += result.render_s
             solve_s += time.perf_counter() - t_solve     # PSD projection, nlopt and uncertainty
             stages = {name: stages.get(name, 0.0) + t for name, t in fit["stages_s"].items()}
@@ -141,6 +162,8 @@ class SymbolicMethod(Method):
                   "solver_evaluations_from_guess": sol.guess_evals if sol else 0,
                   "initial_guess": guess0.tolist(), "views_from_cache": result.from_cache,
                   "correlation": fit["correlation"], "residual_variance": fit["sigma2"],
+                  "std_method": fit["std_method"],
+                  "ill_determined": ill_determined(fit["std"], fit["observable"]).tolist(),
                   "executor": str(settings.executor.get("name", "serial")),
                   "solve_stages_s": stages}
         timings = {"render": render_s, "solve": solve_s}
@@ -152,7 +175,8 @@ class SymbolicMethod(Method):
             estimate=estimate, renders=renders, parameters=params, reconstructions=recon,
             timings_s=timings, std=fit["std"], observable=fit["observable"],
             cost_history=list(sol.cost_history) if sol else [],
-            cost_times_s=list(sol.eval_times_s) if sol else [], extras=extras)
+            cost_times_s=[at - t0 for at, _ in sol.iterates] if sol else [], trace=trace.entries(),
+            extras=extras)
 
     def render_at(self, problem, rho: np.ndarray, *, seed: int = 0) -> dict[str, np.ndarray]:
         """One polynomial pass at the initial guess, evaluated at ρ (restricted to this method's
@@ -175,22 +199,27 @@ class SymbolicMethod(Method):
                                    cache=Cache(settings.cache_dir), executor=executor,
                                    cross_gram=self.cfg.get("gram", "cross") == "cross")
 
-    def _solve(self, system, basis, params, x0, problem) -> dict:
+    def _solve(self, system, basis, params, x0, problem, passed=None) -> dict:
         """Solve on the observable parameters; NaN estimate and std for the others.
+
+        ``passed``: the :class:`PassResult` of ``system``, whose per-pixel coefficients the
+        ``sandwich`` std needs (None: the ``residual`` std).
 
         Returns a dict: ``estimate`` (P, C), ``std`` (P, C), ``observable`` (P,), ``solve``
         (SolveResult or None when nothing is observable), ``correlation`` (the JSON-able
-        ``extras["correlation"]``), ``sigma2`` (residual variance per channel, a list) and
-        ``stages_s`` (seconds of the PSD projection, the nlopt runs and the uncertainty).
+        ``extras["correlation"]``), ``sigma2`` (residual variance per channel, a list),
+        ``std_method`` (``sandwich`` or ``residual``) and ``stages_s`` (seconds of the PSD
+        projection, the nlopt runs and the uncertainty).
         """
+        method = str(self.cfg.get("std", "sandwich")) if passed is not None else "residual"
         P, C = len(params), problem.n_channels
         observable = observable_parameters(system, basis)
         estimate, std = np.full((P, C), np.nan), np.full((P, C), np.nan)
         if not observable.any():
             return {"estimate": estimate, "std": std, "observable": observable, "solve": None,
                     "correlation": correlation_extra(params, observable, None), "sigma2": None,
-                    "stages_s": {}}
-        sub_system, sub_basis, _ = restrict_system(system, basis, observable)
+                    "std_method": method, "stages_s": {}}
+        sub_system, sub_basis, columns = restrict_system(system, basis, observable)
         t_psd = time.perf_counter()
         if self.cfg.get("psd", True):
             sub_system = sub_system.psd()
@@ -205,12 +234,16 @@ class SymbolicMethod(Method):
                                ftol_rel=float(solver.ftol_rel), precondition=bool(solver.precondition),
                                seed=int(problem.seed))
         t_unc = time.perf_counter()
-        unc = parameter_uncertainty(sub_system, sub_basis, sol.estimate)
+        meat = None
+        if method == "sandwich":
+            views = ((passed.view(cam.name)[1], problem.observed[cam.name]) for cam in problem.cameras)
+            meat = score_meat(sub_basis, sol.estimate, views, columns, basis.size)
+        unc = parameter_uncertainty(sub_system, sub_basis, sol.estimate, meat=meat)
         estimate[kept], std[kept] = sol.estimate, unc.std
         stages = {"psd": t_psd, "nlopt": sol.solve_s, "uncertainty": time.perf_counter() - t_unc}
         return {"estimate": estimate, "std": std, "observable": observable, "solve": sol,
                 "correlation": correlation_extra(params, observable, unc),
-                "sigma2": [float(v) for v in unc.sigma2], "stages_s": stages}
+                "sigma2": [float(v) for v in unc.sigma2], "std_method": method, "stages_s": stages}
 
     def _relight(self, problem, params, estimate):
         """``(images, seconds)`` of the ``relight`` option, or None when it is off (see
@@ -233,3 +266,14 @@ def _images(result, basis: MonomialBasis, rho: np.ndarray, cameras) -> dict[str,
     """Every view's polynomial evaluated at ρ (P, C): (H, W, C) images."""
     mu = np.stack([basis.evaluate(rho[:, c]) for c in range(rho.shape[1])])
     return {cam.name: result.image(cam.name, mu, (cam.height, cam.width)) for cam in cameras}
+
+
+def _record_iterates(trace: Trace, renders: int, fit: dict) -> None:
+    """The solve's iterates (observable parameters) as full (P, C) estimates, NaN elsewhere."""
+    if fit["solve"] is None:
+        return
+    observable = fit["observable"]
+    for at, x in fit["solve"].iterates:
+        full = np.full((len(observable), x.shape[1]), np.nan)
+        full[observable] = x
+        trace.record(renders, full, at=at)

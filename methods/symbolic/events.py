@@ -62,6 +62,9 @@ class EventBuffer:
             nonzero |= v != 0
         keep = (self.mono != EMPTY) & nonzero
         at = dr.compress(keep)                         # order-preserving: rows stay sorted
+        if dr.width(at) == 0:                          # no light reached the tile: Dr.Jit cannot
+            empty = np.zeros(0, np.int32)              # divide an empty array by a literal
+            return (empty, empty, [np.zeros(0, np.float32) for _ in self.values]), 0
         rows = lane_pixel(at // dr.opaque(mi.UInt32, self.slots), n, spp, split).numpy().view(np.int32)
         cols = dr.gather(mi.UInt32, self.mono, at).numpy().view(np.int32)
         vals = [dr.gather(mi.Float, v, at).numpy() for v in self.values]

@@ -3,7 +3,9 @@
 The pass renders every view once with :class:`PolynomialPathIntegrator`, tile by tile, and
 adds each tile's pixels to the Gram system (G, b, yy) of the cost (paper eq. 6, p = 2); memory
 is bounded by the tile (chosen from ``memory_mb``) and N_e², never by pixels or views. Per-pixel
-coefficients are kept only as sparse matrices (2-6 % non-zero), to rebuild reconstructions.
+coefficients are kept only as sparse matrices (2-6 % non-zero), to rebuild reconstructions, with
+the half difference of the two independent half-sample estimates beside them (same pattern): the
+per-pixel Monte Carlo noise the sandwich standard errors need (:class:`ViewCoefficients`).
 
 Render once, solve many: the result of each view is cached on disk, keyed by everything that
 affects it (scene content, view, spp, seed, N_max, parameters, guesses, selection floor, variant).
@@ -19,8 +21,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from framework.cache import Cache
+from framework.errors import ConfigError
 from framework.executor import SerialExecutor, TreeSum, init_worker
 from framework.observe import inversion_seed
+from framework.render.checks import MiB, check_memory
 from framework.render.mitsuba_scene import MitsubaScene
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.gram import GramSystem
@@ -28,13 +32,29 @@ from methods.symbolic.integrator import integrator_class
 
 log = logging.getLogger(__name__)
 BYTES_COPIES = 3   # an event buffer lives in Dr.Jit, compacted on the device, and in numpy
+MIN_TILE_PIXELS = 64
+
+
+@dataclass
+class ViewCoefficients:
+    """A view's per-pixel coefficients, one sparse ``(pixels, N_e)`` float64 matrix per channel.
+
+    ``gamma``: Γ, the estimate from all samples (eq. 8). ``delta``: D = (A - B)/2, half the
+    difference of the two independent half-sample estimates (same sparsity as Γ), None when the
+    pass had no halves (``gram=plain`` or spp < 2). ``split``: the fraction of each pixel's
+    samples in A (1/2 at even spp), so ``A = Γ + 2(1 - split)D`` and ``B = Γ - 2 split D``.
+    """
+
+    gamma: list
+    delta: list | None = None
+    split: float = 0.5
 
 
 @dataclass
 class PassResult:
     """The pass over all views: their summed Gram system, and each view's own results.
 
-    ``views[name]`` is the view's ``(GramSystem, coefficient matrices)``, or, when the run has a
+    ``views[name]`` is the view's ``(GramSystem, ViewCoefficients)``, or, when the run has a
     cache, a function reloading them from it: memory then stays flat in the number of views.
     """
 
@@ -43,25 +63,66 @@ class PassResult:
     render_s: float = 0.0
     from_cache: list[str] = field(default_factory=list)  # views read from the cache
 
-    def view(self, name: str) -> tuple[GramSystem, list[sp.csr_matrix]]:
+    def view(self, name: str) -> tuple[GramSystem, ViewCoefficients]:
         entry = self.views[name]
         return entry() if callable(entry) else entry
 
     def image(self, view: str, mu: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         """The polynomial image of ``view`` at monomials ``mu`` (C, N_e): (H, W, C) float32."""
-        mats = self.view(view)[1]
+        mats = self.view(view)[1].gamma
         chans = [mats[c] @ mu[c] for c in range(len(mu))]
         return np.stack(chans, axis=-1).reshape(*shape, len(mu)).astype(np.float32)
 
 
-def tile_pixels_for(memory_mb: float, spp: int, max_bounces: int, n_channels: int, tail_bounces: int = 0) -> int:
-    """Largest tile whose event buffers fit in ``memory_mb`` (at least 64 pixels).
+def event_bytes_per_pixel(spp: int, max_bounces: int, n_channels: int, tail_bounces: int = 0) -> int:
+    """Bytes of one pixel's event buffers in a tile.
 
     A pixel holds ``spp × (N_max + T + 1)`` event slots of one monomial index and ``C`` values
     (4 bytes each), held about three times (Dr.Jit buffers, their compacted copy, numpy arrays).
+    The path state itself never reaches memory (the tile's paths run as one kernel): measured,
+    a 256-pixel tile at 4096 spp peaked 124 MiB above the process's start, this estimate 192 MiB.
     """
-    per_pixel = spp * (max_bounces + tail_bounces + 1) * 4 * (1 + n_channels) * BYTES_COPIES
-    return max(64, int(memory_mb * 2**20 // per_pixel))
+    return spp * (max_bounces + tail_bounces + 1) * 4 * (1 + n_channels) * BYTES_COPIES
+
+
+def tile_pixels_for(memory_mb: float, spp: int, max_bounces: int, n_channels: int, tail_bounces: int = 0) -> int:
+    """Largest tile whose event buffers (:func:`event_bytes_per_pixel`) fit in ``memory_mb``
+    (at least :data:`MIN_TILE_PIXELS` pixels)."""
+    per_pixel = event_bytes_per_pixel(spp, max_bounces, n_channels, tail_bounces)
+    return max(MIN_TILE_PIXELS, int(memory_mb * MiB // per_pixel))
+
+
+def check_pass_memory(memory_mb: float, spp: int, max_bounces: int, n_channels: int, tail_bounces: int = 0,
+                      *, pixels: int, tasks_here: int = 1) -> None:
+    """Raise :class:`ConfigError` before the pass allocates tiles that cannot fit.
+
+    The tile never drops below :data:`MIN_TILE_PIXELS`, so past some ``spp`` even the smallest
+    tile exceeds ``memory_mb`` (``render.spp=4194304`` used to crash the process); and the
+    chosen tile, ``tasks_here`` of them at once (:attr:`SerialExecutor.tasks_here`), must fit
+    in the memory this machine has available (:func:`framework.render.checks.check_memory`).
+
+    Parameters
+    ----------
+    memory_mb, spp, max_bounces, n_channels, tail_bounces
+        As :func:`tile_pixels_for`.
+    pixels : int
+        Pixels of the largest view to render (a tile never holds more).
+    tasks_here : int
+        Views rendered at once on this machine (0: elsewhere, only ``memory_mb`` is checked).
+    """
+    per_pixel = event_bytes_per_pixel(spp, max_bounces, n_channels, tail_bounces)
+    smallest = min(MIN_TILE_PIXELS, pixels)
+    if smallest * per_pixel > memory_mb * MiB:
+        need = -(-smallest * per_pixel // MiB)
+        most_spp = int(memory_mb * MiB // (smallest * per_pixel // spp))
+        lower = f"lower render.spp to at most {most_spp} or " if most_spp >= 1 else ""
+        raise ConfigError(f"render.spp={spp} needs {need} MiB for the smallest tile of the polynomial pass "
+                          f"({smallest} pixels), above method.memory_mb={memory_mb:g}: "
+                          f"{lower}raise method.memory_mb to at least {need}")
+    if tasks_here:
+        tile = min(tile_pixels_for(memory_mb, spp, max_bounces, n_channels, tail_bounces), pixels)
+        check_memory(tile * per_pixel * tasks_here, f"the polynomial pass's tiles ({tasks_here} at once)",
+                     "lower method.memory_mb (smaller tiles) or render.spp")
 
 
 def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBasis, *, spp: int,
@@ -111,17 +172,19 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
         cached.append(cam.name)
     t0 = time.perf_counter()
     if todo:
+        check_pass_memory(memory_mb, spp, basis.max_degree, C, tail_bounces, tasks_here=executor.tasks_here,
+                          pixels=max(cam.width * cam.height for _, cam, _ in todo))
         tile = tile_pixels_for(memory_mb, spp, basis.max_degree, C, tail_bounces)
         tasks = [view_task(problem, parameters, guesses, basis, i, spp=spp, seed=seed, prob_floor=prob_floor,
                            tile_pixels=tile, cross_gram=cross_gram, tail_bounces=tail_bounces)
                  for i, _, _ in todo]
         variant = problem.settings.variant
         results = executor.imap(render_view_task, tasks, variant=variant, threads=executor.threads_per_worker)
-        for (i, cam, key), (system, mats) in zip(todo, results):
-            cache.store("polynomial_pass", key, _pack(system, mats))
+        for (i, cam, key), (system, coeffs) in zip(todo, results):
+            cache.store("polynomial_pass", key, _pack(system, coeffs))
             total.add(system)
             # with a cache, each view waits on disk: memory stays flat in the number of views
-            views[cam.name] = _loader(cache, key, C) if cache.dir is not None else (system, mats)
+            views[cam.name] = _loader(cache, key, C) if cache.dir is not None else (system, coeffs)
     render_s = time.perf_counter() - t0
     ordered = {c.name: views[c.name] for c in problem.cameras}
     return PassResult(total.total(GramSystem.zeros(basis.size, C)), ordered, render_s, cached)
@@ -143,7 +206,7 @@ _WORKER_STATE: dict = {}    # per process: the last (MitsubaScene, integrator), 
 
 
 def render_view_task(task: dict, *, variant: str, threads: int | None = None
-                     ) -> tuple[GramSystem, list[sp.csr_matrix]]:
+                     ) -> tuple[GramSystem, ViewCoefficients]:
     """Render one view of a :func:`view_task` in this process (driver or Dask worker).
 
     Selects ``variant``, caps Dr.Jit at ``threads`` threads, builds (or reuses) the Mitsuba
@@ -186,27 +249,32 @@ def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True):
     ``cross``: the samples of each pixel are split into two independent halves
     (:meth:`PolynomialPathIntegrator.coefficients_halves`, one render) whose cross product makes
     G free of Monte Carlo noise (:meth:`GramSystem.accumulate_sparse`); the kept coefficients are
-    the mean of all samples.
+    the mean of all samples, and beside them the halves' half difference (A - B)/2.
     """
     from tqdm import tqdm
     C = observed.shape[-1]
     n_pix = cam.width * cam.height
     y = observed.reshape(n_pix, C)
     system = GramSystem.zeros(integrator.basis.size, C)
-    parts = [[] for _ in range(C)]
+    parts, deltas = [[] for _ in range(C)], [[] for _ in range(C)]
+    halves = cross and spp >= 2
     tiles = range(0, n_pix, integrator.tile_pixels)
     for start in tqdm(tiles, desc=f"polynomial pass {cam.name}", unit="tile", leave=False):
         stop = min(n_pix, start + integrator.tile_pixels)
         tile = dict(spp=spp, seed=seed, pixel_range=(start, stop))
-        if cross and spp >= 2:
+        if halves:
             a, b, gamma = integrator.coefficients_halves(ms.scene, i, **tile)
             system.accumulate_sparse(a, y[start:stop], b)
+            for c in range(C):
+                deltas[c].append((a[c] - b[c]) * 0.5)
         else:
             gamma = integrator.coefficients_sparse(ms.scene, i, **tile)
             system.accumulate_sparse(gamma, y[start:stop])
         for c in range(C):
             parts[c].append(gamma[c])
-    return system, [sp.vstack(p, format="csr") if len(p) > 1 else p[0] for p in parts]
+    stack = lambda blocks: [sp.vstack(p, format="csr") if len(p) > 1 else p[0] for p in blocks]
+    return system, ViewCoefficients(stack(parts), stack(deltas) if halves else None,
+                                    (spp // 2) / spp if halves else 0.5)
 
 
 def _key(problem, cam, parameters, guesses, spp, seed, prob_floor, basis, *, view: int, cross_gram: bool,
@@ -217,7 +285,7 @@ def _key(problem, cam, parameters, guesses, spp, seed, prob_floor, basis, *, vie
             "guesses": np.round(np.asarray(guesses, float), 9).tolist(), "prob_floor": float(prob_floor),
             "observed": _digest(problem.observed[cam.name]),
             "variant": problem.settings.variant, "cross_gram": bool(cross_gram),
-            "tail_bounces": int(tail_bounces), "version": 2}
+            "tail_bounces": int(tail_bounces), "version": 3}
 
 
 def _digest(a: np.ndarray) -> str:
@@ -225,16 +293,18 @@ def _digest(a: np.ndarray) -> str:
     return hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()[:16]
 
 
-def _pack(system: GramSystem, mats: list[sp.csr_matrix]) -> dict[str, np.ndarray]:
-    out = {"G": system.G, "b": system.b, "yy": system.yy, "n_pixels": np.array(system.n_pixels)}
-    for c, m in enumerate(mats):
-        out.update({f"c{c}_data": m.data, f"c{c}_indices": m.indices, f"c{c}_indptr": m.indptr,
-                    f"c{c}_shape": np.array(m.shape)})
+def _pack(system: GramSystem, coeffs: ViewCoefficients) -> dict[str, np.ndarray]:
+    out = {"G": system.G, "b": system.b, "yy": system.yy, "n_pixels": np.array(system.n_pixels),
+           "split": np.array(coeffs.split)}
+    for prefix, mats in (("c", coeffs.gamma), ("d", coeffs.delta or [])):
+        for c, m in enumerate(mats):
+            out.update({f"{prefix}{c}_data": m.data, f"{prefix}{c}_indices": m.indices,
+                        f"{prefix}{c}_indptr": m.indptr, f"{prefix}{c}_shape": np.array(m.shape)})
     return out
 
 
 def _loader(cache: Cache, key: dict, C: int):
-    """A function reloading a view's (Gram system, coefficients) from the cache."""
+    """A function reloading a view's (Gram system, ViewCoefficients) from the cache."""
     def load():
         hit = cache.load("polynomial_pass", key)
         if hit is None:
@@ -243,8 +313,12 @@ def _loader(cache: Cache, key: dict, C: int):
     return load
 
 
-def _unpack(arrays: dict, C: int) -> tuple[GramSystem, list[sp.csr_matrix]]:
+def _unpack(arrays: dict, C: int) -> tuple[GramSystem, ViewCoefficients]:
     system = GramSystem(arrays["G"], arrays["b"], arrays["yy"], int(arrays["n_pixels"]))
-    mats = [sp.csr_matrix((arrays[f"c{c}_data"], arrays[f"c{c}_indices"], arrays[f"c{c}_indptr"]),
-                          shape=tuple(arrays[f"c{c}_shape"])) for c in range(C)]
-    return system, mats
+
+    def mats(prefix):
+        return [sp.csr_matrix((arrays[f"{prefix}{c}_data"], arrays[f"{prefix}{c}_indices"],
+                               arrays[f"{prefix}{c}_indptr"]), shape=tuple(arrays[f"{prefix}{c}_shape"]))
+                for c in range(C)]
+    delta = mats("d") if "d0_data" in arrays else None
+    return system, ViewCoefficients(mats("c"), delta, float(arrays["split"]))

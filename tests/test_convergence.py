@@ -1,0 +1,47 @@
+"""Error against time from results.json ``trace`` (reports/convergence.py), on hand-made traces."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from reports.convergence import equal_error_rows, error_curve
+
+
+def _results(method, trace, refs=((0.5, 0.5), (0.2, None))):
+    return {"method": method, "channels": ["R", "G"],
+            "parameters": [{"segment": f"s{i}", "kernel": "diffuse", "reference": list(r)} for i, r in enumerate(refs)],
+            "trace": [{"time_s": t, "renders": n, "estimate": est} for t, n, est in trace]}
+
+
+def test_error_curve_by_hand():
+    """Errors over parameters x channels with a reference and a finite estimate:
+    iterate 0: |0.4-0.5|, |0.5-0.5|, |0.1-0.2| -> worst 0.1, mean 0.2/3;
+    iterate 1: the second parameter unobservable (None): 0.05, 0.0 -> worst 0.05, mean 0.025."""
+    res = _results("m", [(0.0, 1, [[0.4, 0.5], [0.1, 0.9]]), (2.0, 1, [[0.45, 0.5], [None, None]])])
+    c = error_curve(res)
+    np.testing.assert_allclose(c.worst, [0.1, 0.05])
+    np.testing.assert_allclose(c.mean, [0.2 / 3, 0.025])
+    assert c.time_to_reach(0.06) == 2.0 and c.renders_to_reach(0.06) == 1
+    assert c.time_to_reach(0.01) is None
+
+
+def test_error_curve_without_trace_or_reference():
+    assert error_curve({"channels": ["Y"], "parameters": [{"reference": [0.1]}], "trace": []}) is None
+    res = _results("m", [(0.0, 1, [[0.4, 0.5], [0.1, 0.9]])], refs=((None, None), (None, None)))
+    assert error_curve(res) is None
+
+
+def test_equal_error_rows():
+    """Target = symbolic's final worst (0.02); the baseline reaches it at t = 30 s (10 renders)
+    in one of two runs; floor = median over runs of the median worst over the last 10 %."""
+    sym = error_curve(_results("symbolic", [(1.0, 1, [[0.5, 0.5], [0.2, 0.0]]), (3.0, 1, [[0.52, 0.5], [0.2, 0.0]])]))
+    slow = error_curve(_results("it", [(5.0, 2, [[0.3, 0.5], [0.2, 0.0]]), (30.0, 10, [[0.49, 0.5], [0.2, 0.0]])]))
+    never = error_curve(_results("it", [(5.0, 2, [[0.3, 0.5], [0.2, 0.0]]), (40.0, 12, [[0.45, 0.5], [0.2, 0.0]])]))
+    rows = equal_error_rows({"symbolic": [sym], "iterative": [slow, never]}, "symbolic")
+    assert len(rows) == 1
+    r = rows[0]
+    assert r["target"] == pytest.approx(0.02)
+    assert (r["reached"], r["runs"], r["time_s"], r["renders"]) == (1, 2, 30.0, 10)
+    assert r["ratio"] == pytest.approx(10.0)
+    assert r["floor"] == pytest.approx(np.median([0.01, 0.05]))
+    assert (r["max_renders"], r["max_time_s"]) == (12, 40.0)
