@@ -208,6 +208,18 @@ def with_seed(problem, seed: int):
     return dataclasses.replace(problem, settings=dataclasses.replace(problem.settings, seed=int(seed)))
 
 
+def render_once(problem, seed: int, desc: str, render: Callable) -> dict[str, np.ndarray]:
+    """``render(problem, ledger)`` (one full pass: a list of images, one per view) with the run seed
+    ``seed``, by view name: a render-in-the-loop method's :meth:`~framework.registry.Method.render_at`."""
+    problem = with_seed(problem, seed)
+    ledger = RenderLedger(1, desc=desc)
+    try:
+        images = render(problem, ledger)
+    finally:
+        ledger.close()
+    return {c.name: img for c, img in zip(problem.cameras, images)}
+
+
 def max_depth(problem) -> int:
     """Mitsuba ``max_depth`` for the run's ``render.max_bounces`` and ``render.tail_bounces``
     (N_max + T + 1: a baseline renders every reflection the symbolic pass traces)."""

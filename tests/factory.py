@@ -62,6 +62,11 @@ def edit_scene_yaml(root: Path, fn) -> None:
     path.write_text(yaml.safe_dump(desc, sort_keys=False))
 
 
+def snapshot(root: Path) -> dict:
+    """Every path below ``root`` with its bytes (None for a folder), to compare before and after."""
+    return {str(p.relative_to(root)): p.read_bytes() if p.is_file() else None for p in Path(root).rglob("*")}
+
+
 def small_copy(name: str, dest: Path, *, size: int, views: list[str]) -> Path:
     """A copy of bundled scene ``name`` whose ``views`` are resampled to ``size`` x ``size`` pixels
     (same pose and field of view), for tests that must stay <= 64x64."""

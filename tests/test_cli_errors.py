@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 import pytest
-from factory import make_tiny_scene
+from factory import make_tiny_scene, snapshot
 
 import framework.run
 from framework.config import compose
@@ -51,11 +51,6 @@ SETTING_ERRORS = [
     ("scene.dir=/tmp/ü", "scene.dir=/tmp/ü: Hydra reads non-ASCII characters only inside quotes; write the "
                          "argument as 'scene.dir=\"/tmp/ü\"'"),
 ]
-
-
-def _snapshot(root: Path) -> dict:
-    """Every path below ``root`` with its bytes (None for a folder), to compare before and after."""
-    return {str(p.relative_to(root)): p.read_bytes() if p.is_file() else None for p in root.rglob("*")}
 
 
 @pytest.fixture
@@ -158,11 +153,11 @@ def test_cli_failed_run_keeps_foreign_file(tmp_path):
 
 def test_cli_scene_folder_as_run_folder(tiny_scene, tmp_path):
     """``scene.dir=. hydra.run.dir=.`` inside a scene folder: refused, the scene untouched."""
-    before = _snapshot(tiny_scene)
+    before = snapshot(tiny_scene)
     proc = _cli(["scene.dir=.", "hydra.run.dir=.", f"cache.dir={tmp_path / 'c'}", *TINY], tiny_scene)
     assert _error_line(proc) == (f"error: run folder {tiny_scene} (hydra.run.dir) is inside the scene folder "
                                  f"{tiny_scene}, which runs never write to: choose a run folder outside it")
-    assert _snapshot(tiny_scene) == before
+    assert snapshot(tiny_scene) == before
 
 
 def test_cli_earlier_run_refused(tiny_scene, tmp_path):

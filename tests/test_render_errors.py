@@ -13,8 +13,7 @@ import shutil
 
 import numpy as np
 import pytest
-import yaml
-from factory import make_problem, make_tiny_scene, run_symbolic
+from factory import edit_scene_yaml, make_problem, make_tiny_scene, run_symbolic
 from omegaconf import OmegaConf
 
 from framework.cache import Cache
@@ -31,10 +30,7 @@ SKY = {"type": "constant", "radiance": [0.3, 0.35, 0.45]}
 
 
 def _emitters(root, emitters):
-    path = root / "scene.yaml"
-    desc = yaml.safe_load(path.read_text())
-    desc["emitters"] = emitters
-    path.write_text(yaml.safe_dump(desc, sort_keys=False))
+    edit_scene_yaml(root, lambda desc: desc.update(emitters=emitters))
 
 
 def _views(root, targets):

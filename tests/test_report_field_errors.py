@@ -1,9 +1,9 @@
 """reports on a results.json whose fields have the wrong type: one line ``error: ...`` naming the
 file and the field, exit 2, and the user's folder exactly as it was (no partial report)."""
 import json
-from pathlib import Path
 
 import pytest
+from factory import snapshot
 from fakes import make_fake_run
 
 import reports.run
@@ -22,36 +22,31 @@ BAD_FIELDS = [
 ]
 
 
-def _snapshot(root: Path) -> dict:
-    """Every path below ``root`` with its bytes (None for a folder), to compare before and after."""
-    return {str(p.relative_to(root)): p.read_bytes() if p.is_file() else None for p in root.rglob("*")}
-
-
 @pytest.mark.parametrize("edit, message", BAD_FIELDS, ids=[m.split(" ")[0] for _, m in BAD_FIELDS])
 def test_bad_field_refused(edit, message, tmp_path, capsys):
     run = make_fake_run(tmp_path / "run")
     data = json.loads((run / "results.json").read_text())
     edit(data)
     (run / "results.json").write_text(json.dumps(data))
-    before = _snapshot(tmp_path)
+    before = snapshot(tmp_path)
     assert main([str(run)], prog="python -m framework.report") == 2
     err = capsys.readouterr().err.strip()
     assert err.splitlines() == [err] and err.startswith(f"error: {run / 'results.json'}: {message}"), err
-    assert _snapshot(tmp_path) == before
+    assert snapshot(tmp_path) == before
 
 
 def test_failing_report_writes_nothing(tmp_path, monkeypatch):
     """A report that fails half-way leaves the earlier report as it was, and no new file."""
     run = make_fake_run(tmp_path / "run")
     write_run_report(run)
-    before = _snapshot(run)
+    before = snapshot(run)
 
     def fail(doc, ctx):
         raise ReportError("stop")
     monkeypatch.setattr(reports.run, "_section_relit", fail)
     with pytest.raises(ReportError, match="stop"):
         write_run_report(run)
-    assert _snapshot(run) == before
+    assert snapshot(run) == before
 
 
 def test_unwritable_out(tmp_path, capsys):

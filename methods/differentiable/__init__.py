@@ -94,13 +94,8 @@ class DifferentiableMethod(Method):
 
     def render_at(self, problem: Problem, rho: np.ndarray, *, seed: int = 0) -> dict[str, np.ndarray]:
         """The primal pass of the fit's own AD renderer at ρ, weights written as the fit writes them."""
-        problem = C.with_seed(problem, seed)
-        ledger = C.RenderLedger(1, desc="differentiable render")
-        try:
-            images = _Fit(problem, ledger, _options(self.cfg, problem)).final_render(rho)
-        finally:
-            ledger.close()
-        return {c.name: img for c, img in zip(problem.cameras, images)}
+        return C.render_once(problem, seed, "differentiable render",
+                             lambda pb, ledger: _Fit(pb, ledger, _options(self.cfg, pb)).final_render(rho))
 
 
 def _options(cfg, problem) -> dict:

@@ -96,13 +96,8 @@ class IterativeMethod(Method):
 
     def render_at(self, problem: Problem, rho: np.ndarray, *, seed: int = 0) -> dict[str, np.ndarray]:
         """One pass of the objective's own renderer (what every cost evaluation renders)."""
-        problem = C.with_seed(problem, seed)
-        ledger = C.RenderLedger(1, desc="iterative render")
-        try:
-            images = _Objective(problem, ledger, _options(self.cfg, problem)).render(rho)
-        finally:
-            ledger.close()
-        return {c.name: img for c, img in zip(problem.cameras, images)}
+        return C.render_once(problem, seed, "iterative render",
+                             lambda pb, ledger: _Objective(pb, ledger, _options(self.cfg, pb)).render(rho))
 
 
 def _options(cfg, problem) -> dict:
