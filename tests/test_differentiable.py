@@ -17,7 +17,7 @@ def test_differentiable_recovers_diffuse(tmp_path):
     of the first over the same seeds; asserted < 0.5.
     """
     problem = tiny_problem(tmp_path / "s", spp=16, budget=200)
-    result = run_differentiable(problem)
+    result = run_differentiable(problem, lr=0.02)     # not the default: the measurements above
     assert max_error(problem, result) <= 0.03
     assert result.renders <= 200
     assert result.renders == 2 * result.extras["iterations"] + 1
