@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from bench import compare, memory, paper, render_ratio
+from bench import compare, materials, memory, paper, render_ratio
 from bench.common import ROOT
 from bench.machine import describe
 from bench.markdown import render
@@ -53,13 +53,15 @@ def main(argv=None) -> int:
     ratio = render_ratio.run(sizes, root / "cache" / "ratio", log)
     mem = memory.run(sizes, root / "memory", log)
     cmp_rows = compare.run(sizes, root, log)
+    lr_rows = compare.lr_sweep(sizes, root, log)
+    mat_rows = materials.run(sizes, root / "materials", log)
     mono = paper.run(sizes, root, log)
     report_md = comparison_report(cmp_rows + mono, root / "comparison")
     command = "python -m bench" + (" --quick" if args.quick else "")
     wall = time.perf_counter() - t0
-    text = render(machine, command, wall, sizes, ratio, mem, cmp_rows, mono, _rel(report_md))
+    text = render(machine, command, wall, sizes, ratio, mem, cmp_rows, mono, _rel(report_md), lr_rows, mat_rows)
     Path(args.out).write_text(text, encoding="utf-8")
-    _dump(root, ratio, mem, cmp_rows + mono)
+    _dump(root, ratio, mem, cmp_rows + mono + lr_rows, mat_rows)
     log(f"wrote {args.out} in {wall / 60:.1f} min")
     return 0
 
@@ -71,11 +73,12 @@ def _rel(path) -> str:
         return str(path)
 
 
-def _dump(root: Path, ratio: dict, mem: list, rows: list) -> None:
+def _dump(root: Path, ratio: dict, mem: list, rows: list, mat_rows: list) -> None:
     """The raw numbers as bench.json next to the runs."""
     light = [{k: v for k, v in r.items() if k != "results"} | {"timings_s": r["results"]["timings_s"],
              "renders": r["results"]["renders"]} for r in rows]
-    (root / "bench.json").write_text(json.dumps({"ratio": ratio, "memory": mem, "runs": light}, indent=2))
+    (root / "bench.json").write_text(json.dumps({"ratio": ratio, "memory": mem, "runs": light,
+                                                 "materials": mat_rows}, indent=2))
 
 
 if __name__ == "__main__":

@@ -80,6 +80,18 @@ def try_one(*args, log=print) -> dict | None:
         return None
 
 
+#: Adam learning rates of the differentiable baseline's sweep (single view); the default (in
+#: differentiable.yaml) is the comparison's own run
+LR_SWEEP = (0.02, 0.1)
+
+
+def lr_sweep(sizes, root: Path, log=print) -> list[dict]:
+    """The differentiable baseline at other learning rates, single view, the comparison's budget."""
+    rows = [try_one(sizes, root, f"differentiable lr={lr}", "urban_canyon", 1,
+                    ["method=differentiable", f"method.lr={lr}"], sizes.cmp_budget, log=log) for lr in LR_SWEEP]
+    return [r for r in rows if r is not None]
+
+
 def run(sizes, root: Path, log=print) -> list[dict]:
     """All comparison runs on urban_canyon: single view then all views (failed runs left out)."""
     rows = []

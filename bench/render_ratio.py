@@ -9,6 +9,7 @@ evaluation count: of the last run).
 """
 from __future__ import annotations
 
+import dataclasses
 import statistics
 import time
 
@@ -17,7 +18,7 @@ from framework.experiment import prepare
 from framework.render.mitsuba_scene import MitsubaScene, max_depth_for
 from methods._common import initial_guess
 from methods.symbolic.basis import MonomialBasis
-from methods.symbolic.polynomial_pass import render_view_task, tile_pixels_for, view_task
+from methods.symbolic.polynomial_pass import PassResult, render_view_task, tile_pixels_for, view_task
 
 
 def build_problem(cfg):
@@ -41,12 +42,12 @@ def _pass_fn(problem, method, spp: int):
     """A no-argument function running the method's polynomial pass of view 0 at ``spp``."""
     params = problem.parameters
     x0, _ = initial_guess(method.cfg, problem)
-    basis = MonomialBasis(len(params), problem.settings.max_bounces)
-    tile = tile_pixels_for(float(method.cfg.memory_mb), spp, basis.max_degree, problem.n_channels)
-    task = view_task(problem, params, x0, basis, 0, spp=spp, seed=int(problem.seed), prob_floor=float(
+    N = problem.settings.max_bounces
+    tile = tile_pixels_for(float(method.cfg.memory_mb), spp, N, problem.n_channels)
+    task = view_task(problem, params, x0, N, 0, spp=spp, seed=int(problem.seed), prob_floor=float(
         method.cfg.prob_floor), tile_pixels=tile)
     variant = problem.settings.variant
-    return (lambda: render_view_task(task, variant=variant)), basis, x0
+    return (lambda: render_view_task(task, variant=variant)), x0
 
 
 def _render_fn(problem, spp: int, rho):
@@ -60,10 +61,14 @@ def _render_fn(problem, spp: int, rho):
 
 def measure_spp(problem, method, spp: int, reps: int) -> dict:
     """Pass, render and solve times at one spp; returns a row dict."""
-    pass_fn, basis, x0 = _pass_fn(problem, method, spp)
-    t_pass, (system, _) = _timed(pass_fn, reps)
+    pass_fn, x0 = _pass_fn(problem, method, spp)
+    t_pass, (system, coefficients) = _timed(pass_fn, reps)
+    basis = MonomialBasis(len(problem.parameters), problem.settings.max_bounces, system.codes)
     t_render, _ = _timed(_render_fn(problem, spp, x0), reps)
-    t_solve, fit = _timed(lambda: method._solve(system, basis, problem.parameters, x0, problem), reps)
+    # the default std (sandwich) reads the view's per-pixel coefficients: time it with them
+    view0 = dataclasses.replace(problem, cameras=problem.cameras[:1])      # the pass covers view 0
+    passed = PassResult(system, {view0.cameras[0].name: (system, coefficients)})
+    t_solve, fit = _timed(lambda: method._solve(system, basis, view0.parameters, x0, view0, passed=passed), reps)
     return {"spp": spp, "pass_s": t_pass, "render_s": t_render, "ratio": t_pass / t_render,
             "solve_s": t_solve, "solve_share": t_solve / t_render, "solve_share_pass": t_solve / t_pass,
             "solve_stages_s": fit["stages_s"], "solver_evaluations": fit["solve"].n_evals,

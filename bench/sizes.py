@@ -35,6 +35,13 @@ class Sizes:
         ``budget.renders`` of the iterative and differentiable runs on all views.
     all_views : int
         Views used as "all views" (0: every view of the scene).
+    mat_buildings : tuple of int
+        Buildings per side of the ``street_block`` runs (section 5); ``mem_spp`` and
+        ``mem_observe_spp`` are their spp, all views.
+    mat_image : int
+        Their image size.
+    mat_timeout_s : float
+        Seconds each may take before it is stopped (reported as failed).
     extra : tuple of str
         Overrides added to every in-process run.
     """
@@ -54,6 +61,9 @@ class Sizes:
     cmp_budget: int = 200
     cmp_budget_all: int = 200
     all_views: int = 0
+    mat_buildings: tuple = (1, 2, 4, 8)
+    mat_image: int = 200
+    mat_timeout_s: float = 900.0
     extra: tuple = field(default_factory=tuple)
 
 
@@ -61,4 +71,5 @@ DEFAULT = Sizes()
 QUICK = Sizes(name="quick", ratio_spps=(4,), ratio_reps=1, mem_views=(1, 2), mem_images=(32,),
               mem_dask_views=(2,), mem_dask_image=32,
               mem_spp=4, mem_observe_spp=8, cmp_spp=4, cmp_observe_spp=16, cmp_budget=20,
-              cmp_budget_all=14, all_views=2, extra=("method.solver.starts=1",))
+              cmp_budget_all=14, all_views=2, mat_buildings=(1, 2), mat_image=32, mat_timeout_s=300.0,
+              extra=("method.solver.starts=1",))

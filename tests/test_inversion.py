@@ -113,7 +113,7 @@ def test_baselines_recover_cornell_box(tmp_path, method, extra, tol):
     within its render budget. Max |error| measured (``seed`` = ``observe.seed`` = s unless
     stated; the test runs seed 0, where the errors are 0.021, 0.017 and 0.006):
     iterative, seeds 0-9 and seeds 1-5 with observe.seed 0 (15 runs): 0.014-0.067 (seed 4),
-    tolerance 0.1 = 1.5x; differentiable, seeds 0-5: 0.011-0.020, tolerance 0.035 = 1.8x;
+    tolerance 0.1 = 1.5x; differentiable (lr 0.05), seeds 0-5: 0.011-0.026, tolerance 0.035 = 1.3x;
     lambertian_prior, seeds 0-19: 0.004-0.028 (seed 7), tolerance 0.04 = 1.5x."""
     r = _run(tmp_path, method, [f"method={method}", "scene=cornell_box", "render.spp=32", "observe.spp=256",
                                 *extra])
@@ -194,16 +194,18 @@ def test_polynomial_matches_path_on_small_urban_canyon(small_canyon):
     rho = np.random.default_rng(7).uniform(0.0, 0.45, (len(params), 3))
     ms = MitsubaScene(scene, cams, spp=32, integrator={"type": "path", "max_depth": 4})
     ms.set_weights(rho, params)
-    basis = MonomialBasis(len(params), 3)
-    mu = np.stack([basis.evaluate(rho[:, c]) for c in range(3)])
     problem = Problem(scene=scene, cameras=cams, observed={c.name: np.zeros((48, 48, 3), np.float32) for c in cams},
                       parameters=params, settings=RunSettings(variant="llvm_ad_rgb"))
     for v, cam in enumerate(cams):
         seg = ms.segment_map(v)
         path = [ms.render(v, spp=32, seed=2 * k + 1) for k in range(4)]
-        poly = [polynomial_pass(problem, params, np.full_like(rho, 0.5), basis, spp=32, seed=100 + k,
-                                prob_floor=0.1, memory_mb=64, cache=Cache(None)).image(cam.name, mu, (48, 48))
-                for k in range(4)]
+        poly = []
+        for k in range(4):
+            passed = polynomial_pass(problem, params, np.full_like(rho, 0.5), 3, spp=32, seed=100 + k,
+                                     prob_floor=0.1, memory_mb=64, cache=Cache(None))
+            basis = MonomialBasis(len(params), 3, passed.system.codes)
+            mu = np.stack([basis.evaluate(rho[:, c]) for c in range(3)])
+            poly.append(passed.image(cam.name, mu, (48, 48)))
         for s in np.unique(seg):
             a = np.array([img[seg == s].mean(axis=0) for img in path])
             b = np.array([img[seg == s].mean(axis=0) for img in poly])

@@ -98,10 +98,11 @@ def test_sandwich_matches_spread_of_noisy_coefficients():
         a, b = (gamma + rng.normal(0, 0.15, gamma.shape) for _ in range(2))
         y = gamma @ basis.evaluate(rho) + rng.normal(0, 0.02, n)
         system = GramSystem.zeros(basis.size, 1).accumulate(a[:, :, None], y[:, None], coeffs_b=b[:, :, None])
-        G, g = system.G[0], system.b[0]
+        G, g = system.G[0].toarray(), system.b[0]
         est = np.linalg.solve(G[1:, 1:], g[1:] - G[1:, 0])[:, None]       # the exact minimum
-        coeffs = ViewCoefficients([sp.csr_matrix(0.5 * (a + b))], [sp.csr_matrix(0.5 * (a - b))], 0.5)
-        meat = score_meat(basis, est, [(coeffs, y[:, None])], np.arange(basis.size), basis.size)
+        coeffs = ViewCoefficients([sp.csr_matrix(0.5 * (a + b))], [sp.csr_matrix(0.5 * (a - b))], 0.5,
+                                   basis.codes)
+        meat = score_meat(basis, est, [(coeffs, y[:, None])], np.arange(basis.size), basis.codes)
         estimates.append(est[:, 0])
         sandwich.append(parameter_uncertainty(system, basis, est, meat=meat).std[:, 0])
         residual.append(parameter_uncertainty(system, basis, est).std[:, 0])

@@ -19,7 +19,7 @@ from framework.relight import relight_outputs
 from methods._common import Trace, check_choice, check_number, initial_guess, segment_groups
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.polynomial_pass import polynomial_pass
-from methods.symbolic.solve import solve_polynomial
+from methods.symbolic.solve import check_solve_memory, solve_polynomial
 from methods.symbolic.uncertainty import (
     correlation_extra,
     ill_determined,
@@ -102,8 +102,12 @@ class SymbolicMethod(Method):
     matrix; ``extras["ill_determined"]`` is a list of P bools, in ``parameters`` order: True for
     an observable parameter whose std exceeds 0.05 in some channel or is NaN
     (:func:`~methods.symbolic.uncertainty.ill_determined`).
-    Limitations: kernel BRDFs only (paper section 4.3); N_e = C(D + N_max, N_max) monomials,
-    so the solve costs O(N_e²) per evaluation.
+    ``extras["n_monomials"]``: the monomials that occur (at most C(D + N_max, N_max));
+    ``extras["gram_nnz"]``: stored entries of the sparse G, all channels.
+    Limitations: kernel BRDFs only (paper section 4.3). The solve costs O(nnz(G)) per evaluation
+    and O(D²) memory per Hessian. The PSD projection is exact on each connected component of G
+    of at most :data:`~methods.symbolic.gram.PSD_BLOCK_LIMIT` monomials; larger components are
+    left unprojected (a log warning, and their sizes in ``extras["psd_skipped_components"]``).
     """
 
     kernels: tuple[str, ...] | None = None     # fixed by subclasses (lambertian_prior)
@@ -141,14 +145,14 @@ class SymbolicMethod(Method):
         trace = Trace(t0)
         trace.record(renders, x0)
         settings = problem.settings
-        basis = MonomialBasis(len(params), settings.max_bounces)
         render_s = solve_s = 0.0
         stages = {}
         for k in range(1 + int(self.cfg.get("refine", 0))):
             if k:      # re-render at the estimate: better kernel selection, and a tail at the estimate
                 x0 = np.where(np.isnan(fit["estimate"]), x0, fit["estimate"])
-            result = self._pass(sub, params, x0, basis, seed=int(problem.seed) + 7777 * renders)
+            result = self._pass(sub, params, x0, seed=int(problem.seed) + 7777 * renders)
             renders += 1
+            basis = MonomialBasis(len(params), settings.max_bounces, result.system.codes)
             t_solve = time.perf_counter()
             fit = self._solve(result.system, basis, params, x0, problem, passed=result)
             _record_iterates(trace, renders, fit)
@@ -158,7 +162,8 @@ class SymbolicMethod(Method):
         estimate = fit["estimate"]
         recon = _images(result, basis, np.nan_to_num(estimate), problem.cameras)   # unobservable: monomials 0
         sol = fit["solve"]
-        extras = {"n_monomials": basis.size, "solver_evaluations": sol.n_evals if sol else 0,
+        extras = {"n_monomials": basis.size, "gram_nnz": result.system.nnz,
+                  "psd_skipped_components": list(fit["psd_skipped"]), "solver_evaluations": sol.n_evals if sol else 0,
                   "solver_evaluations_from_guess": sol.guess_evals if sol else 0,
                   "initial_guess": guess0.tolist(), "views_from_cache": result.from_cache,
                   "correlation": fit["correlation"], "residual_variance": fit["sigma2"],
@@ -185,15 +190,15 @@ class SymbolicMethod(Method):
         index = {(p.segment, p.kernel): p.index for p in problem.parameters}
         sub = dataclasses.replace(problem, parameters=params)
         x0, _ = initial_guess(self.cfg, sub, prior=_lambertian_prior)
-        basis = MonomialBasis(len(params), problem.settings.max_bounces)
-        result = self._pass(sub, params, x0, basis, seed=seed)
+        result = self._pass(sub, params, x0, seed=seed)
+        basis = MonomialBasis(len(params), problem.settings.max_bounces, result.system.codes)
         return _images(result, basis, rho[[index[(p.segment, p.kernel)] for p in params]], problem.cameras)
 
-    def _pass(self, problem, params, x0, basis, *, seed: int):
+    def _pass(self, problem, params, x0, *, seed: int):
         """The polynomial pass of every view with guesses ``x0`` (one render)."""
         settings = problem.settings
         with make_executor(settings.executor) as executor:
-            return polynomial_pass(problem, params, x0, basis, spp=settings.spp,
+            return polynomial_pass(problem, params, x0, settings.max_bounces, spp=settings.spp,
                                    tail_bounces=settings.tail_bounces, seed=seed,
                                    prob_floor=float(self.cfg.prob_floor), memory_mb=float(self.cfg.memory_mb),
                                    cache=Cache(settings.cache_dir), executor=executor,
@@ -218,7 +223,8 @@ class SymbolicMethod(Method):
         if not observable.any():
             return {"estimate": estimate, "std": std, "observable": observable, "solve": None,
                     "correlation": correlation_extra(params, observable, None), "sigma2": None,
-                    "std_method": method, "stages_s": {}}
+                    "std_method": method, "stages_s": {}, "psd_skipped": ()}
+        check_solve_memory(system, basis)
         sub_system, sub_basis, columns = restrict_system(system, basis, observable)
         t_psd = time.perf_counter()
         if self.cfg.get("psd", True):
@@ -237,13 +243,14 @@ class SymbolicMethod(Method):
         meat = None
         if method == "sandwich":
             views = ((passed.view(cam.name)[1], problem.observed[cam.name]) for cam in problem.cameras)
-            meat = score_meat(sub_basis, sol.estimate, views, columns, basis.size)
+            meat = score_meat(sub_basis, sol.estimate, views, columns, basis.codes)
         unc = parameter_uncertainty(sub_system, sub_basis, sol.estimate, meat=meat)
         estimate[kept], std[kept] = sol.estimate, unc.std
         stages = {"psd": t_psd, "nlopt": sol.solve_s, "uncertainty": time.perf_counter() - t_unc}
         return {"estimate": estimate, "std": std, "observable": observable, "solve": sol,
                 "correlation": correlation_extra(params, observable, unc),
-                "sigma2": [float(v) for v in unc.sigma2], "std_method": method, "stages_s": stages}
+                "sigma2": [float(v) for v in unc.sigma2], "std_method": method, "stages_s": stages,
+                "psd_skipped": sub_system.psd_skipped}
 
     def _relight(self, problem, params, estimate):
         """``(images, seconds)`` of the ``relight`` option, or None when it is off (see

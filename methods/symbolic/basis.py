@@ -1,104 +1,123 @@
-"""Monomial basis of the pixel polynomials (paper eq. 7-8).
+"""Monomial basis of the pixel polynomials (paper eq. 7-8), restricted to the monomials that occur.
 
 Every light path ``C`` of at most ``N_max`` reflections carries the radiance
 ``L(ρ, C) = α ∏_j ρ_j^{e_j}`` with ``Σ_j e_j <= N_max`` (eq. 7), so a pixel is the polynomial
-``L_sensor(ρ) = Σ_k γ_k ∏_j ρ_j^{e_{j,k}}`` (eq. 8) in the basis of all monomials of total degree
-at most ``N_max`` in ``D = dim(ρ)`` variables. There are ``N_e = C(D + N_max, N_max)`` of them
-(paper section 4.3: 286 for D = 10, N_max = 3).
+``L_sensor(ρ) = Σ_k γ_k ∏_j ρ_j^{e_{j,k}}`` (eq. 8). All monomials of total degree at most
+``N_max`` in ``D = dim(ρ)`` variables number ``N_e = C(D + N_max, N_max)`` (paper section 4.3: 286
+for D = 10, N_max = 3), but a path touches at most ``N_max`` parameters and which ones is fixed by
+the scene's geometry: most of them never occur. So a basis is the sorted list of the monomials that
+do, each named by its *multiset code*: the sorted parameter indices ``p_0 <= ... <= p_{d-1}`` as
+base-``(D + 1)`` digits ``p_i + 1`` (0: no parameter), ``Σ_i (p_i + 1)(D + 1)^i``. The constant
+monomial has code 0. Sorted codes are ordered by degree, then by the largest parameter.
 """
 from __future__ import annotations
 
 from itertools import combinations_with_replacement
-from math import comb
 
 import numpy as np
+import scipy.sparse as sp
+
+from framework.errors import ConfigError
+
+
+def multiset_codes(keys: np.ndarray, n_params: int, max_degree: int) -> np.ndarray:
+    """Multiset codes of ordered keys ``Σ_i (p_i + 1)(D + 1)^i`` (the integrator's path keys): the
+    digits decoded, sorted (non-empty ones first) and re-encoded, as int64."""
+    digits = _digits(np.asarray(keys, dtype=np.int64), n_params, max_degree)
+    empty = n_params + 1                          # sorts the empty digits (0) after the others
+    digits = np.sort(np.where(digits == 0, empty, digits), axis=1)
+    return _encode(np.where(digits == empty, 0, digits), n_params)
+
+
+def check_key_range(n_params: int, max_degree: int) -> None:
+    """Raise :class:`ConfigError` when the ordered path keys (``< (D + 1)^N_max``) do not fit in
+    the integrator's uint32 event column (one value is reserved for an empty slot)."""
+    if (int(n_params) + 1) ** int(max_degree) >= 2 ** 32 - 1:
+        raise ConfigError(f"(number of parameters + 1)^render.max_bounces = ({n_params} + 1)^{max_degree} "
+                          "exceeds the 32-bit path keys: lower render.max_bounces or estimate fewer parameters "
+                          "(method.kernels)")
+
+
+def merge_codes(*codes: np.ndarray) -> np.ndarray:
+    """Sorted union of code lists (the basis of several views together)."""
+    return np.unique(np.concatenate([np.asarray(c, dtype=np.int64) for c in codes]))
+
+
+def _digits(codes: np.ndarray, D: int, N: int) -> np.ndarray:
+    """``(K, N)`` base-``(D + 1)`` digits of ``codes`` (digit 0: no parameter)."""
+    return (codes[:, None] // (D + 1) ** np.arange(N, dtype=np.int64)) % (D + 1)
+
+
+def _encode(digits: np.ndarray, D: int) -> np.ndarray:
+    """Codes of ``(K, N)`` digit rows."""
+    return (np.asarray(digits, dtype=np.int64) * (D + 1) ** np.arange(digits.shape[1], dtype=np.int64)).sum(axis=1)
+
+
+def all_codes(n_params: int, max_degree: int) -> np.ndarray:
+    """Sorted codes of all ``C(D + N_max, N_max)`` monomials of degree ``<= N_max``."""
+    D, N = int(n_params), int(max_degree)
+    rows = [np.zeros(1, np.int64)]
+    for d in range(1, N + 1):
+        combos = np.array(list(combinations_with_replacement(range(D), d)), dtype=np.int64).reshape(-1, d)
+        rows.append(_encode(combos + 1, D))
+    return np.sort(np.concatenate(rows))
 
 
 class MonomialBasis:
-    """All monomials ``∏_j ρ_j^{e_j}`` of total degree ``<= max_degree`` in ``n_params`` variables.
-
-    Monomials are ordered by total degree, then lexicographically by the sorted multiset of
-    their variables (``combinations_with_replacement`` order): index 0 is the constant
-    monomial, indices ``1..D`` are ``ρ_0 .. ρ_{D-1}``, then the degree-2 monomials, etc.
+    """Monomials ``∏_j ρ_j^{e_j}`` of total degree ``<= max_degree`` in ``n_params`` variables: all of
+    them, or those of ``codes``.
 
     Parameters
     ----------
-    n_params : int
-        ``D = dim(ρ)``, the number of kernel weights (>= 1).
-    max_degree : int
-        ``N_max``, the maximal total degree (the number of reflections of a path, >= 0).
+    n_params, max_degree : int
+        ``D`` and ``N_max``.
+    codes : numpy.ndarray, optional
+        Sorted, unique multiset codes (module docstring) of the monomials; default all
+        (:func:`all_codes`). Code 0 (the constant, emitters seen directly) is always added.
 
     Attributes
     ----------
     size : int
-        ``N_e = C(D + N_max, N_max)`` (paper section 4.3).
-    exponents : numpy.ndarray
-        ``(N_e, D)`` int array; row ``m`` holds the exponents ``e_j`` of monomial ``m``.
-    key_table : numpy.ndarray
-        Flat int32 array of length ``(D + 1)^N_max``. A path that chose parameters
-        ``p_0, ..., p_{d-1}`` at its ``d <= N_max`` reflections has the ordered key
-        ``Σ_{i<d} (p_i + 1)·(D + 1)^i``; ``key_table[key]`` is the index of the monomial
-        ``∏_i ρ_{p_i}``, so the renderer needs no sorting. Entries that are no valid key
-        (a zero digit below a non-zero one) hold -1.
+        Number of monomials (``N_e`` for the full basis).
+    codes : numpy.ndarray
+        ``(size,)`` int64 sorted codes; monomial ``m`` is ``codes[m]``.
+    digits : numpy.ndarray
+        ``(size, N_max)`` int64 digits ``p + 1`` of each monomial (0: empty position).
+    degrees : numpy.ndarray
+        ``(size,)`` total degree of each monomial.
     """
 
-    def __init__(self, n_params: int, max_degree: int):
+    def __init__(self, n_params: int, max_degree: int, codes: np.ndarray | None = None):
         if int(n_params) < 1:
             raise ValueError(f"n_params={n_params}: must be >= 1")
         if int(max_degree) < 0:
             raise ValueError(f"max_degree={max_degree}: must be >= 0")
         self.n_params = D = int(n_params)
         self.max_degree = N = int(max_degree)
-        self.size = comb(D + N, N)
+        codes = all_codes(D, N) if codes is None else merge_codes([0], codes)
+        if codes.size and codes[-1] >= (D + 1) ** N:
+            raise ValueError(f"code {codes[-1]} is no monomial of degree <= {N} in {D} parameters")
+        self.codes = codes
+        self.size = len(codes)
+        self.digits = _digits(codes, D, N)
+        self.degrees = (self.digits > 0).sum(axis=1)
+        # Non-zeros of the Jacobian, one per non-empty digit: ∂μ_m/∂ρ_k sums over the positions
+        # holding k, so repeated parameters give their exponents.
+        self._jm, self._jpos = np.nonzero(self.digits)
+        self._jk = self.digits[self._jm, self._jpos] - 1
 
-        exps = np.zeros((self.size, D), dtype=np.int64)
-        codes = np.zeros(self.size, dtype=np.int64)  # sorted multiset code, base D+1 digits
-        m = 0
-        for d in range(N + 1):
-            combos = list(combinations_with_replacement(range(D), d))
-            combos = np.array(combos, dtype=np.int64).reshape(len(combos), d)
-            rows = np.arange(m, m + len(combos))
-            np.add.at(exps, (np.repeat(rows, d), combos.ravel()), 1)
-            codes[rows] = _code(combos, D) if d else 0
-            m += len(combos)
-        assert m == self.size
-        self.exponents = exps
-        self.degrees = exps.sum(axis=1)
+    @property
+    def incidence(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(monomials, parameters)``: one pair per non-empty digit (a parameter repeated in a
+        monomial appears once per repetition)."""
+        return self._jm, self._jk
 
-        # Key table: enumerate ordered tuples depth by depth (vectorised).
-        order = np.argsort(codes)
-        sorted_codes = codes[order]
-        table = np.full((D + 1) ** N if N > 0 else 1, -1, dtype=np.int32)
-        table[0] = 0
-        for d in range(1, N + 1):
-            tuples = np.indices((D,) * d).reshape(d, -1).T          # (D^d, d), digit i = p_i
-            weights = (D + 1) ** np.arange(d, dtype=np.int64)
-            keys = ((tuples + 1) * weights).sum(axis=1)
-            c = _code(np.sort(tuples, axis=1), D)
-            pos = np.searchsorted(sorted_codes, c)
-            table[keys] = order[pos]
-        self.key_table = table
-
-        # Exponent vectors as base-(N_max + 1) numbers, sorted, for :meth:`indices`.
-        self._exp_codes = exps @ (N + 1) ** np.arange(D, dtype=np.int64)
-        self._exp_order = np.argsort(self._exp_codes)
-
-        # ∂μ_m/∂ρ_k = e_mk · μ_{m - 1_k}: the lowered monomial is in the basis too (degree - 1).
-        lowered = np.zeros_like(exps)
-        for k in range(D):
-            has = exps[:, k] > 0
-            lowered[has, k] = self.indices(exps[has] - np.eye(D, dtype=np.int64)[k])
-        self._lowered = lowered
-
-        # μ_m = μ_parent(m) · ρ_var(m) (var: the first variable of m): one product per monomial,
-        # degree by degree (monomials are ordered by degree, so each degree is a slice).
-        self._var = np.argmax(exps > 0, axis=1)
-        self._parent = lowered[np.arange(self.size), self._var]
-        bounds = np.searchsorted(self.degrees, np.arange(N + 2))
-        self._levels = [slice(int(bounds[d]), int(bounds[d + 1])) for d in range(1, N + 1)]
-        # Non-zeros of the Jacobian: (monomial, variable, exponent, lowered monomial).
-        jm, jk = np.nonzero(exps)
-        self._jac = (jm, jk, exps[jm, jk].astype(float), lowered[jm, jk])
+    @property
+    def exponents(self) -> np.ndarray:
+        """``(size, D)`` int exponents (dense: for small bases and tests)."""
+        E = np.zeros((self.size, self.n_params), dtype=np.int64)
+        np.add.at(E, (self._jm, self._jk), 1)
+        return E
 
     # ------------------------------------------------------------------------------------------
     def key(self, params) -> int:
@@ -107,96 +126,84 @@ class MonomialBasis:
 
     def index(self, params) -> int:
         """Monomial index of the multiset ``params`` (any order)."""
-        return int(self.key_table[self.key(sorted(params))])
+        return int(self._positions(np.array([self.key(sorted(params))]))[0])
 
     def indices(self, exponents: np.ndarray) -> np.ndarray:
         """Monomial indices of the rows of ``exponents`` (``(K, D)`` non-negative ints, each row of
         total degree ``<= N_max``)."""
-        exponents = np.asarray(exponents, dtype=np.int64).reshape(-1, self.n_params)
-        codes = exponents @ (self.max_degree + 1) ** np.arange(self.n_params, dtype=np.int64)
-        sorted_codes = self._exp_codes[self._exp_order]
-        pos = np.minimum(np.searchsorted(sorted_codes, codes), self.size - 1)
-        if exponents.size and (np.any(exponents < 0) or np.any(sorted_codes[pos] != codes)):
+        E = np.asarray(exponents, dtype=np.int64).reshape(-1, self.n_params)
+        if np.any(E < 0) or np.any(E.sum(axis=1) > self.max_degree):
             raise ValueError("exponents: a row is not a monomial of this basis (negative, or degree > N_max)")
-        return self._exp_order[pos]
+        digits = np.zeros((len(E), self.max_degree), dtype=np.int64)
+        for r, e in enumerate(E):
+            ps = np.repeat(np.arange(self.n_params), e) + 1
+            digits[r, :len(ps)] = ps
+        return self._positions(_encode(digits, self.n_params))
+
+    def _positions(self, codes: np.ndarray) -> np.ndarray:
+        """Indices of ``codes`` in this basis (ValueError for a code it lacks)."""
+        pos = np.minimum(np.searchsorted(self.codes, codes), self.size - 1)
+        if np.any(self.codes[pos] != codes):
+            raise ValueError("a row is not a monomial of this basis")
+        return pos
+
+    def _factors(self, rho: np.ndarray) -> np.ndarray:
+        """``(..., size, N_max)`` factor of each digit: ``ρ_{p}`` or 1 for an empty digit."""
+        rho = np.asarray(rho, dtype=float)
+        padded = np.concatenate([np.ones(rho.shape[:-1] + (1,)), rho], axis=-1)
+        return padded[..., self.digits]
 
     def evaluate(self, rho: np.ndarray) -> np.ndarray:
-        """Values of all monomials at ``rho``.
+        """Values ``∏_j ρ_j^{e_{j,m}}`` of all monomials (eq. 7) at ``rho`` (``(D,)`` or batched
+        ``(B, D)``): ``(size,)`` or ``(B, size)``."""
+        return self._factors(rho).prod(axis=-1)
 
-        Parameters
-        ----------
-        rho : numpy.ndarray
-            ``(D,)`` or batched ``(B, D)`` parameter values.
+    def _jacobian_values(self, rho: np.ndarray) -> np.ndarray:
+        """Per Jacobian non-zero (monomial, digit position): the product of the monomial's
+        other factors (no division: exact also at ``ρ = 0``)."""
+        f = self._factors(rho)[self._jm]                                  # (nnz, N_max)
+        own = np.arange(self.max_degree)[None, :] == self._jpos[:, None]
+        return np.where(own, 1.0, f).prod(axis=1)
 
-        Returns
-        -------
-        numpy.ndarray
-            ``(N_e,)`` (or ``(B, N_e)``): ``∏_j ρ_j^{e_{j,m}}`` for every monomial ``m`` (eq. 7).
-        """
-        rho = np.asarray(rho, dtype=float)
-        mu = np.empty(rho.shape[:-1] + (self.size,))
-        mu[..., 0] = 1.0
-        for level in self._levels:
-            mu[..., level] = mu[..., self._parent[level]] * rho[..., self._var[level]]
-        return mu
+    def jacobian_sparse(self, rho: np.ndarray) -> sp.csr_matrix:
+        """``(size, D)`` sparse Jacobian ``∂μ_m/∂ρ_k`` (at most ``N_max`` non-zeros a row)."""
+        return sp.csr_matrix((self._jacobian_values(rho), (self._jm, self._jk)), shape=(self.size, self.n_params))
 
-    def jacobian(self, rho: np.ndarray, mu: np.ndarray | None = None) -> np.ndarray:
-        """Derivatives ``∂(∏_j ρ_j^{e_{j,m}})/∂ρ_k``.
+    def jacobian(self, rho: np.ndarray) -> np.ndarray:
+        """Dense ``(size, D)`` Jacobian (:meth:`jacobian_sparse`); exact, also at ``ρ_k = 0``."""
+        return self.jacobian_sparse(rho).toarray()
 
-        Parameters
-        ----------
-        rho : numpy.ndarray
-            ``(D,)`` parameter values.
-        mu : numpy.ndarray, optional
-            ``evaluate(rho)``, if already computed.
+    def jacobian_t_dot(self, rho: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """``J(ρ)ᵀ r`` (``(D,)``) for a ``(size,)`` vector ``r`` without forming ``J``."""
+        return np.bincount(self._jk, weights=self._jacobian_values(rho) * r[self._jm], minlength=self.n_params)
 
-        Returns
-        -------
-        numpy.ndarray
-            ``(N_e, D)`` Jacobian ``e_mk μ_{m - 1_k}``; exact, also at ``ρ_k = 0``.
-        """
-        mu = self.evaluate(rho) if mu is None else mu
-        jm, jk, je, jl = self._jac
-        J = np.zeros((self.size, self.n_params))
-        J[jm, jk] = je * mu[jl]
-        return J
+    def _pairs(self, rho: np.ndarray) -> tuple:
+        """Non-zeros of the monomial Hessians ``(monomial, k, l, value)``, one per ordered pair of
+        distinct non-empty digit positions (summing them gives the exponents' factors)."""
+        factors, N = self._factors(rho), self.max_degree
+        parts = []
+        for j in range(N):
+            on = (self.digits[self._jm, j] > 0) & (self._jpos != j)
+            m, pos = self._jm[on], self._jpos[on]
+            skip = (np.arange(N)[None, :] == pos[:, None]) | (np.arange(N)[None, :] == j)
+            parts.append((m, self._jk[on], self.digits[m, j] - 1, np.where(skip, 1.0, factors[m]).prod(axis=1)))
+        if not parts:
+            return tuple(np.zeros(0, int) for _ in range(3)) + (np.zeros(0),)
+        return tuple(np.concatenate(a) for a in zip(*parts))
 
-    def jacobian_t_dot(self, mu: np.ndarray, r: np.ndarray) -> np.ndarray:
-        """``J(ρ)ᵀ r`` without forming ``J`` (it has at most ``N_max`` non-zeros per row).
-
-        Parameters
-        ----------
-        mu : numpy.ndarray
-            ``(N_e,)`` monomials at ρ (:meth:`evaluate`).
-        r : numpy.ndarray
-            ``(N_e,)`` vector, e.g. the residual ``Gμ - b`` of the cost.
-
-        Returns
-        -------
-        numpy.ndarray
-            ``(D,)``: ``Σ_m e_mk μ_{m - 1_k} r_m`` for every ``k``.
-        """
-        jm, jk, je, jl = self._jac
-        return np.bincount(jk, weights=je * mu[jl] * r[jm], minlength=self.n_params)
+    def hessian_dot(self, rho: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """``(D, D)``: ``Σ_m r_m ∇²μ_m(ρ)``, the residual part of the cost's Hessian."""
+        m, k, l, vals = self._pairs(rho)
+        H = np.zeros((self.n_params, self.n_params))
+        np.add.at(H, (k, l), vals * r[m])
+        return H
 
     def hessian(self, rho: np.ndarray) -> np.ndarray:
-        """Second derivatives ``∂²(∏_j ρ_j^{e_{j,m}})/∂ρ_k∂ρ_l``, shape ``(N_e, D, D)``.
-
-        Lowering twice: ``∂²μ_m/∂ρ_k∂ρ_l = e_mk · e_{m', l} · μ_{m' - 1_l}`` with ``m' = m - 1_k``.
-        """
-        mu = self.evaluate(rho)
-        jm, jk, je, jl = self._jac
-        E = self.exponents
+        """Dense ``(size, D, D)`` second derivatives (small bases and tests)."""
+        m, k, l, vals = self._pairs(rho)
         out = np.zeros((self.size, self.n_params, self.n_params))
-        coef = je[:, None] * E[jl]                                  # (nnz, D): e_mk · e_{m', l}
-        out[jm, jk, :] = coef * mu[self._lowered[jl]]
+        np.add.at(out, (m, k, l), vals)
         return out
 
     def __repr__(self) -> str:
         return f"MonomialBasis(n_params={self.n_params}, max_degree={self.max_degree}, size={self.size})"
-
-
-def _code(sorted_tuples: np.ndarray, D: int) -> np.ndarray:
-    """Integer code of sorted multisets (rows), base ``D + 1`` digits ``p + 1``."""
-    d = sorted_tuples.shape[1]
-    return ((sorted_tuples + 1) * (D + 1) ** np.arange(d, dtype=np.int64)).sum(axis=1)

@@ -1,6 +1,7 @@
 """Events of the polynomial path tracer, from the device buffers to sparse coefficient matrices.
 
-A path writes each of its contributions to one *event slot*: (monomial index, value per channel).
+A path writes each of its contributions to one *event slot*: (ordered parameter key of the path,
+value per channel); the host maps the keys to the monomials that occur (column indices).
 A tile of ``n`` pixels x ``spp`` samples has ``spp × (N_max + T + 1)`` slots per pixel, most of
 them empty or zero (occluded next-event estimation, paths that left the scene). So the slots are
 compacted on the device (``dr.compress``) and only the rest reaches the host, where the events of
@@ -18,7 +19,7 @@ import mitsuba as mi
 import numpy as np
 import scipy.sparse as sp
 
-EMPTY = 0xFFFFFFFF   # monomial index of an event slot that received no contribution
+EMPTY = 0xFFFFFFFF   # key of an event slot that received no contribution (keys stay below it)
 
 
 def lane_pixel(lane, n: int, spp: int, split: int):
@@ -34,7 +35,7 @@ def lane_pixel(lane, n: int, spp: int, split: int):
 
 class EventBuffer:
     """Device buffers of a tile's events: slot ``k`` of lane ``l`` holds the ``k``-th
-    (monomial, value) of that lane's path; slots no contribution reached keep :data:`EMPTY`."""
+    (path key, value) of that lane's path; slots no contribution reached keep :data:`EMPTY`."""
 
     def __init__(self, lanes: int, slots: int, n_channels: int):
         self.slots = slots
@@ -43,7 +44,7 @@ class EventBuffer:
         self._lane_base = dr.arange(mi.UInt32, lanes) * slots
 
     def store(self, slot, mono, value, active):
-        """Write ``value`` (a Spectrum) to monomial ``mono`` in slot ``slot`` of each active lane."""
+        """Write ``value`` (a Spectrum) with path key ``mono`` in slot ``slot`` of each active lane."""
         at = self._lane_base + slot
         dr.scatter(self.mono, mono, at, active)
         for c, v in enumerate(self.values):
@@ -53,7 +54,7 @@ class EventBuffer:
         """The non-empty, non-zero events, in lane order, on the host.
 
         Returns ``((rows, cols, vals), first_b)``: tile pixel (non-decreasing within a lane block,
-        :func:`lane_pixel`), int32; monomial index, int32; one float32 array of values per
+        :func:`lane_pixel`), int32; ordered path key, int64; one float32 array of values per
         channel; and the index of the first event of the second block.
         """
         dr.eval(self.mono, self.values)                # the whole tile's paths: one kernel
@@ -64,9 +65,9 @@ class EventBuffer:
         at = dr.compress(keep)                         # order-preserving: rows stay sorted
         if dr.width(at) == 0:                          # no light reached the tile: Dr.Jit cannot
             empty = np.zeros(0, np.int32)              # divide an empty array by a literal
-            return (empty, empty, [np.zeros(0, np.float32) for _ in self.values]), 0
+            return (empty, empty.astype(np.int64), [np.zeros(0, np.float32) for _ in self.values]), 0
         rows = lane_pixel(at // dr.opaque(mi.UInt32, self.slots), n, spp, split).numpy().view(np.int32)
-        cols = dr.gather(mi.UInt32, self.mono, at).numpy().view(np.int32)
+        cols = dr.gather(mi.UInt32, self.mono, at).numpy().astype(np.int64)
         vals = [dr.gather(mi.Float, v, at).numpy() for v in self.values]
         first_b = int(np.searchsorted(at.numpy(), n * split * self.slots))
         return (rows, cols, vals), first_b
@@ -117,6 +118,16 @@ def tile_matrices(events: tuple, first_b: int, shape: tuple[int, int], spp: int,
     B = csr(rows[in_b], cols[in_b], [v[in_b] for v in vals], shape, weight=spp / (spp - split))
     wa, wb = split / spp, (spp - split) / spp
     return A, B, [(a + b) * 0.5 if wa == wb else a * wa + b * wb for a, b in zip(A, B)]
+
+
+def reindex_columns(mats: tuple, positions: np.ndarray, n_cols: int) -> tuple:
+    """Per-channel matrix lists ``mats`` with column ``j`` moved to ``positions[j]`` of ``n_cols``
+    (increasing ``positions``: the indices stay sorted, the format canonical)."""
+    def move(m):
+        out = sp.csr_matrix((m.data, positions[m.indices], m.indptr), shape=(m.shape[0], n_cols))
+        out.has_canonical_format = True
+        return out
+    return tuple([move(m) for m in ms] for ms in mats)
 
 
 def stack_tiles(tiles: list[tuple], n_out: int, n_channels: int, n_cols: int) -> tuple:

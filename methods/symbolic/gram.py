@@ -6,54 +6,84 @@ observed pixels ``y_i``, the cost of one channel is
     ε²(ρ) = Σ_i (γ_i·μ - y_i)² = μᵀ G μ - 2 bᵀ μ + yy,   G = Σ_i γ_i γ_iᵀ,  b = Σ_i y_i γ_i,  yy = Σ_i y_i²
 
 so the pixels are summed once; the solver never touches them again and memory does not depend
-on the pixel count.
+on the pixel count. G lives over the monomials that occur only, as one sparse matrix per channel.
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+log = logging.getLogger(__name__)
+
+
+#: components of G with more used monomials than this are not PSD-projected (dense eigh: O(n³))
+PSD_BLOCK_LIMIT = 4000
 
 
 @dataclass
 class GramSystem:
-    """Per-channel Gram system ``(G, b, yy)`` of the cost ``μᵀGμ - 2bᵀμ + yy``.
+    """Per-channel Gram system ``(G, b, yy)`` of the cost ``μᵀGμ - 2bᵀμ + yy`` over the monomials
+    ``codes``.
 
     Attributes
     ----------
-    G : numpy.ndarray
-        ``(C, N_e, N_e)`` float64, ``Σ_i γ_i γ_iᵀ`` per channel.
+    G : list of scipy.sparse.csr_matrix
+        One ``(N, N)`` float64 matrix ``Σ_i γ_i γ_iᵀ`` per channel (``N = len(codes)``, the
+        monomials that occur: most pairs never share a pixel, so G is sparse).
     b : numpy.ndarray
-        ``(C, N_e)`` float64, ``Σ_i y_i γ_i``.
+        ``(C, N)`` float64, ``Σ_i y_i γ_i``.
     yy : numpy.ndarray
         ``(C,)`` float64, ``Σ_i y_i²``.
     n_pixels : int
         Number of pixels accumulated.
+    codes : numpy.ndarray
+        ``(N,)`` sorted int64 labels of the columns: the monomials' multiset codes
+        (:class:`~methods.symbolic.basis.MonomialBasis`); systems over different codes add by
+        merging them.
+    psd_skipped : tuple of int
+        Sizes of the components :meth:`psd` left unprojected (above its limit).
     """
 
-    G: np.ndarray
+    G: list
     b: np.ndarray
     yy: np.ndarray
     n_pixels: int = 0
+    codes: np.ndarray | None = None
+    psd_skipped: tuple = ()
+
+    def __post_init__(self):
+        if self.codes is None:
+            self.codes = np.arange(self.b.shape[1], dtype=np.int64)
+        self.G = [sp.csr_matrix(g, dtype=np.float64) for g in self.G]
 
     @classmethod
-    def zeros(cls, n_monomials: int, n_channels: int) -> "GramSystem":
-        """An empty system (no pixel)."""
-        return cls(np.zeros((n_channels, n_monomials, n_monomials)),
-                   np.zeros((n_channels, n_monomials)), np.zeros(n_channels), 0)
+    def zeros(cls, codes, n_channels: int) -> "GramSystem":
+        """An empty system (no pixel) over ``codes`` (or ``range(codes)`` for an int)."""
+        codes = np.arange(codes, dtype=np.int64) if np.ndim(codes) == 0 else np.asarray(codes, np.int64)
+        N = len(codes)
+        return cls([sp.csr_matrix((N, N)) for _ in range(n_channels)], np.zeros((n_channels, N)),
+                   np.zeros(n_channels), 0, codes)
 
     @property
     def n_monomials(self) -> int:
-        return self.G.shape[1]
+        return len(self.codes)
 
     @property
     def n_channels(self) -> int:
-        return self.G.shape[0]
+        return len(self.G)
+
+    @property
+    def nnz(self) -> int:
+        """Stored entries of G, all channels."""
+        return int(sum(g.nnz for g in self.G))
 
     def accumulate(self, coeffs: np.ndarray, observed: np.ndarray, mask: np.ndarray | None = None, *,
                    coeffs_b: np.ndarray | None = None) -> "GramSystem":
-        """Add pixels in place (returns ``self``).
+        """Add pixels given as dense coefficients in place (returns ``self``).
 
         With ``coeffs_b``, an independent estimate of the same coefficients (the other half of
         the samples), ``G`` gets the symmetrised cross product ½(AᵀB + BᵀA) and ``b`` the mean
@@ -63,17 +93,11 @@ class GramSystem:
         Parameters
         ----------
         coeffs : numpy.ndarray
-            ``(n, N_e, C)`` polynomial coefficients of ``n`` pixels
-            (:meth:`PolynomialPathIntegrator.coefficients`).
+            ``(n, N, C)`` polynomial coefficients of ``n`` pixels, columns in ``codes`` order.
         observed : numpy.ndarray
             ``(n, C)`` observed radiance of the same pixels.
         mask : numpy.ndarray, optional
             ``(n,)`` bool, pixels to use (default all).
-
-        Notes
-        -----
-        The coefficient matrix is 2-6 % non-zero, so ``G`` is built as a scipy.sparse CSR product
-        ``ΓᵀΓ`` (float64), never a dense sum over pixels.
         """
         coeffs = np.asarray(coeffs)
         observed = np.asarray(observed, dtype=np.float64).reshape(coeffs.shape[0], -1)
@@ -86,7 +110,6 @@ class GramSystem:
         if mask is not None:
             mask = np.asarray(mask, bool).reshape(n)
             coeffs, observed = coeffs[mask], observed[mask]
-            n = coeffs.shape[0]
         if coeffs_b is not None:
             coeffs_b = np.asarray(coeffs_b)
             if coeffs_b.shape[1:] != coeffs.shape[1:] or (mask is None and len(coeffs_b) != len(coeffs)):
@@ -97,54 +120,71 @@ class GramSystem:
         return self.accumulate_sparse(as_csr(coeffs), observed, as_csr(coeffs_b) if coeffs_b is not None else None)
 
     def accumulate_sparse(self, A: list, observed: np.ndarray, B: list | None = None) -> "GramSystem":
-        """:meth:`accumulate` for coefficients given as one sparse ``(n, N_e)`` matrix per channel
-        (``A``, and the independent half ``B``), as :meth:`PolynomialPathIntegrator.coefficients_sparse`
-        returns them."""
+        """:meth:`accumulate` for coefficients given as one sparse ``(n, N)`` matrix per channel
+        (``A``, and the independent half ``B``) over this system's ``codes``."""
         observed = np.asarray(observed, dtype=np.float64).reshape(A[0].shape[0], -1)
-        n = A[0].shape[0]
         for c in range(self.n_channels):
             y = observed[:, c]
             if B is None:
-                self.G[c] += (A[c].T @ A[c]).toarray()
+                self.G[c] = (self.G[c] + A[c].T @ A[c]).tocsr()
                 self.b[c] += A[c].T @ y
             else:
-                AB = (A[c].T @ B[c]).toarray()
-                self.G[c] += 0.5 * (AB + AB.T)
+                AB = A[c].T @ B[c]
+                self.G[c] = (self.G[c] + 0.5 * (AB + AB.T)).tocsr()
                 self.b[c] += 0.5 * (A[c].T @ y + B[c].T @ y)
             self.yy[c] += float(y @ y)
-        self.n_pixels += n
+        self.n_pixels += A[0].shape[0]
         return self
 
-    def psd(self) -> "GramSystem":
+    def psd(self, limit: int = PSD_BLOCK_LIMIT) -> "GramSystem":
         """This system with each ``G_c`` projected onto the positive semi-definite matrices
-        (negative eigenvalues set to 0, on the monomials in use).
+        (negative eigenvalues set to 0), one connected component of ``G_c`` at a time.
 
         The cross Gram ½(AᵀB + BᵀA) is unbiased but, being a difference of noisy products, not
         PSD: along directions the pixels barely constrain, its negative eigenvalues let the cost
         decrease without bound and the solve runs to the constraints. ΓᵀΓ is PSD, and the
         projection onto that convex set moves the estimate closer to it in Frobenius norm.
+        A block-diagonal matrix projects block by block, so splitting G into its connected
+        components is exact; a component of more than ``limit`` monomials would need a dense
+        eigen-decomposition of its size and is left unprojected (logged, and listed in
+        ``psd_skipped``).
         """
-        used = self.used_monomials()
-        G = self.G.copy()
-        for c in range(self.n_channels):
-            sub = G[c][np.ix_(used, used)]
-            w, V = np.linalg.eigh(0.5 * (sub + sub.T))
-            G[c][np.ix_(used, used)] = (V * np.maximum(w, 0.0)) @ V.T
-        return GramSystem(G, self.b.copy(), self.yy.copy(), self.n_pixels)
+        G, skipped = [], []
+        for g in self.G:
+            projected, big = _psd_components(g, limit)
+            G.append(projected)
+            skipped += big
+        if skipped:
+            log.warning("PSD projection skipped for %d component(s) of G with %s monomials (limit %d)",
+                        len(skipped), sorted(set(skipped)), limit)
+        return GramSystem(G, self.b.copy(), self.yy.copy(), self.n_pixels, self.codes, tuple(skipped))
 
     def used_monomials(self) -> np.ndarray:
         """Indices of the monomials some pixel depends on (a non-zero row of G or entry of b, any
-        channel). The others do not change the cost: a solver may leave them out (a single street
-        view holds about 40 % of the N_e monomials)."""
-        return np.flatnonzero(np.any(self.G != 0, axis=(0, 2)) | np.any(self.b != 0, axis=0))
+        channel). The others do not change the cost: a solver may leave them out."""
+        used = np.any(self.b != 0, axis=0)
+        for g in self.G:
+            used |= np.diff(g.indptr) > 0
+        return np.flatnonzero(used)
+
+    def reindexed(self, codes: np.ndarray) -> "GramSystem":
+        """This system over the sorted ``codes``, a superset of its own (new monomials: zero)."""
+        pos = np.searchsorted(codes, self.codes)
+        N = len(codes)
+        G = [_permute(g, pos, N) for g in self.G]
+        b = np.zeros((self.n_channels, N))
+        b[:, pos] = self.b
+        return GramSystem(G, b, self.yy.copy(), self.n_pixels, np.asarray(codes, np.int64))
 
     def __add__(self, other: "GramSystem") -> "GramSystem":
         if not isinstance(other, GramSystem):
             return NotImplemented
-        if other.G.shape != self.G.shape:
-            raise ValueError(f"cannot add systems of shapes {self.G.shape} and {other.G.shape}")
-        return GramSystem(self.G + other.G, self.b + other.b, self.yy + other.yy,
-                          self.n_pixels + other.n_pixels)
+        if other.n_channels != self.n_channels:
+            raise ValueError(f"cannot add systems of {self.n_channels} and {other.n_channels} channels")
+        codes = np.union1d(self.codes, other.codes)
+        a, b = self.reindexed(codes), other.reindexed(codes)
+        return GramSystem([x + y for x, y in zip(a.G, b.G)], a.b + b.b, a.yy + b.yy,
+                          self.n_pixels + other.n_pixels, codes)
 
     def cost(self, mu: np.ndarray) -> np.ndarray:
         """Per-channel sum of squared residuals ``μ_cᵀ G_c μ_c - 2 b_cᵀ μ_c + yy_c``.
@@ -152,7 +192,7 @@ class GramSystem:
         Parameters
         ----------
         mu : numpy.ndarray
-            ``(C, N_e)`` monomial values per channel (``basis.evaluate(ρ[:, c])``).
+            ``(C, N)`` monomial values per channel (``basis.evaluate(ρ[:, c])``).
 
         Returns
         -------
@@ -160,5 +200,42 @@ class GramSystem:
             ``(C,)`` costs (sum them for the total, eq. 6 squared with p = 2).
         """
         mu = np.asarray(mu, dtype=np.float64).reshape(self.n_channels, self.n_monomials)
-        return (np.einsum("ci,cij,cj->c", mu, self.G, mu) - 2 * np.einsum("ci,ci->c", self.b, mu)
-                + self.yy)
+        quad = np.array([m @ (g @ m) for g, m in zip(self.G, mu)])
+        return quad - 2 * np.einsum("ci,ci->c", self.b, mu) + self.yy
+
+
+def _permute(g: sp.csr_matrix, pos: np.ndarray, n: int) -> sp.csr_matrix:
+    """``g`` with row and column ``i`` moved to ``pos[i]`` in an ``(n, n)`` matrix."""
+    coo = g.tocoo()
+    return sp.csr_matrix((coo.data, (pos[coo.row], pos[coo.col])), shape=(n, n))
+
+
+def _psd_components(g: sp.csr_matrix, limit: int) -> tuple[sp.csr_matrix, list[int]]:
+    """``g`` with each connected component of at most ``limit`` monomials replaced by its PSD
+    projection (dense eigh of the component), and the sizes of the larger ones."""
+    g = sp.csr_matrix(0.5 * (g + g.T))
+    n_comp, labels = connected_components(g, directed=False)
+    sizes = np.bincount(labels, minlength=n_comp)
+    rows, cols, vals, skipped = [], [], [], []
+    kept = np.zeros(g.shape[0], bool)                             # rows of unprojected components
+    order = np.argsort(labels, kind="stable")                  # each component: a contiguous run
+    bounds = np.concatenate([[0], np.cumsum(sizes)])
+    for k in np.flatnonzero(sizes > 1):
+        idx = order[bounds[k]:bounds[k + 1]]
+        if len(idx) > limit:                                      # kept sparse, never densified
+            skipped.append(len(idx))
+            kept[idx] = True
+            continue
+        w, V = np.linalg.eigh(g[idx][:, idx].toarray())
+        block = (V * np.maximum(w, 0.0)) @ V.T
+        r, c = np.nonzero(block)
+        rows.append(idx[r]), cols.append(idx[c]), vals.append(block[r, c])
+    coo = g.tocoo()
+    on = kept[coo.row]
+    rows.append(coo.row[on]), cols.append(coo.col[on]), vals.append(coo.data[on])
+    single = np.flatnonzero(sizes[labels] == 1)                   # 1 x 1: max(g_ii, 0)
+    d = np.maximum(g.diagonal()[single], 0.0)
+    rows.append(single), cols.append(single), vals.append(d)
+    out = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=g.shape)
+    out.eliminate_zeros()
+    return out, skipped

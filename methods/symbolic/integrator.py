@@ -18,9 +18,9 @@ import numpy as np
 from framework import kernels as kernel_registry
 from framework.errors import ConfigError
 from framework.render.plugin import plugin_class
-from methods.symbolic.basis import MonomialBasis
+from methods.symbolic.basis import check_key_range, merge_codes, multiset_codes
 from methods.symbolic.common import camera_rays, mis_weight, pixel_window, tile_sampler
-from methods.symbolic.events import EventBuffer, lane_pixel, stack_tiles, tile_matrices
+from methods.symbolic.events import EventBuffer, lane_pixel, reindex_columns, stack_tiles, tile_matrices
 
 # Re-exported under its former name: tests/test_polynomial_integrator.py imports it from here.
 from methods.symbolic.events import csr as _csr  # noqa: F401
@@ -61,8 +61,9 @@ class PolynomialPathMixin:
     a weighted sum of parameterless *unit* kernels ``f_k`` (:mod:`framework.kernels`). A light
     path ``C`` that reflects on kernels ``k_0 .. k_{d-1}`` (parameters ``p_0 .. p_{d-1}``) carries
     ``L(ρ, C) = α ∏_i ρ_{p_i}`` (eq. 7), so each pixel is a polynomial of degree ``<= N_max``
-    in ``ρ`` (eq. 8). This integrator estimates the coefficients ``γ`` of that polynomial in the
-    :class:`~methods.symbolic.basis.MonomialBasis` with **one** Monte Carlo pass; any ``ρ`` can
+    in ``ρ`` (eq. 8). This integrator estimates the coefficients ``γ`` of that polynomial over
+    the monomials that occur (:class:`~methods.symbolic.basis.MonomialBasis`) with **one**
+    Monte Carlo pass; any ``ρ`` can
     then be evaluated without ray tracing, and the cost (eq. 6) becomes a quadratic form in the
     monomials (:class:`~methods.symbolic.gram.GramSystem`).
 
@@ -81,8 +82,8 @@ class PolynomialPathMixin:
       ``directional``...) through ``f_k`` unless ``k`` is a Dirac kernel, weighted by the power
       heuristic against the pdf of ``f_k`` (1 for delta lights); then a direction is drawn from
       ``f_k`` and ``β *= f_k·cos/pdf / q_k``. An emitter hit by that ray gets the complementary
-      MIS weight (1 after a Dirac kernel). Both go to the monomial ``key_table[κ]`` of the path
-      including vertex ``i`` -- exactly Mitsuba's ``path`` integrator, with the BSDF of the
+      MIS weight (1 after a Dirac kernel). Both go to the event column ``κ``, the ordered key
+      of the path including vertex ``i`` (the host maps it to its monomial's multiset code) -- exactly Mitsuba's ``path`` integrator, with the BSDF of the
       chosen kernel at unit weight in place of the segment's BSDF, and the division by ``q_k``.
     * No Russian roulette; paths stop after ``N_max`` reflections. A ray leaving the scene or
       hitting a shape of segment ``-1`` (emit-only, or a shape not configured) ends the path.
@@ -206,7 +207,6 @@ class PolynomialPathMixin:
         self.n_params, self.n_channels = D, g.shape[1]
         self.guesses = g
         self.segment_kernels = [[(str(n), int(p)) for n, p in kl] for kl in segment_kernels]
-        self.basis = MonomialBasis(D, self.max_bounces)
         self._build_kernel_tables()
         self._shape_segment = _shape_ids(shape_segments, len(self.segment_kernels))
         self._shape_tables = {}
@@ -215,9 +215,7 @@ class PolynomialPathMixin:
     def _checked_guesses(self, segment_kernels, D: int, guesses) -> np.ndarray:
         """Check the key range and the kernels; the guesses as a ``(D, C)`` array (broadcast over
         the channels)."""
-        if (D + 1) ** self.max_bounces >= 2 ** 31:
-            raise ConfigError(f"(n_params+1)^max_bounces = {(D + 1) ** self.max_bounces} "
-                              "exceeds the 32-bit key range: lower max_bounces")
+        check_key_range(D, self.max_bounces)
         C = dr.size_v(mi.Spectrum)
         g = np.asarray(guesses, dtype=float)
         if g.ndim == 1:
@@ -239,7 +237,7 @@ class PolynomialPathMixin:
     def _build_kernel_tables(self) -> None:
         """Device tables of the kernel choice: per segment, ``K_max`` slots (padded) of selection
         cdf, ``q``, parameter and kernel type; the unit BSDF and Dirac flag of each kernel type;
-        the key -> monomial table and the guesses (index ``p·C + c``)."""
+        and the guesses (index ``p·C + c``)."""
         names = sorted({n for kl in self.segment_kernels for n, _ in kl})
         self._unit_bsdfs = [mi.load_dict(kernel_registry.get(n).unit_bsdf()) for n in names]
         n_seg = len(self.segment_kernels)
@@ -264,7 +262,6 @@ class PolynomialPathMixin:
         self._param = mi.UInt32(param.ravel())
         self._ktype = mi.UInt32(ktype.ravel())
         self._delta = mi.UInt32([int(kernel_registry.get(n).delta) for n in names])
-        self._key_table = mi.UInt32(self.basis.key_table.astype(np.int64).clip(0).astype(np.uint32))
         self._guess_flat = mi.Float(self.guesses.ravel())
 
     def _segment_table(self, scene: mi.Scene) -> mi.Int32:
@@ -304,7 +301,7 @@ class PolynomialPathMixin:
         active = mi.Bool(active)
         β = mi.Spectrum(β)
         ρ_path = mi.Spectrum(1.0)            # ∏ guess[p_i] along the path
-        κ = mi.UInt32(0)                     # Σ (p_i + 1)(D + 1)^i, see MonomialBasis.key_table
+        κ = mi.UInt32(0)                     # ordered key Σ (p_i + 1)(D + 1)^i: the event's column
         stride = mi.UInt32(1)                # (D + 1)^depth
         depth = mi.UInt32(0)
 
@@ -319,7 +316,6 @@ class PolynomialPathMixin:
             active, q, p, kt, is_delta = self._choose_kernel(seg_table, si, sampler, active)
             exact = depth < N_max            # beyond N_max: the tail, weighted by the guess
             κ = dr.select(active & exact, κ + (p + 1) * stride, κ)
-            mono = dr.gather(mi.UInt32, self._key_table, κ, active)
             inv_q = dr.select(active & (q > 0), dr.rcp(q), 0)
             w, ρ_path = self._choice_weight(p, inv_q, exact, ρ_path, active, track)
 
@@ -347,7 +343,7 @@ class PolynomialPathMixin:
             contrib += dr.select(active, β * Le * mis_bsdf, 0.0)
 
             # Both contributions belong to the monomial of the path up to this vertex
-            store(depth + 1, mono, contrib, active | active_em)
+            store(depth + 1, κ, contrib, active | active_em)
             L = self._add_radiance(L, contrib * ρ_path, active | active_em, track)
             stride = dr.select(exact, stride * (D + 1), stride)
             depth += 1
@@ -436,17 +432,18 @@ class PolynomialPathMixin:
 
     # -- coefficients ----------------------------------------------------------------------------
     def coefficients(self, scene: mi.Scene, sensor=0, *, spp: int, seed: int = 0,
-                     pixel_range: tuple[int, int] | None = None) -> np.ndarray:
-        """Dense ``(stop - start, N_e, C)`` float32 coefficients ``γ`` (eq. 8) of one view's pixels.
+                     pixel_range: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(codes, γ)``: dense ``(stop - start, len(codes), C)`` float32 coefficients (eq. 8) of
+        one view's pixels over the monomial ``codes`` that occur.
 
         Same arguments as :meth:`coefficients_sparse`, whose result this densifies (for tests and
         small images; the inversion keeps the sparse form).
         """
-        mats = self.coefficients_sparse(scene, sensor, spp=spp, seed=seed, pixel_range=pixel_range)
-        return np.stack([m.toarray() for m in mats], axis=-1).astype(np.float32)
+        codes, mats = self.coefficients_sparse(scene, sensor, spp=spp, seed=seed, pixel_range=pixel_range)
+        return codes, np.stack([m.toarray() for m in mats], axis=-1).astype(np.float32)
 
     def coefficients_sparse(self, scene: mi.Scene, sensor=0, *, spp: int, seed: int = 0,
-                            pixel_range: tuple[int, int] | None = None) -> list:
+                            pixel_range: tuple[int, int] | None = None) -> tuple[np.ndarray, list]:
         """Polynomial coefficients ``γ`` (eq. 8) of the pixels of one view, one sparse matrix per channel.
 
         Parameters
@@ -464,15 +461,18 @@ class PolynomialPathMixin:
 
         Returns
         -------
-        list of scipy.sparse.csr_matrix
-            ``C`` matrices of shape ``(stop - start, N_e)``, float64, canonical (sorted indices,
-            no duplicates).
+        (numpy.ndarray, list of scipy.sparse.csr_matrix)
+            The sorted multiset codes of the monomials that occur (always 0, the constant;
+            :class:`~methods.symbolic.basis.MonomialBasis`), and ``C`` matrices of shape
+            ``(stop - start, len(codes))``, float64, canonical (sorted indices, no duplicates).
         """
-        return self._tiled(scene, sensor, spp, seed, pixel_range, halves=False)[0]
+        codes, gamma = self._tiled(scene, sensor, spp, seed, pixel_range, halves=False)
+        return codes, gamma
 
     def coefficients_halves(self, scene: mi.Scene, sensor=0, *, spp: int, seed: int = 0,
-                            pixel_range: tuple[int, int] | None = None) -> tuple[list, list, list]:
-        """``(A, B, Γ)``: two independent estimates of the coefficients and their mean, from one render.
+                            pixel_range: tuple[int, int] | None = None) -> tuple[np.ndarray, list, list, list]:
+        """``(codes, A, B, Γ)``: two independent estimates of the coefficients and their mean, from
+        one render, over the monomial ``codes`` that occur.
 
         ``A`` uses the samples ``0 .. spp//2 - 1`` of every pixel, ``B`` the others, ``Γ`` all
         of them (``Γ = (spp//2 · A + (spp - spp//2) · B) / spp``; the lanes are laid out in two
@@ -486,7 +486,8 @@ class PolynomialPathMixin:
         return self._tiled(scene, sensor, spp, seed, pixel_range, halves=True)
 
     def _tiled(self, scene, sensor, spp, seed, pixel_range, halves: bool) -> tuple:
-        """Checks, then the tiles of ``tile_pixels`` pixels stacked: ``(Γ,)`` or ``(A, B, Γ)``."""
+        """Checks, then the tiles of ``tile_pixels`` pixels over their merged codes, stacked:
+        ``(codes, Γ)`` or ``(codes, A, B, Γ)``."""
         self._check()
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
@@ -497,11 +498,14 @@ class PolynomialPathMixin:
         split = spp // 2 if halves else spp
         tiles = [self._tile(scene, sensor, spp, seed, t0, min(stop, t0 + self.tile_pixels), split)
                  for t0 in range(start, stop, self.tile_pixels)]
-        return stack_tiles(tiles, 3 if halves else 1, self.n_channels, self.basis.size)
+        codes = merge_codes([0], *(codes for codes, _ in tiles))
+        mats = [reindex_columns(t, np.searchsorted(codes, c), len(codes)) for c, t in tiles]
+        return (codes,) + stack_tiles(mats, 3 if halves else 1, self.n_channels, len(codes))
 
     def _tile(self, scene, sensor, spp, seed, start, stop, split) -> tuple:
-        """Trace the pixels ``[start, stop)``, ``spp`` samples each, as one kernel: their matrices
-        ``(Γ,)``, or ``(A, B, Γ)`` with the first ``split < spp`` samples of each pixel in ``A``."""
+        """Trace the pixels ``[start, stop)``, ``spp`` samples each, as one kernel: the codes of
+        their monomials and their matrices ``(Γ,)``, or ``(A, B, Γ)`` with the first
+        ``split < spp`` samples of each pixel in ``A``."""
         n = stop - start
         if n * spp >= 2 ** 32:
             raise ConfigError(f"tile of {n} pixels x {spp} spp too large for 32-bit indices: lower tile_pixels")
@@ -511,7 +515,10 @@ class PolynomialPathMixin:
         events = EventBuffer(n * spp, self.max_bounces + self.tail_bounces + 1, self.n_channels)
         β = mi.Spectrum(weight) * dr.opaque(mi.Float, 1.0 / spp)      # box filter: 1/spp per sample
         self._trace(scene, sampler, mi.Ray3f(ray), β, mi.Bool(True), events.store)
-        return tile_matrices(*events.compact(n, spp, split), (n, self.basis.size), spp, split)
+        (rows, keys, vals), first_b = events.compact(n, spp, split)
+        # the ordered keys of one monomial differ by the order of its parameters: sort them out
+        codes, cols = np.unique(multiset_codes(keys, self.n_params, self.max_bounces), return_inverse=True)
+        return codes, tile_matrices((rows, cols.astype(np.int32), vals), first_b, (n, len(codes)), spp, split)
 
 
 def _emission_hit(scene, si, prev_si, prev_pdf, prev_delta, active):

@@ -2,7 +2,8 @@
 
 The pass renders every view once with :class:`PolynomialPathIntegrator`, tile by tile, and
 adds each tile's pixels to the Gram system (G, b, yy) of the cost (paper eq. 6, p = 2); memory
-is bounded by the tile (chosen from ``memory_mb``) and N_e², never by pixels or views. Per-pixel
+is bounded by the tile (chosen from ``memory_mb``) and the non-zeros of the sparse G over the
+monomials that occur, never by pixels or views. Per-pixel
 coefficients are kept only as sparse matrices (2-6 % non-zero), to rebuild reconstructions, with
 the half difference of the two independent half-sample estimates beside them (same pattern): the
 per-pixel Monte Carlo noise the sandwich standard errors need (:class:`ViewCoefficients`).
@@ -26,7 +27,8 @@ from framework.executor import SerialExecutor, TreeSum, init_worker
 from framework.observe import inversion_seed
 from framework.render.checks import MiB, check_memory
 from framework.render.mitsuba_scene import MitsubaScene
-from methods.symbolic.basis import MonomialBasis
+from methods.symbolic.basis import check_key_range
+from methods.symbolic.events import reindex_columns
 from methods.symbolic.gram import GramSystem
 from methods.symbolic.integrator import integrator_class
 
@@ -37,7 +39,8 @@ MIN_TILE_PIXELS = 64
 
 @dataclass
 class ViewCoefficients:
-    """A view's per-pixel coefficients, one sparse ``(pixels, N_e)`` float64 matrix per channel.
+    """A view's per-pixel coefficients, one sparse ``(pixels, len(codes))`` float64 matrix per
+    channel, over the monomial ``codes`` that occur in the view (its system's codes).
 
     ``gamma``: Γ, the estimate from all samples (eq. 8). ``delta``: D = (A - B)/2, half the
     difference of the two independent half-sample estimates (same sparsity as Γ), None when the
@@ -48,6 +51,7 @@ class ViewCoefficients:
     gamma: list
     delta: list | None = None
     split: float = 0.5
+    codes: np.ndarray | None = None
 
 
 @dataclass
@@ -68,9 +72,11 @@ class PassResult:
         return entry() if callable(entry) else entry
 
     def image(self, view: str, mu: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-        """The polynomial image of ``view`` at monomials ``mu`` (C, N_e): (H, W, C) float32."""
-        mats = self.view(view)[1].gamma
-        chans = [mats[c] @ mu[c] for c in range(len(mu))]
+        """The polynomial image of ``view`` at monomials ``mu`` (C, N) over ``system.codes``:
+        (H, W, C) float32."""
+        coeffs = self.view(view)[1]
+        at = np.searchsorted(self.system.codes, coeffs.codes)
+        chans = [coeffs.gamma[c] @ mu[c][at] for c in range(len(mu))]
         return np.stack(chans, axis=-1).reshape(*shape, len(mu)).astype(np.float32)
 
 
@@ -125,7 +131,7 @@ def check_pass_memory(memory_mb: float, spp: int, max_bounces: int, n_channels: 
                      "lower method.memory_mb (smaller tiles) or render.spp")
 
 
-def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBasis, *, spp: int,
+def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, *, spp: int,
                     seed: int, prob_floor: float, memory_mb: float, cache: Cache, executor=None,
                     cross_gram: bool = True, tail_bounces: int = 0) -> PassResult:
     """Gram systems and coefficients of every view of ``problem`` (one render in total).
@@ -137,7 +143,8 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
         The unknowns (``D = len(parameters)``).
     guesses : numpy.ndarray
         ``(D, C)`` guess driving the kernel selection.
-    basis : MonomialBasis
+    max_bounces : int
+        ``N_max``, the maximal degree of the polynomials.
     spp, seed, prob_floor, memory_mb
         Pass settings; view ``i`` uses the Mitsuba seed ``inversion_seed(seed, i)``.
     cross_gram : bool
@@ -154,14 +161,15 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
     Returns
     -------
     PassResult
+        Its ``system`` is over the monomials that occur in some view (``system.codes``).
     """
-
+    check_key_range(len(parameters), max_bounces)
     executor = executor or SerialExecutor()
     C = problem.n_channels
     views, cached, todo = {}, [], []
     total = TreeSum()
     for i, cam in enumerate(problem.cameras):
-        key = _key(problem, cam, parameters, guesses, spp, seed, prob_floor, basis, view=i, cross_gram=cross_gram,
+        key = _key(problem, cam, parameters, guesses, spp, seed, prob_floor, max_bounces, view=i, cross_gram=cross_gram,
                    tail_bounces=tail_bounces)
         hit = cache.load("polynomial_pass", key)
         if hit is None:
@@ -172,10 +180,10 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
         cached.append(cam.name)
     t0 = time.perf_counter()
     if todo:
-        check_pass_memory(memory_mb, spp, basis.max_degree, C, tail_bounces, tasks_here=executor.tasks_here,
+        check_pass_memory(memory_mb, spp, max_bounces, C, tail_bounces, tasks_here=executor.tasks_here,
                           pixels=max(cam.width * cam.height for _, cam, _ in todo))
-        tile = tile_pixels_for(memory_mb, spp, basis.max_degree, C, tail_bounces)
-        tasks = [view_task(problem, parameters, guesses, basis, i, spp=spp, seed=seed, prob_floor=prob_floor,
+        tile = tile_pixels_for(memory_mb, spp, max_bounces, C, tail_bounces)
+        tasks = [view_task(problem, parameters, guesses, max_bounces, i, spp=spp, seed=seed, prob_floor=prob_floor,
                            tile_pixels=tile, cross_gram=cross_gram, tail_bounces=tail_bounces)
                  for i, _, _ in todo]
         variant = problem.settings.variant
@@ -187,16 +195,16 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, basis: MonomialBas
             views[cam.name] = _loader(cache, key, C) if cache.dir is not None else (system, coeffs)
     render_s = time.perf_counter() - t0
     ordered = {c.name: views[c.name] for c in problem.cameras}
-    return PassResult(total.total(GramSystem.zeros(basis.size, C)), ordered, render_s, cached)
+    return PassResult(total.total(GramSystem.zeros(np.zeros(1, np.int64), C)), ordered, render_s, cached)
 
 
-def view_task(problem, parameters, guesses, basis, i: int, *, spp: int, seed: int, prob_floor: float,
+def view_task(problem, parameters, guesses, max_bounces: int, i: int, *, spp: int, seed: int, prob_floor: float,
               tile_pixels: int, cross_gram: bool = True, tail_bounces: int = 0) -> dict:
     """Everything a worker needs to render view ``i``: plain picklable data (numpy Scene model)."""
     cam = problem.cameras[i]
     return {"scene": problem.scene, "cameras": list(problem.cameras), "view": int(i),
             "parameters": list(parameters), "guesses": np.asarray(guesses, float),
-            "n_params": basis.n_params, "max_bounces": basis.max_degree, "spp": int(spp),
+            "n_params": len(parameters), "max_bounces": int(max_bounces), "spp": int(spp),
             "seed": inversion_seed(seed, i), "prob_floor": float(prob_floor), "tile_pixels": int(tile_pixels),
             "observed": np.asarray(problem.observed[cam.name]), "cross_gram": bool(cross_gram),
             "tail_bounces": int(tail_bounces)}
@@ -255,37 +263,41 @@ def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True):
     C = observed.shape[-1]
     n_pix = cam.width * cam.height
     y = observed.reshape(n_pix, C)
-    system = GramSystem.zeros(integrator.basis.size, C)
-    parts, deltas = [[] for _ in range(C)], [[] for _ in range(C)]
+    system = GramSystem.zeros(np.zeros(1, np.int64), C)      # the constant monomial is always there
+    parts = []
     halves = cross and spp >= 2
     tiles = range(0, n_pix, integrator.tile_pixels)
     for start in tqdm(tiles, desc=f"polynomial pass {cam.name}", unit="tile", leave=False):
         stop = min(n_pix, start + integrator.tile_pixels)
         tile = dict(spp=spp, seed=seed, pixel_range=(start, stop))
         if halves:
-            a, b, gamma = integrator.coefficients_halves(ms.scene, i, **tile)
-            system.accumulate_sparse(a, y[start:stop], b)
-            for c in range(C):
-                deltas[c].append((a[c] - b[c]) * 0.5)
+            codes, a, b, gamma = integrator.coefficients_halves(ms.scene, i, **tile)
+            part = GramSystem.zeros(codes, C).accumulate_sparse(a, y[start:stop], b)
+            parts.append((codes, gamma, [(a[c] - b[c]) * 0.5 for c in range(C)]))
         else:
-            gamma = integrator.coefficients_sparse(ms.scene, i, **tile)
-            system.accumulate_sparse(gamma, y[start:stop])
-        for c in range(C):
-            parts[c].append(gamma[c])
-    stack = lambda blocks: [sp.vstack(p, format="csr") if len(p) > 1 else p[0] for p in blocks]
-    return system, ViewCoefficients(stack(parts), stack(deltas) if halves else None,
-                                    (spp // 2) / spp if halves else 0.5)
+            codes, gamma = integrator.coefficients_sparse(ms.scene, i, **tile)
+            part = GramSystem.zeros(codes, C).accumulate_sparse(gamma, y[start:stop])
+            parts.append((codes, gamma))
+        system = system + part
+    return system, _view_coefficients(parts, system.codes, C, (spp // 2) / spp if halves else 0.5)
 
 
-def _key(problem, cam, parameters, guesses, spp, seed, prob_floor, basis, *, view: int, cross_gram: bool,
+def _view_coefficients(parts: list, codes: np.ndarray, C: int, split: float) -> ViewCoefficients:
+    """The tiles' ``(codes, Γ[, D])`` over the view's ``codes``, stacked by rows."""
+    moved = [reindex_columns(p[1:], np.searchsorted(codes, p[0]), len(codes)) for p in parts]
+    stack = lambda k: [sp.vstack([m[k][c] for m in moved], format="csr") for c in range(C)]
+    return ViewCoefficients(stack(0), stack(1) if len(parts[0]) > 2 else None, split, codes)
+
+
+def _key(problem, cam, parameters, guesses, spp, seed, prob_floor, max_bounces, *, view: int, cross_gram: bool,
          tail_bounces: int) -> dict:
     return {"scene": problem.scene.content_hash, "view": cam.name, "view_index": view, "spp": int(spp),
-            "seed": int(seed), "max_bounces": int(basis.max_degree),
+            "seed": int(seed), "max_bounces": int(max_bounces),
             "parameters": [[p.segment, p.kernel] for p in parameters],
             "guesses": np.round(np.asarray(guesses, float), 9).tolist(), "prob_floor": float(prob_floor),
             "observed": _digest(problem.observed[cam.name]),
             "variant": problem.settings.variant, "cross_gram": bool(cross_gram),
-            "tail_bounces": int(tail_bounces), "version": 3}
+            "tail_bounces": int(tail_bounces), "version": 4}
 
 
 def _digest(a: np.ndarray) -> str:
@@ -294,9 +306,9 @@ def _digest(a: np.ndarray) -> str:
 
 
 def _pack(system: GramSystem, coeffs: ViewCoefficients) -> dict[str, np.ndarray]:
-    out = {"G": system.G, "b": system.b, "yy": system.yy, "n_pixels": np.array(system.n_pixels),
+    out = {"b": system.b, "yy": system.yy, "n_pixels": np.array(system.n_pixels), "codes": system.codes,
            "split": np.array(coeffs.split)}
-    for prefix, mats in (("c", coeffs.gamma), ("d", coeffs.delta or [])):
+    for prefix, mats in (("g", system.G), ("c", coeffs.gamma), ("d", coeffs.delta or [])):
         for c, m in enumerate(mats):
             out.update({f"{prefix}{c}_data": m.data, f"{prefix}{c}_indices": m.indices,
                         f"{prefix}{c}_indptr": m.indptr, f"{prefix}{c}_shape": np.array(m.shape)})
@@ -314,11 +326,11 @@ def _loader(cache: Cache, key: dict, C: int):
 
 
 def _unpack(arrays: dict, C: int) -> tuple[GramSystem, ViewCoefficients]:
-    system = GramSystem(arrays["G"], arrays["b"], arrays["yy"], int(arrays["n_pixels"]))
-
     def mats(prefix):
         return [sp.csr_matrix((arrays[f"{prefix}{c}_data"], arrays[f"{prefix}{c}_indices"],
                                arrays[f"{prefix}{c}_indptr"]), shape=tuple(arrays[f"{prefix}{c}_shape"]))
                 for c in range(C)]
+    codes = np.asarray(arrays["codes"], np.int64)
+    system = GramSystem(mats("g"), arrays["b"], arrays["yy"], int(arrays["n_pixels"]), codes)
     delta = mats("d") if "d0_data" in arrays else None
-    return system, ViewCoefficients(mats("c"), delta, float(arrays["split"]))
+    return system, ViewCoefficients(mats("c"), delta, float(arrays["split"]), codes)

@@ -18,6 +18,7 @@ import numpy as np
 
 from framework.errors import ConfigError
 from framework.optim import check_algorithm, minimize, project_feasible
+from framework.render.checks import check_memory
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.gram import GramSystem
 
@@ -65,35 +66,38 @@ class ChannelCost:
     """``ε²_c(x)`` and its exact gradient ``2 Jᵀ(G_c μ - b_c)`` for one channel.
 
     Only the monomials some pixel depends on (:meth:`GramSystem.used_monomials`) enter the
-    products, so an evaluation costs O(n_used²) rather than O(N_e²).
+    products, and ``G_c`` is sparse: an evaluation costs O(nnz(G_c)).
     """
 
     def __init__(self, system: GramSystem, basis: MonomialBasis, c: int, used: np.ndarray | None = None):
         self.basis = basis
         self.used = system.used_monomials() if used is None else np.asarray(used)
-        self.G = system.G[c][np.ix_(self.used, self.used)]
+        self.G = system.G[c][self.used][:, self.used].tocsr()
         self.b = system.b[c][self.used]
         self.yy = float(system.yy[c])
-        self._r = np.zeros(basis.size)
+
+    def _residual(self, x: np.ndarray) -> np.ndarray:
+        """``(size,)`` residual ``G_c μ - b_c`` on the used monomials, 0 elsewhere, and ``μ_used``."""
+        m = self.basis.evaluate(x)[self.used]
+        r = np.zeros(self.basis.size)
+        r[self.used] = self.G @ m - self.b
+        return r, m
 
     def __call__(self, x: np.ndarray) -> tuple[float, np.ndarray]:
-        mu = self.basis.evaluate(x)
-        m = mu[self.used]
-        Gm = self.G @ m
-        f = float(m @ Gm - 2.0 * self.b @ m + self.yy)
-        self._r[self.used] = Gm - self.b
-        return f, 2.0 * self.basis.jacobian_t_dot(mu, self._r)
+        r, m = self._residual(x)
+        f = float(m @ (r[self.used] + self.b) - 2.0 * self.b @ m + self.yy)
+        return f, 2.0 * self.basis.jacobian_t_dot(x, r)
 
     def gauss_newton(self, x: np.ndarray) -> np.ndarray:
-        """``(D, D)`` Gauss-Newton part ``2 Jᵀ G_c J`` of the Hessian (PSD when ``G_c`` is)."""
-        J = self.basis.jacobian(x)[self.used]
-        return 2.0 * J.T @ self.G @ J
+        """``(D, D)`` Gauss-Newton part ``2 Jᵀ G_c J`` of the Hessian (PSD when ``G_c`` is), with
+        the sparse Jacobian."""
+        J = self.basis.jacobian_sparse(x)[self.used]
+        return 2.0 * (J.T @ (self.G @ J)).toarray()
 
     def _residual_curvature(self, x: np.ndarray) -> np.ndarray:
         """``(D, D)`` second-order part ``2 Σ_m (G_c μ - b_c)_m ∇²μ_m`` of the Hessian
-        (:meth:`MonomialBasis.hessian` gives the monomial Hessians ``∇²μ_m``)."""
-        r = self.G @ self.basis.evaluate(x)[self.used] - self.b
-        return 2.0 * np.einsum("m,mkl->kl", r, self.basis.hessian(x)[self.used])
+        (:meth:`MonomialBasis.hessian_dot`)."""
+        return 2.0 * self.basis.hessian_dot(x, self._residual(x)[0])
 
     def hessian(self, x: np.ndarray) -> np.ndarray:
         """``(D, D)`` exact Hessian ``2 Jᵀ G_c J + 2 Σ_m (G_c μ - b_c)_m ∇²μ_m``."""
@@ -122,6 +126,21 @@ def hessian(system: GramSystem, basis: MonomialBasis, rho: np.ndarray) -> np.nda
     rho = np.broadcast_to(rho, (basis.n_params, C))
     used = system.used_monomials()
     return np.stack([ChannelCost(system, basis, c, used).hessian(rho[:, c]) for c in range(C)])
+
+
+def check_solve_memory(system: GramSystem, basis: MonomialBasis) -> None:
+    """Raise :class:`ConfigError` before the solve allocates more than this machine has.
+
+    Per channel the solve holds G (restricted, PSD-projected and sliced to the used monomials:
+    about four copies of 16 bytes a non-zero), the monomial vectors and sparse Jacobian
+    (``size × N_max``) and dense ``D × D`` Hessians (a few per channel); the sandwich standard
+    errors add per view ``pixels × D`` scores.
+    """
+    D, N = basis.n_params, max(basis.max_degree, 1)
+    need = (4 * 16 * system.nnz + 8 * 8 * basis.size * N * system.n_channels
+            + 8 * 8 * D * D * system.n_channels)
+    check_memory(need, f"the symbolic solve ({basis.size} monomials, {system.nnz} non-zeros in G, "
+                       f"{D} parameters)", "lower render.max_bounces or estimate fewer parameters (method.kernels)")
 
 
 def _random_start(rng, D, segments_params) -> np.ndarray:

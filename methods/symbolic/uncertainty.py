@@ -59,6 +59,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.gram import GramSystem
@@ -127,12 +128,13 @@ def observable_parameters(system: GramSystem, basis: MonomialBasis, *, rtol: flo
     numpy.ndarray
         ``(D,)`` bool.
     """
-    diag = np.einsum("cmm->cm", system.G).max(axis=0)            # (N_e,) Σ_i γ_im², worst channel
+    diag = np.max([g.diagonal() for g in system.G], axis=0)       # (N,) Σ_i γ_im², worst channel
     scale = float(diag.max()) if diag.size else 0.0
     if scale <= 0.0:
         return np.zeros(basis.n_params, dtype=bool)
-    contains = basis.exponents > 0                                # (N_e, D)
-    per_param = np.where(contains, diag[:, None], 0.0).max(axis=0)
+    per_param = np.zeros(basis.n_params)                           # max over monomials holding ρ_j
+    monomials, params = basis.incidence
+    np.maximum.at(per_param, params, diag[monomials])
     return per_param > rtol * scale
 
 
@@ -143,30 +145,33 @@ def restrict_system(system: GramSystem, basis: MonomialBasis, keep: np.ndarray
     Parameters
     ----------
     system, basis
-        Full system and basis in ``D`` parameters.
+        Full system and its basis (same monomials) in ``D`` parameters.
     keep : numpy.ndarray
         ``(D,)`` bool mask, at least one True.
 
     Returns
     -------
     (GramSystem, MonomialBasis, numpy.ndarray)
-        The restricted system, its basis (``sum(keep)`` parameters, same maximal degree) and
-        the full-basis index of each restricted monomial. Exact when the dropped parameters are
-        unobservable (their monomials have zero rows/columns in ``G`` and zero ``b``). With
-        every parameter kept, ``system`` and ``basis`` themselves.
+        The restricted system, its basis (``sum(keep)`` parameters renumbered in order, the
+        monomials of ``basis`` holding only kept parameters) and the index in ``basis`` of each
+        restricted monomial. Exact when the dropped parameters are unobservable (their monomials
+        have zero rows/columns in ``G`` and zero ``b``). With every parameter kept, ``system``
+        and ``basis`` themselves.
     """
     kept = np.flatnonzero(keep)
     if len(kept) == basis.n_params:
         return system, basis, np.arange(basis.size)
-    sub = MonomialBasis(len(kept), basis.max_degree)
-    exponents = np.zeros((sub.size, basis.n_params), dtype=np.int64)
-    exponents[:, kept] = sub.exponents
-    idx = basis.indices(exponents)
-    G = system.G[:, idx][:, :, idx]
-    return GramSystem(G.copy(), system.b[:, idx].copy(), system.yy.copy(), system.n_pixels), sub, idx
+    renumber = np.zeros(basis.n_params + 1, dtype=np.int64)       # digit p + 1 -> new p + 1; 0 stays
+    renumber[kept + 1] = np.arange(1, len(kept) + 1)
+    idx = np.flatnonzero(np.all((basis.digits == 0) | keep[np.maximum(basis.digits - 1, 0)], axis=1))
+    # a monotone renumbering keeps the codes sorted (ordered by degree, then largest parameter)
+    codes = (renumber[basis.digits[idx]] * (len(kept) + 1) ** np.arange(basis.max_degree)).sum(axis=1)
+    sub = MonomialBasis(len(kept), basis.max_degree, codes)
+    G = [g[idx][:, idx] for g in system.G]
+    return GramSystem(G, system.b[:, idx].copy(), system.yy.copy(), system.n_pixels, sub.codes), sub, idx
 
 
-def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray, n_monomials: int
+def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray, codes: np.ndarray
                ) -> np.ndarray:
     """``(C, D, D)`` sandwich meat ``M_c = Σ_p (s_p - s̄)(s_p - s̄)ᵀ`` over every pixel of every view.
 
@@ -185,14 +190,15 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
         ``(D, C)`` estimate.
     views : iterable
         ``(coefficients, y)`` per view: an object with ``gamma``, ``delta`` (lists of ``C``
-        sparse ``(n, n_monomials)`` matrices, ``delta`` possibly None) and ``split``
-        (:class:`~methods.symbolic.polynomial_pass.ViewCoefficients`), and the ``(n, C)``
+        sparse matrices, ``delta`` possibly None), ``split`` and ``codes`` (the monomial codes of
+        the matrices' columns, a subset of ``codes``;
+        :class:`~methods.symbolic.polynomial_pass.ViewCoefficients`), and the ``(n, C)``
         observed pixels.
     columns : numpy.ndarray
-        Index among the ``n_monomials`` coefficient columns of each monomial of ``basis``
-        (:func:`restrict_system`); the other columns are weighted 0.
-    n_monomials : int
-        Number of coefficient columns.
+        Index in ``codes`` of each monomial of ``basis`` (:func:`restrict_system`); the other
+        columns are weighted 0.
+    codes : numpy.ndarray
+        Sorted codes of the system the views were summed into.
 
     Returns
     -------
@@ -200,22 +206,26 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
     """
     rho = np.asarray(rho, dtype=float).reshape(basis.n_params, -1)
     D, C = rho.shape
-    mu, J = np.zeros((C, n_monomials)), np.zeros((C, n_monomials, D))
+    mu = np.zeros((C, len(codes)))
+    J = []
     for c in range(C):
         mu[c, columns] = basis.evaluate(rho[:, c])
-        J[c, columns] = basis.jacobian(rho[:, c], mu[c, columns])
+        Jc = basis.jacobian_sparse(rho[:, c]).tocoo()
+        J.append(sp.csr_matrix((Jc.data, (columns[Jc.row], Jc.col)), shape=(len(codes), D)))
     outer, total, n = np.zeros((C, D, D)), np.zeros((C, D)), 0
     for coeffs, y in views:
         y = np.asarray(y, dtype=np.float64).reshape(coeffs.gamma[0].shape[0], C)
         n += len(y)
+        at = np.searchsorted(codes, coeffs.codes)                # the view's columns in ``codes``
         for c in range(C):
+            mu_v, J_v = mu[c, at], J[c][at]
             gamma = coeffs.gamma[c]
-            r, gJ = gamma @ mu[c] - y[:, c], gamma @ J[c]
+            r, gJ = gamma @ mu_v - y[:, c], (gamma @ J_v).toarray()
             if coeffs.delta is None:
                 s = 2.0 * gJ * r[:, None]
             else:
                 w = float(coeffs.split)
-                d, dJ = coeffs.delta[c] @ mu[c], coeffs.delta[c] @ J[c]
+                d, dJ = coeffs.delta[c] @ mu_v, (coeffs.delta[c] @ J_v).toarray()
                 s = ((gJ + 2 * (1 - w) * dJ) * (r - 2 * w * d)[:, None]
                      + (gJ - 2 * w * dJ) * (r + 2 * (1 - w) * d)[:, None])
             outer[c] += s.T @ s

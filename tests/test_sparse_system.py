@@ -1,0 +1,160 @@
+"""The system over the monomials that occur: the code basis, the sparse Gram and its limits."""
+from itertools import combinations_with_replacement
+
+import numpy as np
+import pytest
+
+from factory import run_street_cli
+from framework.errors import ConfigError
+from methods.symbolic.basis import MonomialBasis, check_key_range
+from methods.symbolic.gram import GramSystem
+from methods.symbolic.solve import ChannelCost, check_solve_memory, solve_polynomial
+
+
+def _exponents(D: int, N: int) -> list[tuple[int, ...]]:
+    """All exponent vectors of degree <= N, built by hand."""
+    out = []
+    for d in range(N + 1):
+        for combo in combinations_with_replacement(range(D), d):
+            out.append(tuple(np.bincount(np.array(combo, int), minlength=D)))
+    return out
+
+
+def _subset(D: int, N: int, keep: np.ndarray) -> tuple[MonomialBasis, np.ndarray]:
+    """The basis of the monomials ``keep`` (indices into the full basis), and its exponents."""
+    full = MonomialBasis(D, N)
+    codes = full.codes[keep]
+    return MonomialBasis(D, N, codes), full.exponents[np.union1d([0], keep)]
+
+
+def test_code_basis_equals_full_basis_restricted():
+    """Values, Jacobian and Hessian of an occurring-code basis equal the hand-built monomials'
+    (products of powers, their derivatives by the power rule), to 1e-12."""
+    D, N = 5, 3
+    full = MonomialBasis(D, N)
+    assert sorted(map(tuple, full.exponents)) == sorted(_exponents(D, N))
+    keep = np.random.default_rng(0).choice(full.size, 20, replace=False)
+    basis, E = _subset(D, N, keep)
+    assert basis.size == len(np.union1d([0], keep)) and basis.codes[0] == 0
+    rho = np.random.default_rng(1).uniform(0.1, 0.9, D)
+    np.testing.assert_allclose(basis.evaluate(rho), np.prod(rho ** E, axis=1), rtol=1e-12)
+    J = np.array([[e[k] * np.prod(rho ** (e - np.eye(D, dtype=int)[k])) if e[k] else 0.0
+                   for k in range(D)] for e in E])
+    np.testing.assert_allclose(basis.jacobian(rho), J, rtol=1e-12, atol=1e-15)
+    r = np.random.default_rng(2).normal(size=basis.size)
+    np.testing.assert_allclose(basis.jacobian_t_dot(rho, r), J.T @ r, rtol=1e-12)
+    H = basis.hessian(rho)
+    for m, e in enumerate(E):
+        for k in range(D):
+            for l in range(D):
+                lowered = e - np.eye(D, dtype=int)[k] - np.eye(D, dtype=int)[l]
+                coef = e[k] * (e[l] - (k == l))
+                want = coef * np.prod(rho ** np.maximum(lowered, 0)) if coef > 0 else 0.0
+                assert abs(H[m, k, l] - want) < 1e-12
+    np.testing.assert_allclose(basis.hessian_dot(rho, r), np.einsum("m,mkl->kl", r, H), atol=1e-12)
+
+
+def _system(rng, basis, n=200, C=2):
+    """Random sparse coefficients over ``basis`` and pixels from a known ρ."""
+    gamma = rng.uniform(0, 1, (n, basis.size, C)) * (rng.uniform(size=(n, basis.size, C)) < 0.3)
+    rho = rng.uniform(0.1, 0.6, basis.n_params)
+    y = np.einsum("nmc,m->nc", gamma, basis.evaluate(rho))
+    return GramSystem.zeros(basis.codes, C).accumulate(gamma, y), gamma, y
+
+
+def test_sparse_and_dense_give_the_same_cost_gradient_and_minimiser():
+    """Sparse G vs a dense numpy reference from the same coefficients: cost and gradient to
+    1e-10 relative, and the minimiser of the dense cost (scipy L-BFGS-B) within 1e-5."""
+    from scipy.optimize import minimize
+    rng = np.random.default_rng(3)
+    basis, _ = _subset(4, 2, np.arange(1, 12))
+    system, gamma, y = _system(rng, basis)
+    for c in range(2):
+        Gd = gamma[:, :, c].T @ gamma[:, :, c]
+        bd = gamma[:, :, c].T @ y[:, c]
+
+        def dense(x):
+            mu = basis.evaluate(x)
+            return mu @ Gd @ mu - 2 * bd @ mu + y[:, c] @ y[:, c], 2 * basis.jacobian(x).T @ (Gd @ mu - bd)
+
+        x = rng.uniform(0, 1, 4)
+        f, g = ChannelCost(system, basis, c)(x)
+        fd, gd = dense(x)
+        np.testing.assert_allclose(f, fd, rtol=1e-10)
+        np.testing.assert_allclose(g, gd, rtol=1e-10)
+        ref = minimize(dense, np.full(4, 0.5), jac=True, bounds=[(0, 1)] * 4, method="L-BFGS-B",
+                       options={"ftol": 1e-15, "gtol": 1e-12}).x
+        sol = solve_polynomial(system, basis, segments_params=[], x0=np.full(4, 0.5), starts=2)
+        np.testing.assert_allclose(sol.estimate[:, c], ref, atol=1e-5)
+
+
+def test_systems_over_different_codes_add_by_merging():
+    """Two views over different monomials: their sum is over the union and equals the system of
+    all pixels accumulated over the union (1e-12)."""
+    rng = np.random.default_rng(4)
+    full = MonomialBasis(3, 2)
+    a, b = np.array([0, 1, 4, 7]), np.array([0, 2, 4, 9])
+    union = np.union1d(a, b)
+    ga, gb = rng.uniform(size=(30, 4, 1)), rng.uniform(size=(40, 4, 1))
+    ya, yb = rng.uniform(size=(30, 1)), rng.uniform(size=(40, 1))
+    summed = (GramSystem.zeros(full.codes[a], 1).accumulate(ga, ya)
+              + GramSystem.zeros(full.codes[b], 1).accumulate(gb, yb))
+    gamma = np.zeros((70, len(union), 1))
+    gamma[:30, np.searchsorted(union, a)] = ga
+    gamma[30:, np.searchsorted(union, b)] = gb
+    ref = GramSystem.zeros(full.codes[union], 1).accumulate(gamma, np.concatenate([ya, yb]))
+    np.testing.assert_array_equal(summed.codes, ref.codes)
+    np.testing.assert_allclose(summed.G[0].toarray(), ref.G[0].toarray(), rtol=1e-12)
+    np.testing.assert_allclose(summed.b, ref.b, rtol=1e-12)
+
+
+def test_psd_per_component_equals_dense_projection_and_skips_large_ones():
+    """Projection component by component = the dense eigen projection of the whole G (1e-10);
+    with a limit below a component's size that component is left as is and reported."""
+    rng = np.random.default_rng(5)
+    blocks = [rng.normal(size=(k, k)) for k in (3, 4)]
+    dense = np.zeros((8, 8))
+    dense[:3, :3] = blocks[0] + blocks[0].T
+    dense[4:8, 4:8] = blocks[1] + blocks[1].T
+    system = GramSystem([dense], np.zeros((1, 8)), np.zeros(1))
+    w, V = np.linalg.eigh(dense)
+    np.testing.assert_allclose(system.psd().G[0].toarray(), (V * np.maximum(w, 0)) @ V.T, atol=1e-10)
+    partial = system.psd(limit=3)
+    assert partial.psd_skipped == (4,)
+    np.testing.assert_allclose(partial.G[0].toarray()[4:, 4:], dense[4:, 4:])
+
+
+def test_too_large_problems_fail_with_one_line(monkeypatch):
+    """Keys beyond 32 bits, and a solve above the available memory: one ConfigError line naming
+    the setting to change."""
+    with pytest.raises(ConfigError, match="render.max_bounces") as err:
+        check_key_range(68, 6)
+    assert "\n" not in str(err.value)
+    import methods.symbolic.solve as solve
+    monkeypatch.setattr(solve, "check_memory", _tight_memory)
+    basis = MonomialBasis(3, 2)
+    with pytest.raises(ConfigError, match="render.max_bounces") as err:
+        check_solve_memory(GramSystem.zeros(basis.codes, 3), basis)
+    assert "\n" not in str(err.value)
+
+
+def _tight_memory(need, what, fix):
+    """:func:`framework.render.checks.check_memory` on a machine with 1 KiB available."""
+    from framework.render import checks
+    original = checks.available_memory_bytes
+    checks.available_memory_bytes = lambda: 1024
+    try:
+        checks.check_memory(need, what, fix)
+    finally:
+        checks.available_memory_bytes = original
+
+
+def test_symbolic_run_on_18_materials_at_three_bounces(tmp_path):
+    """K = 2 street (18 materials, D = 36) at N_max = 3, 32 x 32, 4 spp: the full basis would have
+    C(39, 3) = 9139 monomials (a dense G of 3 x 9139² floats); the occurring ones run in seconds."""
+    from scenes import street_block as sb
+    folder = sb.build(tmp_path / "street2", buildings=2, image=32)
+    results = run_street_cli(tmp_path, folder, "render.max_bounces=3")
+    assert len(results["parameters"]) == 36
+    assert results["n_monomials"] < 9139 and results["gram_nnz"] > 0
+    assert all(0.0 <= x <= 1.0 for p in results["parameters"] for x in p["estimate"] if x is not None)
