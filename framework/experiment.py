@@ -136,6 +136,7 @@ def run_experiment(cfg: DictConfig, run_dir: str | Path, *,
     result.timings_s["total"] = time.perf_counter() - t0
     summary = {"scene_dir": str(scene.root), "views": [c.name for c in cameras], "variant": settings.variant,
                "seed": settings.seed, "spp": settings.spp, "max_bounces": settings.max_bounces,
+               "tail_bounces": settings.tail_bounces,
                "budget_renders": settings.budget_renders, "executor": str(settings.executor.get("name")),
                "observe": OmegaConf.to_container(cfg.observe),
                "method_settings": OmegaConf.to_container(cfg.method, resolve=True)}

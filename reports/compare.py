@@ -31,6 +31,45 @@ def _method_order(methods) -> list[str]:
     return sorted(set(methods), key=lambda m: (m != BASELINE, m))
 
 
+def _flat(tree: dict, prefix: str = "") -> dict:
+    """``{"a": {"b": 1}}`` -> ``{"a.b": 1}`` (lists kept as values)."""
+    out = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            out.update(_flat(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+def _variant_settings(res) -> dict:
+    """What makes a run a variant of its method: its method options and the observation and
+    tail settings (not the seed, which repetitions vary, nor the views, grouped apart)."""
+    s = res.get("settings") or {}
+    observe = {k: v for k, v in (s.get("observe") or {}).items() if k != "seed"}
+    return _flat({"method": {k: v for k, v in (s.get("method_settings") or {}).items() if k != "name"},
+                  "observe": observe, "render": {"tail_bounces": s.get("tail_bounces", 0)}})
+
+
+def variant_labels(runs) -> list[str]:
+    """One label per run: its method, plus ``key=value`` for every setting of
+    :func:`_variant_settings` that differs between runs of that method (so that variants of a
+    method are compared, not pooled as if they were seeds); the variant with the most common
+    values keeps the bare method name."""
+    settings = [_variant_settings(res) for _, res in runs]
+    labels = []
+    for i, (_, res) in enumerate(runs):
+        peers = [settings[j] for j, (_, r) in enumerate(runs) if r["method"] == res["method"]]
+        diffs = []
+        for key, value in sorted(settings[i].items()):
+            values = [str(p.get(key)) for p in peers]
+            common = max(set(values), key=values.count)
+            if len(set(values)) > 1 and str(value) != common:
+                diffs.append(f"{key.split('.', 1)[-1] if key.startswith('method.') else key}={value}")
+        labels.append(f"{res['method']} ({', '.join(diffs)})" if diffs else str(res["method"]))
+    return labels
+
+
 def _param_keys(runs) -> list[tuple[str, str, int, str]]:
     """(segment, kernel, channel index, channel name) of every parameter, in first-seen order."""
     keys: dict = {}
@@ -60,13 +99,13 @@ def _param_label(key, mono: bool, *, html: bool = False) -> str:
 
 
 class _Scene:
-    """The runs of one scene, grouped by method."""
+    """The runs of one scene and view set, grouped by method variant (:func:`variant_labels`)."""
 
     def __init__(self, name: str, runs):
         self.name = name
         self.by_method = defaultdict(list)
-        for run_dir, res in runs:
-            self.by_method[str(res["method"])].append((run_dir, res))
+        for (run_dir, res), label in zip(runs, variant_labels(runs)):
+            self.by_method[label].append((run_dir, res))
         self.methods = _method_order(self.by_method)
         for m in self.methods:
             self.by_method[m].sort(key=lambda r: (str(seed_of(r[1])), str(r[0])))
@@ -198,6 +237,12 @@ def _section_runs(doc: Doc, scene: _Scene, out: Path) -> None:
               left=2)
 
 
+def _scene_key(res) -> str:
+    """Runs are compared per scene and view set: the scene's name and its number of views."""
+    n = len((res.get("settings") or {}).get("views") or [])
+    return f"{res['scene']}, {n} view{'s' if n != 1 else ''}" if n else str(res["scene"])
+
+
 def load_runs(dirs) -> list[tuple[Path, dict]]:
     """Find and load every run under ``dirs``; raises ReportError before anything is written."""
     return [(d, load_results(d)) for d in find_run_dirs(dirs)]
@@ -232,7 +277,7 @@ def write_comparison(dirs, *, out=None) -> tuple[Path, Path]:
             write_run_report(run_dir)
     by_scene = defaultdict(list)
     for run in runs:
-        by_scene[str(run[1]["scene"])].append(run)
+        by_scene[_scene_key(run[1])].append(run)
     doc = Doc("Comparison of runs")
     doc.para(f"{len(runs)} runs, {len(by_scene)} scene(s); baseline for ratios: {BASELINE}.")
     with staged(out, (FILES_DIR, "comparison.md", "comparison.html")) as tmp:

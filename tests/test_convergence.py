@@ -45,3 +45,19 @@ def test_equal_error_rows():
     assert r["ratio"] == pytest.approx(10.0)
     assert r["floor"] == pytest.approx(np.median([0.01, 0.05]))
     assert (r["max_renders"], r["max_time_s"]) == (12, 40.0)
+
+
+def test_variant_labels_separate_variants_not_seeds():
+    """Runs of one method that differ in an option are labelled apart (the most common value
+    keeps the bare name); runs that differ only in their seed share a label."""
+    from reports.compare import variant_labels
+
+    def run(method, seed, **method_settings):
+        return (None, {"method": method, "settings": {"seed": seed, "observe": {"spp": 8, "seed": seed},
+                                                      "tail_bounces": 0,
+                                                      "method_settings": {"name": method, **method_settings}}})
+    runs = [run("symbolic", 0, init="guess"), run("symbolic", 1, init="guess"),
+            run("symbolic", 0, init="lambertian_prior"), run("iterative", 0, noise="fresh"),
+            run("iterative", 1, noise="fresh"), run("iterative", 0, noise="fixed")]
+    assert variant_labels(runs) == ["symbolic", "symbolic", "symbolic (init=lambertian_prior)",
+                                    "iterative", "iterative", "iterative (noise=fixed)"]

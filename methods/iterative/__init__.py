@@ -24,7 +24,8 @@ class IterativeMethod(Method):
               [L^{\text{synthetic}}_c(i, j, \rho) - L^{\text{acquired}}_c(i, j)]^2 ,
 
     where :math:`L^{\text{synthetic}}` is a fresh Mitsuba ``path`` rendering (``max_depth =
-    render.max_bounces + 1``, box filter, ``render.spp`` samples per pixel) of every selected
+    render.max_bounces + render.tail_bounces + 1``: every reflection the symbolic pass traces, so
+    the methods compare like with like; box filter, ``render.spp`` samples per pixel) of every selected
     view with the weights ρ written into the scene in place (no reload). The gradient is
     estimated by finite differences. The channels are independent problems, so one render with
     parameter :math:`k` perturbed in *every* channel at once gives :math:`\partial\epsilon_c /
@@ -37,7 +38,8 @@ class IterativeMethod(Method):
     One *render* is one full pass over the selected views (``docs/results.md``). The run stops before a
     cost (and gradient) evaluation that would leave no render for the final reconstruction under
     ``budget.renders``, and returns the best ρ evaluated so far. A forward-difference run spends
-    exactly ``evaluations × (D + 1) + 1`` renders (the ``+ 1`` is the final reconstruction).
+    at most ``evaluations × (D + 1) + 1`` renders (the ``+ 1`` is the final reconstruction;
+    evaluations nlopt asks for without a gradient cost one render).
 
     Parameters (``framework/conf/method/iterative.yaml``)
     ------------------------------------------------------
