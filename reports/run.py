@@ -220,9 +220,28 @@ def _section_correlation(doc: Doc, ctx: _RunContext) -> None:
     if matrix.ndim != 2 or matrix.shape[0] != matrix.shape[1] or len(labels) != matrix.shape[0]:
         doc.para(f"correlation matrix of shape {matrix.shape} does not match its labels", note=True)
         return
+    if len(labels) > HEATMAP_MAX:
+        _strongest_pairs(doc, labels, matrix)
+        return
     path, src = ctx.out("correlation.png")
     plot_correlation(path, labels, matrix)
     doc.figures([(src, "parameter correlation")])
+
+
+#: above this many parameters the correlation is a table of the strongest pairs, not a heat map
+HEATMAP_MAX = 24
+STRONGEST = 20
+
+
+def _strongest_pairs(doc: Doc, labels: list, matrix: np.ndarray) -> None:
+    """The :data:`STRONGEST` parameter pairs of largest |correlation| (a heat map of hundreds of
+    parameters is unreadable)."""
+    i, j = np.triu_indices(len(labels), k=1)
+    values = matrix[i, j]
+    order = [k for k in np.argsort(-np.abs(np.nan_to_num(values))) if np.isfinite(values[k])][:STRONGEST]
+    doc.table(["Parameter", "Parameter", "Correlation"],
+              [[str(labels[i[k]]), str(labels[j[k]]), fmt_num(values[k])] for k in order], left=2,
+              caption=f"The {len(order)} strongest of {len(values)} pairs ({len(labels)} parameters).")
 
 
 def _section_relit(doc: Doc, ctx: _RunContext) -> None:

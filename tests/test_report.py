@@ -3,10 +3,12 @@ import json
 import re
 from pathlib import Path
 
+import numpy as np
+from fakes import REPORT_REFS, REPORT_SEEDS, make_fake_run, report_error_of
+
 from reports import write_comparison, write_run_report
 from reports.__main__ import main
 from reports.data import fmt_num
-from fakes import REPORT_REFS, REPORT_SEEDS, make_fake_run, report_error_of
 
 
 def _referenced_files(text: str, pattern: str) -> list[str]:
@@ -119,3 +121,19 @@ def test_minimal_results_json(tmp_path):
     md = write_run_report(run)[0].read_text()
     assert "| wall | mirror | — | 0.5000 | — |" in md
     assert "No views recorded." in md and (run / "report_files/convergence.png").is_file()
+
+
+def test_correlation_of_many_parameters_is_a_table(tmp_path):
+    """Above 24 parameters the report lists the strongest pairs instead of a heat map: with
+    corr(p0, p1) = 0.9 and corr(p2, p3) = -0.95 set by hand, those two pairs come first."""
+    run = make_fake_run(tmp_path / "run")
+    res = json.loads((run / "results.json").read_text())
+    n = 30
+    matrix = np.eye(n)
+    matrix[0, 1] = matrix[1, 0] = 0.9
+    matrix[2, 3] = matrix[3, 2] = -0.95
+    res["correlation"] = {"labels": [f"p{k}" for k in range(n)], "matrix": matrix.tolist()}
+    (run / "results.json").write_text(json.dumps(res))
+    md = write_run_report(run)[0].read_text()
+    first, second = md.index("| p2 | p3 | -0.9500 |"), md.index("| p0 | p1 | 0.9000 |")
+    assert first < second and "correlation.png" not in md
