@@ -163,7 +163,7 @@ class SymbolicMethod(Method):
         recon = _images(result, basis, np.nan_to_num(estimate), problem.cameras)   # unobservable: monomials 0
         sol = fit["solve"]
         extras = {"n_monomials": basis.size, "gram_nnz": result.system.nnz,
-                  "psd_skipped_components": list(fit["psd_skipped"]), "solver_evaluations": sol.n_evals if sol else 0,
+                  "parameter_blocks": len(sol.blocks) if sol else 0, "psd_skipped_components": list(fit["psd_skipped"]), "solver_evaluations": sol.n_evals if sol else 0,
                   "solver_evaluations_from_guess": sol.guess_evals if sol else 0,
                   "initial_guess": guess0.tolist(), "views_from_cache": result.from_cache,
                   "correlation": fit["correlation"], "residual_variance": fit["sigma2"],

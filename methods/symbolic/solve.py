@@ -15,6 +15,8 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 
 from framework.errors import ConfigError
 from framework.optim import check_algorithm, minimize, project_feasible
@@ -46,6 +48,8 @@ class SolveResult:
         guess changes (the random starts do not depend on it).
     solve_s : float
         Wall time of the whole solve.
+    blocks : list of list of int
+        The independent parameter blocks solved one after the other (:func:`parameter_blocks`).
     iterates : list of (float, numpy.ndarray)
         At each evaluation: its ``time.perf_counter()`` and the ``(D, C)`` estimate the solve
         would return if it stopped there (per channel the best point seen so far; channels not
@@ -60,6 +64,7 @@ class SolveResult:
     guess_evals: int = 0
     solve_s: float = 0.0
     iterates: list = field(default_factory=list)
+    blocks: list = field(default_factory=list)
 
 
 class ChannelCost:
@@ -156,7 +161,9 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
                      x0: np.ndarray, algorithm: str = "LD_SLSQP", starts: int = 4,
                      max_eval: int = 2000, xtol_rel: float = 1e-8, ftol_rel: float = 1e-12,
                      precondition: bool = True, seed: int = 0) -> SolveResult:
-    """Minimise the cost of every channel over ρ with nlopt.
+    """Minimise the cost of every channel over ρ with nlopt, one independent parameter block at a
+    time (:func:`parameter_blocks`: the cost is a sum of one term per block plus a constant, so
+    the blocks' minimisers together are the joint minimiser).
 
     Parameters
     ----------
@@ -208,48 +215,132 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
     rng = np.random.default_rng(seed)
 
     t_start = time.perf_counter()
-    history, times, iterates = [], [], []
-    current = x0.copy()                       # the estimate if the solve stopped now
-    estimate = np.empty((D, C))
-    best_cost = np.empty(C)
+    blocks = parameter_blocks(system, basis, segs)
     used = system.used_monomials()
-    costs = [ChannelCost(system, basis, c, used) for c in range(C)]
-    ref_cost = np.array([costs[c](x0[:, c])[0] for c in range(C)])
+    costs = [[_BlockCost(system, basis, c, used, block) for block in blocks] for c in range(C)]
+    trace = _Trace(t_start, x0, [ChannelCost(system, basis, c, used)(x0[:, c])[0] for c in range(C)])
     n_evals = guess_evals = 0
-
     for c in range(C):
-        others = ref_cost.sum() - ref_cost[c]
-
-        best_f = np.inf
-
-        def cost_grad(x, need_grad, c=c):
-            nonlocal best_f
-            f, g = costs[c](x)
-            now = time.perf_counter()
-            history.append(f + others)
-            times.append(now - t_start)
-            if f < best_f:
-                best_f, current[:, c] = f, np.clip(x, 0.0, 1.0)
-            iterates.append((now, current.copy()))
-            return f, g
-
-        best = None
-        metric = costs[c].metric(x0[:, c]) if precondition else None
-        for k in range(int(starts)):
-            start = x0[:, c] if k == 0 else _random_start(rng, D, segs)
-            if precondition and k == 1:     # the random starts: curvature at the first minimum
-                metric = costs[c].metric(best.x)
-            run = minimize(cost_grad, start, lower=0.0, upper=1.0, inequality_groups=segs,
-                           algorithm=algorithm, max_eval=int(max_eval), xtol_rel=float(xtol_rel),
-                           ftol_rel=float(ftol_rel), constraint_tol=1e-12, metric=metric)
-            n_evals += run.n_eval
-            guess_evals += run.n_eval if k == 0 else 0
-            if best is None or run.f < best.f:
-                best = run
-        estimate[:, c] = np.clip(best.x, 0.0, 1.0)
-        best_cost[c] = best.f
-        ref_cost[c] = best.f
-
-    return SolveResult(estimate=estimate, cost=best_cost, cost_history=history, eval_times_s=times,
+        for b, block in enumerate(blocks):
+            f_ref = costs[c][b].value(trace.current[:, c])
+            best, evals, from_guess = _solve_block(costs[c][b], trace, c, f_ref, rng, segs, starts=int(starts),
+                                                   algorithm=algorithm, max_eval=int(max_eval),
+                                                   xtol_rel=float(xtol_rel), ftol_rel=float(ftol_rel),
+                                                   precondition=precondition)
+            n_evals, guess_evals = n_evals + evals, guess_evals + from_guess
+            trace.settle(c, block, np.clip(best.x, 0.0, 1.0), best.f - f_ref)
+    estimate, best_cost = trace.current, trace.channel_costs
+    history, times, iterates = trace.history, trace.times, trace.iterates
+    return SolveResult(estimate=estimate, cost=np.array(best_cost), cost_history=history, eval_times_s=times,
                        n_evals=n_evals, guess_evals=guess_evals, solve_s=time.perf_counter() - t_start,
-                       iterates=iterates)
+                       iterates=iterates, blocks=[b.tolist() for b in blocks])
+
+
+def parameter_blocks(system: GramSystem, basis: MonomialBasis, segments_params: list[list[int]]) -> list[np.ndarray]:
+    """Independent blocks of parameters: the connected components of the graph linking the
+    parameters of one used monomial, of two monomials that G couples (any channel), and of one
+    segment (their Σρ <= 1 constraint). The constant monomial couples to every monomial but holds
+    no parameter (it only adds linear terms), so it links nothing. The cost is then a sum of one
+    term per block plus a constant, and each block can be minimised on its own, exactly."""
+    D, n = basis.n_params, basis.n_params + basis.size
+    monomials, params = basis.incidence
+    keep = np.isin(monomials, system.used_monomials())
+    rows, cols = [monomials[keep] + D], [params[keep]]
+    for g in system.G:
+        coo = g.tocoo()
+        coupled = (basis.degrees[coo.row] > 0) & (basis.degrees[coo.col] > 0)
+        rows.append(coo.row[coupled] + D)
+        cols.append(coo.col[coupled] + D)
+    for ps in segments_params:
+        rows.append(np.full(len(ps) - 1, ps[0]))
+        cols.append(np.asarray(ps[1:], dtype=np.int64))
+    rows, cols = np.concatenate(rows), np.concatenate(cols)
+    graph = sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    return [np.flatnonzero(labels[:D] == label) for label in np.unique(labels[:D])]
+
+
+class _BlockCost:
+    """One channel's cost restricted to one parameter block: the monomials whose parameters lie
+    in the block, plus the constant one. Its value is the block's term of the cost plus a
+    constant (the constant monomial's terms and yy), so differences of values are exact."""
+
+    def __init__(self, system: GramSystem, basis: MonomialBasis, c: int, used: np.ndarray, block: np.ndarray):
+        inside = np.zeros(basis.n_params + 1, dtype=bool)
+        inside[block] = True
+        inside[-1] = True                          # digit 0 (empty) maps to the last entry
+        in_block = inside[basis.digits - 1].all(axis=1)
+        self.cost = ChannelCost(system, basis, c, used[in_block[used]])
+        self.block = block
+
+    def value(self, x: np.ndarray) -> float:
+        return self.cost(x)[0]
+
+
+class _Trace:
+    """History, times and iterates of the solve, block by block: the estimate if it stopped
+    now (per channel and block the best point seen so far, the rest at ``x0``) and the total
+    cost there (every channel, every block)."""
+
+    def __init__(self, t_start: float, x0: np.ndarray, channel_costs: list[float]):
+        self.t_start, self.current = t_start, x0.copy()
+        self.channel_costs = list(channel_costs)
+        self.history, self.times, self.iterates = [], [], []
+
+    def record(self, c: int, block: np.ndarray, x: np.ndarray, f: float, f_ref: float, improved: bool) -> None:
+        now = time.perf_counter()
+        self.history.append(sum(self.channel_costs) - f_ref + f)
+        self.times.append(now - self.t_start)
+        if improved:
+            self.current[block, c] = np.clip(x, 0.0, 1.0)
+        self.iterates.append((now, self.current.copy()))
+
+    def settle(self, c: int, block: np.ndarray, x: np.ndarray, change: float) -> None:
+        """The block's final point: the channel's total cost moves by ``change``."""
+        self.current[block, c] = x
+        self.channel_costs[c] += change
+
+    def _with(self, c: int, block: np.ndarray, xb: np.ndarray) -> np.ndarray:
+        x = self.current[:, c].copy()
+        x[block] = xb
+        return x
+
+
+def _solve_block(cost: _BlockCost, trace: _Trace, c: int, f_ref: float, rng, segs, *, starts: int,
+                 algorithm: str, max_eval: int, xtol_rel: float, ftol_rel: float, precondition: bool):
+    """Multi-start nlopt on one block of one channel (the other blocks held where they are, which
+    does not change this block's term; ``f_ref`` its value at the start). Returns the best run,
+    the evaluations, and those of the start from ``x0``."""
+    block = cost.block
+    local = {int(p): i for i, p in enumerate(block)}
+    block_segs = [[local[p] for p in ps] for ps in segs if ps[0] in local]
+    best_f = np.inf
+
+    def full(xb):
+        return trace._with(c, block, xb)
+
+    def cost_grad(xb, need_grad):
+        nonlocal best_f
+        f, g = cost.cost(full(xb))
+        trace.record(c, block, xb, f, f_ref, improved=f < best_f)
+        best_f = min(best_f, f)
+        return f, g[block]
+
+    def metric_at(xb):
+        return cost.cost.metric(full(xb))[np.ix_(block, block)] if precondition else None
+
+    x0 = trace.current[block, c].copy()
+    best, evals, from_guess = None, 0, 0
+    metric = metric_at(x0)
+    for k in range(starts):
+        start = x0 if k == 0 else _random_start(rng, len(block), block_segs)
+        if precondition and k == 1:       # the random starts: curvature at the first minimum
+            metric = metric_at(best.x)
+        run = minimize(cost_grad, start, lower=0.0, upper=1.0, inequality_groups=block_segs,
+                       algorithm=algorithm, max_eval=max_eval, xtol_rel=xtol_rel, ftol_rel=ftol_rel,
+                       constraint_tol=1e-12, metric=metric)
+        evals += run.n_eval
+        from_guess += run.n_eval if k == 0 else 0
+        if best is None or run.f < best.f:
+            best = run
+    return best, evals, from_guess
