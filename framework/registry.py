@@ -50,7 +50,7 @@ class MethodResult:
     renders: int                               # full ray-tracing passes over the views
     timings_s: dict[str, float] = field(default_factory=dict)   # at least render, solve
     cost_history: list[float] = field(default_factory=list)     # cost at each evaluation
-    cost_times_s: list[float] = field(default_factory=list)     # wall time of each evaluation
+    cost_times_s: list[float] = field(default_factory=list)     # seconds since the method started
     reconstructions: dict[str, np.ndarray] = field(default_factory=dict)  # view -> (H, W, C)
     std: np.ndarray | None = None              # (P, C) standard errors, where known
     observable: np.ndarray | None = None       # (P,) bool, where known

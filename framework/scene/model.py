@@ -126,7 +126,3 @@ class Scene:
                 return c
         raise SceneError(f"view '{name}' is not an image of {self.root / 'sparse'}; "
                          f"choose among: {', '.join(c.name for c in self.cameras)}")
-
-    @property
-    def has_all_references(self) -> bool:
-        return all(s.reference is not None and set(s.reference) >= set(s.kernels) for s in self.segments)

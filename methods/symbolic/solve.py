@@ -218,7 +218,7 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
     blocks = parameter_blocks(system, basis, segs)
     used = system.used_monomials()
     costs = [[_BlockCost(system, basis, c, used, block) for block in blocks] for c in range(C)]
-    trace = _Trace(t_start, x0, [ChannelCost(system, basis, c, used)(x0[:, c])[0] for c in range(C)])
+    trace = _Trace(x0, [ChannelCost(system, basis, c, used)(x0[:, c])[0] for c in range(C)])
     n_evals = guess_evals = 0
     for c in range(C):
         for b, block in enumerate(blocks):
@@ -230,7 +230,8 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
             n_evals, guess_evals = n_evals + evals, guess_evals + from_guess
             trace.settle(c, block, np.clip(best.x, 0.0, 1.0), best.f - f_ref)
     estimate, best_cost = trace.current, trace.channel_costs
-    history, times, iterates = trace.history, trace.times, trace.iterates
+    history, iterates = trace.history, trace.iterates
+    times = [at - t_start for at, _ in iterates]    # the same clock readings as the iterates
     return SolveResult(estimate=estimate, cost=np.array(best_cost), cost_history=history, eval_times_s=times,
                        n_evals=n_evals, guess_evals=guess_evals, solve_s=time.perf_counter() - t_start,
                        iterates=iterates, blocks=[b.tolist() for b in blocks])
@@ -278,19 +279,18 @@ class _BlockCost:
 
 
 class _Trace:
-    """History, times and iterates of the solve, block by block: the estimate if it stopped
+    """History and iterates of the solve, block by block: the estimate if it stopped
     now (per channel and block the best point seen so far, the rest at ``x0``) and the total
     cost there (every channel, every block)."""
 
-    def __init__(self, t_start: float, x0: np.ndarray, channel_costs: list[float]):
-        self.t_start, self.current = t_start, x0.copy()
+    def __init__(self, x0: np.ndarray, channel_costs: list[float]):
+        self.current = x0.copy()
         self.channel_costs = list(channel_costs)
-        self.history, self.times, self.iterates = [], [], []
+        self.history, self.iterates = [], []
 
     def record(self, c: int, block: np.ndarray, x: np.ndarray, f: float, f_ref: float, improved: bool) -> None:
         now = time.perf_counter()
         self.history.append(sum(self.channel_costs) - f_ref + f)
-        self.times.append(now - self.t_start)
         if improved:
             self.current[block, c] = np.clip(x, 0.0, 1.0)
         self.iterates.append((now, self.current.copy()))
