@@ -5,7 +5,7 @@ from math import comb
 import numpy as np
 import pytest
 
-from methods.symbolic.basis import MonomialBasis, multiset_codes
+from methods.symbolic.basis import MonomialBasis, monomial_columns, multiset_codes
 
 
 @pytest.mark.parametrize("D,N", [(1, 1), (1, 4), (3, 2), (4, 3), (10, 3), (5, 0)])
@@ -87,3 +87,13 @@ def test_indices_inverts_exponents():
         b.indices([[2, 2, 0, 0]])            # degree 4 > N_max
     with pytest.raises(ValueError, match="not a monomial"):
         b.indices([[-1, 0, 0, 0]])
+
+
+@pytest.mark.parametrize("D,N", [(5, 3), (200, 3)])   # a lookup table, then sorting (span > 2^22)
+def test_monomial_columns_equal_the_codes_of_every_key(D, N):
+    rng = np.random.default_rng(0)
+    keys = rng.integers(0, (D + 1) ** N, 50_000)
+    codes, cols = monomial_columns(keys, D, N)
+    expected = multiset_codes(keys, D, N)
+    np.testing.assert_array_equal(codes, np.unique(expected))
+    np.testing.assert_array_equal(codes[cols], expected)

@@ -29,6 +29,33 @@ def multiset_codes(keys: np.ndarray, n_params: int, max_degree: int) -> np.ndarr
     return _encode(np.where(digits == empty, 0, digits), n_params)
 
 
+# Largest key range canonicalised through a dense lookup table (one int32 per possible key:
+# 16 MiB); beyond it the distinct keys are found by sorting.
+TABLE_KEYS = 1 << 22
+
+
+def monomial_columns(keys: np.ndarray, n_params: int, max_degree: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(codes, cols)``: the sorted multiset codes occurring among the ordered path ``keys`` and
+    the column of each key among them (``codes[cols] == multiset_codes(keys)``).
+
+    Only the distinct keys are decoded: a tile has millions of events but at most a few thousand
+    distinct keys, and sorting every event (``np.unique``) was a third of the pass's time.
+    """
+    keys = np.asarray(keys, dtype=np.int64)
+    span = (int(n_params) + 1) ** int(max_degree)
+    if span <= TABLE_KEYS:
+        seen = np.zeros(span, dtype=bool)
+        seen[keys] = True
+        distinct = np.flatnonzero(seen)
+        position = np.zeros(span, dtype=np.int32)
+        position[distinct] = np.arange(len(distinct), dtype=np.int32)
+        inverse = position[keys]
+    else:
+        distinct, inverse = np.unique(keys, return_inverse=True)
+    codes, merged = np.unique(multiset_codes(distinct, n_params, max_degree), return_inverse=True)
+    return codes, merged.astype(np.int32)[inverse]
+
+
 def check_key_range(n_params: int, max_degree: int) -> None:
     """Raise :class:`ConfigError` when the ordered path keys (``< (D + 1)^N_max``) do not fit in
     the integrator's uint32 event column (one value is reserved for an empty slot)."""

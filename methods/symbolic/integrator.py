@@ -18,7 +18,7 @@ import numpy as np
 from framework import kernels as kernel_registry
 from framework.errors import ConfigError
 from framework.render.plugin import plugin_class
-from methods.symbolic.basis import check_key_range, merge_codes, multiset_codes
+from methods.symbolic.basis import check_key_range, merge_codes, monomial_columns
 from methods.symbolic.common import camera_rays, mis_weight, pixel_window, tile_sampler
 from methods.symbolic.events import EventBuffer, lane_pixel, reindex_columns, stack_tiles, tile_matrices
 
@@ -517,8 +517,8 @@ class PolynomialPathMixin:
         self._trace(scene, sampler, mi.Ray3f(ray), β, mi.Bool(True), events.store)
         (rows, keys, vals), first_b = events.compact(n, spp, split)
         # the ordered keys of one monomial differ by the order of its parameters: sort them out
-        codes, cols = np.unique(multiset_codes(keys, self.n_params, self.max_bounces), return_inverse=True)
-        return codes, tile_matrices((rows, cols.astype(np.int32), vals), first_b, (n, len(codes)), spp, split)
+        codes, cols = monomial_columns(keys, self.n_params, self.max_bounces)
+        return codes, tile_matrices((rows, cols, vals), first_b, (n, len(codes)), spp, split)
 
 
 def _emission_hit(scene, si, prev_si, prev_pdf, prev_delta, active):
