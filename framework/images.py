@@ -81,10 +81,18 @@ def write_exr(path: str | os.PathLike, array: np.ndarray, channels=None) -> None
         exr.write(os.fspath(path))
 
 
-def _srgb_encode(linear: np.ndarray) -> np.ndarray:
-    """Apply the sRGB transfer function to values in [0, 1]."""
+def srgb_encode(linear: np.ndarray) -> np.ndarray:
+    """The sRGB transfer function (IEC 61966-2-1) of linear values in [0, 1]."""
+    linear = np.asarray(linear, dtype=np.float64)
     return np.where(linear <= 0.0031308, 12.92 * linear,
-                    1.055 * np.power(linear, 1.0 / 2.4) - 0.055)
+                    1.055 * np.power(np.maximum(linear, 0.0031308), 1.0 / 2.4) - 0.055)
+
+
+def srgb_decode(encoded: np.ndarray) -> np.ndarray:
+    """The inverse of :func:`srgb_encode`: encoded values in [0, 1] to linear, float64."""
+    encoded = np.asarray(encoded, dtype=np.float64)
+    return np.where(encoded <= 0.04045, encoded / 12.92,
+                    np.power((np.maximum(encoded, 0.04045) + 0.055) / 1.055, 2.4))
 
 
 def auto_exposure(img: np.ndarray) -> float:
@@ -120,7 +128,7 @@ def tonemap(img: np.ndarray, *, exposure: float | None = None) -> np.ndarray:
     if exposure is None:
         exposure = auto_exposure(arr)
     scaled = np.nan_to_num(arr * np.float32(exposure), nan=0.0, posinf=1.0, neginf=0.0)
-    encoded = _srgb_encode(np.clip(scaled, 0.0, 1.0))
+    encoded = srgb_encode(np.clip(scaled, 0.0, 1.0))
     return np.round(encoded * 255.0).astype(np.uint8)
 
 
