@@ -18,7 +18,7 @@ from framework.experiment import prepare
 from framework.render.mitsuba_scene import MitsubaScene, max_depth_for
 from methods._common import initial_guess
 from methods.symbolic.basis import MonomialBasis
-from methods.symbolic.polynomial_pass import PassResult, render_view_task, tile_pixels_for, view_task
+from methods.symbolic.polynomial_pass import render_view_task, tile_pixels_for, view_task
 
 
 def build_problem(cfg):
@@ -67,8 +67,8 @@ def measure_spp(problem, method, spp: int, reps: int) -> dict:
     t_render, _ = _timed(_render_fn(problem, spp, x0), reps)
     # the default std (sandwich) reads the view's per-pixel coefficients: time it with them
     view0 = dataclasses.replace(problem, cameras=problem.cameras[:1])      # the pass covers view 0
-    passed = PassResult(system, {view0.cameras[0].name: (system, coefficients)})
-    t_solve, fit = _timed(lambda: method._solve(system, basis, view0.parameters, x0, view0, passed=passed), reps)
+    views = lambda: [(coefficients, view0.observed[view0.cameras[0].name], None)]
+    t_solve, fit = _timed(lambda: method._solve(system, basis, view0.parameters, x0, view0, views=views), reps)
     return {"spp": spp, "pass_s": t_pass, "render_s": t_render, "ratio": t_pass / t_render,
             "solve_s": t_solve, "solve_share": t_solve / t_render, "solve_share_pass": t_solve / t_pass,
             "solve_stages_s": fit["stages_s"], "solver_evaluations": fit["solve"].n_evals,

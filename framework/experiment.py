@@ -109,9 +109,12 @@ def prepare(cfg: DictConfig) -> tuple[Problem, Method, float]:
     _check_samples(scene, cameras, settings)
     _check_kernels_present(scene, kernel_selection(cfg.method))
     observed, t_observe = observed_images(scene, cameras, settings, cache=Cache(settings.cache_dir))
+    weights = None if scene.weights is None else {c.name: scene.weights[c.name] for c in cameras}
     problem = Problem(scene=scene, cameras=cameras, observed=observed, parameters=scene.parameters(),
-                      settings=settings)
-    return problem, method_cls(cfg.method), t_observe
+                      settings=settings, weights=weights)
+    method = method_cls(cfg.method)
+    method.check_problem(problem)        # what the method cannot do with this scene: before any run folder
+    return problem, method, t_observe
 
 
 def run_experiment(cfg: DictConfig, run_dir: str | Path, *,

@@ -32,6 +32,9 @@ class Problem:
     observed: dict[str, np.ndarray]  # camera name -> (H, W, C) float32 linear radiance
     parameters: list[Parameter]
     settings: RunSettings = field(default_factory=RunSettings)
+    #: camera name -> (H, W) pixel weights of the scene (0: ignore the pixel: masked, saturated,
+    #: outside the delivered image); None: every pixel counts
+    weights: dict[str, np.ndarray] | None = None
 
     @property
     def seed(self) -> int:
@@ -56,6 +59,8 @@ class MethodResult:
     observable: np.ndarray | None = None       # (P,) bool, where known
     extras: dict[str, Any] = field(default_factory=dict)        # method-specific, JSON-able
     parameters: list[Parameter] | None = None  # the unknowns estimated; None: problem.parameters
+    #: view -> (H, W) weight of each pixel in the final fit (scene weights times robust ones)
+    pixel_weights: dict[str, np.ndarray] | None = None
     #: one entry per iterate: {"time_s": since the method started, "renders": spent so far,
     #: "estimate": (P, C) nested lists in ``parameters`` order, None where unobservable}
     trace: list[dict] = field(default_factory=list)
@@ -76,6 +81,10 @@ class Method(ABC):
         """The unknowns this method estimates (default: all of ``problem.parameters``); the
         weights of kernels it leaves out are 0 in its model."""
         return list(problem.parameters)
+
+    def check_problem(self, problem: Problem) -> None:
+        """Raise :class:`ConfigError` (one line) when this method cannot treat ``problem`` (e.g.
+        photographs of unknown per-view exposure); called before any run folder is written."""
 
     @abstractmethod
     def run(self, problem: Problem) -> MethodResult:

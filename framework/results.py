@@ -177,6 +177,10 @@ def write_view_images(run_dir: Path, problem: Problem, result: MethodResult, seg
             write_exr(run_dir / f"{base}.reconstruction.exr", result.reconstructions[cam.name],
                       problem.scene.channels)
             entry["reconstruction"] = f"{base}.reconstruction.exr"
+        weights = (result.pixel_weights or {}).get(cam.name)
+        if weights is not None:                 # the fit's weight of each pixel (robust, masks)
+            write_exr(run_dir / f"{base}.weights.exr", np.asarray(weights, np.float32)[..., None], ("Y",))
+            entry["weights"] = f"{base}.weights.exr"
         if cam.name in segment_maps:
             np.save(run_dir / f"{base}.segments.npy", segment_maps[cam.name].astype(np.int32))
             entry["segments"] = f"{base}.segments.npy"

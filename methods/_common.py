@@ -121,14 +121,35 @@ def project_feasible(rho: np.ndarray, parameters) -> np.ndarray:
 # ------------------------------------------------------------------------------------------------
 # Renders: cost, budget, timing
 # ------------------------------------------------------------------------------------------------
-def channel_costs(images: list[np.ndarray], observed: list[np.ndarray]) -> np.ndarray:
-    """(C,) Σ over views and pixels of (render - observed)² per channel (paper eq. 6, p = 2, squared)."""
-    return sum(np.sum(np.square(img.astype(np.float64) - obs), axis=(0, 1)) for img, obs in zip(images, observed))
+def channel_costs(images: list[np.ndarray], observed: list[np.ndarray], weights: list | None = None) -> np.ndarray:
+    """(C,) Σ over views and pixels of w·(render - observed)² per channel (paper eq. 6, p = 2,
+    squared); ``weights``: per view an (H, W, 1) array (:func:`weights_list`) or None (all 1)."""
+    weights = weights or [None] * len(images)
+    return sum(np.sum(np.square(img.astype(np.float64) - obs) * (1.0 if w is None else w), axis=(0, 1))
+               for img, obs, w in zip(images, observed, weights))
 
 
 def observed_list(problem) -> list[np.ndarray]:
     """Observed images in the order of ``problem.cameras`` (the Mitsuba sensors' order)."""
     return [np.asarray(problem.observed[c.name], dtype=np.float64) for c in problem.cameras]
+
+
+def weights_list(problem) -> list | None:
+    """The scene's pixel weights (0: masked, saturated, outside the delivered image) as (H, W, 1)
+    arrays in the order of ``problem.cameras``; None when every pixel counts."""
+    if problem.weights is None:
+        return None
+    return [np.asarray(problem.weights[c.name], dtype=np.float64)[..., None] for c in problem.cameras]
+
+
+def refuse_per_view_exposure(problem, method: str) -> None:
+    """Raise :class:`ConfigError` when the scene's photographs have unknown per-view exposure,
+    which a re-rendering baseline does not estimate."""
+    photometry = getattr(problem.scene, "photometry", None)
+    if photometry is not None and photometry.exposure == "per_view":
+        raise ConfigError(f"method={method} does not estimate per-view exposure gains (scene.yaml "
+                          "photometry exposure: per_view): use method=symbolic or lambertian_prior, "
+                          "or set exposure: known if the photographs share one calibrated exposure")
 
 
 class RenderLedger:

@@ -103,7 +103,7 @@ TOP_LEVEL = {
     "settings": ("an object", lambda x: isinstance(x, dict)),
     "correlation": ("an object", lambda x: isinstance(x, dict)),
     "segments": ("a list", lambda x: isinstance(x, list)),
-    "views": OBJECT_LIST, "relit": OBJECT_LIST, "trace": OBJECT_LIST,
+    "views": OBJECT_LIST, "relit": OBJECT_LIST, "trace": OBJECT_LIST, "exposure": OBJECT_LIST,
 }
 
 

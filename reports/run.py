@@ -126,6 +126,24 @@ def _section_parameters(doc: Doc, res: dict) -> None:
         doc.para(f"Mean absolute error over all known parameters and channels: {fmt_num(mae)}")
 
 
+def _section_exposure(doc: Doc, res: dict) -> None:
+    """The per-view exposure gains (``exposure: per_view``), when results.json has them."""
+    rows_in = [e for e in (res.get("exposure") or []) if isinstance(e, dict)]
+    if not rows_in:
+        return
+    nc = len(res["channels"])
+    rows = []
+    for e in rows_in:
+        est, std = as_list(e.get("estimate"), nc), as_list(e.get("std"), nc)
+        rows.append([str(e.get("view")), "yes" if e.get("reference") else "no"]
+                    + [f"{fmt_num(est[c])} ± {fmt_num(std[c])}" if std[c] is not None else fmt_num(est[c])
+                       for c in range(nc)])
+    doc.heading("Exposure")
+    doc.table(["View", "Reference"] + [f"gain {ch}" for ch in res["channels"]], rows, left=2,
+              caption="Per-view, per-channel gains estimated with ρ (pixel = gain · radiance); "
+                      "the reference view's are 1 by definition; ± one standard error.")
+
+
 def _section_timings(doc: Doc, res: dict) -> None:
     """Render, solve and total times and the render count."""
     timings = res.get("timings_s") if isinstance(res.get("timings_s"), dict) else {}
@@ -169,6 +187,11 @@ def _view_panel(doc: Doc, ctx: _RunContext, view: dict, index: int) -> None:
         ctx.metrics.append((name, images.image_metrics(obs, rec)))
     elif obs is not None and rec is not None:
         doc.para(f"shapes differ: observed {obs.shape}, reconstruction {rec.shape}", note=True)
+    weights = ctx.load_image(view.get("weights"), doc, "weights") if view.get("weights") else None
+    if weights is not None:
+        path, src = ctx.out(f"{stem}_weights.png")
+        images.write_png(path, np.round(255 * np.clip(weights[..., 0], 0.0, 1.0)).astype(np.uint8))
+        items.append((src, "pixel weight in the fit (black: ignored or outlier)"))
     seg = _load_segments(doc, ctx, view.get("segments"))
     if seg is not None:
         path, src = ctx.out(f"{stem}_segments.png")
@@ -292,7 +315,7 @@ def write_run_report(run_dir, results: dict | None = None) -> tuple[Path, Path]:
     doc = Doc(f"{res['method']} on {res['scene']}" + (f" (seed {seed})" if seed is not None else ""))
     with staged(run_dir, (FILES_DIR, "report.md", "report.html")) as tmp:
         ctx = _RunContext(run_dir, res, tmp / FILES_DIR)
-        for section in (_section_overview, _section_parameters, _section_timings):
+        for section in (_section_overview, _section_parameters, _section_exposure, _section_timings):
             section(doc, res)
         for section in (_section_convergence, _section_views, _section_correlation, _section_relit):
             section(doc, ctx)

@@ -80,7 +80,11 @@ class DifferentiableMethod(Method):
     ``lr`` and raise the budget for a tighter estimate.
     """
 
+    def check_problem(self, problem: Problem) -> None:
+        C.refuse_per_view_exposure(problem, "differentiable")
+
     def run(self, problem: Problem) -> MethodResult:
+        self.check_problem(problem)
         opts = _options(self.cfg, problem)
         t0 = time.perf_counter()
         rho, spent = C.initial_guess(self.cfg, problem, prior=lambertian_prior)
@@ -140,6 +144,7 @@ class _Fit:
         self.ms = MitsubaScene(problem.scene, problem.cameras, spp=opts["spp"],
                                integrator=integrator_dict(C.max_depth(problem)))
         self.observed = C.observed_list(problem)
+        self.weights = C.weights_list(problem)         # the scene's pixel weights, or None
         self.costs: list[float] = []
         self.times: list[float] = []     # seconds since the method started, at each iteration
         self.trace = trace or C.Trace(time.perf_counter())
@@ -167,7 +172,10 @@ class _Fit:
             seed, seed_grad = self.seeds(it, v)
             img = mi.render(self.ms.scene, self.ms.params, sensor=v, spp=self.opts["spp"],
                             spp_grad=self.opts["spp_grad"], seed=seed, seed_grad=seed_grad)
-            loss = dr.sum(dr.square(img[..., : obs.shape[-1]] - mi.TensorXf(obs.astype(np.float32))), axis=None)
+            residual2 = dr.square(img[..., : obs.shape[-1]] - mi.TensorXf(obs.astype(np.float32)))
+            if self.weights is not None:                       # masked / saturated pixels: 0
+                residual2 = residual2 * mi.TensorXf(self.weights[v].astype(np.float32))
+            loss = dr.sum(residual2, axis=None)
             cost += float(loss.array[0])
             dr.backward(loss)
         grad = np.stack([_to_numpy(dr.grad(var), rho.shape[1]) for var in variables])

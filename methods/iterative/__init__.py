@@ -76,7 +76,11 @@ class IterativeMethod(Method):
     with the number of parameters.
     """
 
+    def check_problem(self, problem: Problem) -> None:
+        C.refuse_per_view_exposure(problem, "iterative")
+
     def run(self, problem: Problem) -> MethodResult:
+        self.check_problem(problem)
         opts = _options(self.cfg, problem)
         t0 = time.perf_counter()
         rho0, spent = C.initial_guess(self.cfg, problem, prior=lambertian_prior)
@@ -136,6 +140,7 @@ class _Objective:
         self.ms = MitsubaScene(problem.scene, problem.cameras, spp=self.spp,
                                integrator={"type": "path", "max_depth": C.max_depth(problem)})
         self.observed = C.observed_list(problem)
+        self.weights = C.weights_list(problem)         # the scene's pixel weights, or None
         self.shape = (len(problem.parameters), problem.n_channels)
         self.grad_renders = len(problem.parameters) * (2 if opts["fd"] == "central" else 1)
         self.costs: list[float] = []
@@ -164,7 +169,7 @@ class _Objective:
 
     def channel_costs(self, rho: np.ndarray) -> np.ndarray:
         """(C,) cost of one full pass at ρ."""
-        return C.channel_costs(self.render(rho), self.observed)
+        return C.channel_costs(self.render(rho), self.observed, self.weights)
 
     def render(self, rho: np.ndarray) -> list[np.ndarray]:
         self.ms.set_weights(rho, self.problem.parameters)

@@ -18,6 +18,7 @@ from framework.registry import Method, MethodResult, register
 from framework.relight import relight_outputs
 from methods._common import Trace, check_choice, check_number, initial_guess, segment_groups
 from methods.symbolic.basis import MonomialBasis
+from methods.symbolic.field import ROBUST_LOSSES, FieldOptions, fit_field
 from methods.symbolic.polynomial_pass import polynomial_pass
 from methods.symbolic.solve import check_solve_memory, solve_polynomial
 from methods.symbolic.uncertainty import (
@@ -134,6 +135,17 @@ class SymbolicMethod(Method):
         if "std" in self.cfg:
             check_choice(self.cfg, "std", ("sandwich", "residual"))
         check_choice(solver, "algorithm", ("LD_SLSQP", "LD_MMA", "LD_CCSAQ"), section=section)
+        for key, choices in (("exposure", ("scene", "known")), ("weights", ("scene", "none")),
+                             ("robust", ("auto",) + ROBUST_LOSSES)):
+            if key in self.cfg:
+                check_choice(self.cfg, key, choices)
+        if "irls" in self.cfg:
+            check_number(self.cfg.irls, "iterations", 1, 100, integer=True, section="method.irls")
+            check_number(self.cfg.irls, "tol", 0.0, section="method.irls")
+
+    def check_problem(self, problem) -> None:
+        self.check()
+        FieldOptions.from_config(self.cfg, problem)     # a reference view outside the run's views
 
     def run(self, problem) -> MethodResult:
         self.check()
@@ -147,22 +159,21 @@ class SymbolicMethod(Method):
         settings = problem.settings
         render_s = solve_s = 0.0
         stages = {}
+        field = FieldOptions.from_config(self.cfg, problem)
         for k in range(1 + int(self.cfg.get("refine", 0))):
             if k:      # re-render at the estimate: better kernel selection, and a tail at the estimate
                 x0 = np.where(np.isnan(fit["estimate"]), x0, fit["estimate"])
             result = self._pass(sub, params, x0, seed=int(problem.seed) + 7777 * renders)
             renders += 1
-            basis = MonomialBasis(len(params), settings.max_bounces, result.system.codes)
             t_solve = time.perf_counter()
-            fit = self._solve(result.system, basis, params, x0, problem, passed=result)
+            fit = self._fit(result, params, x0, problem, field)
             _record_iterates(trace, renders, fit)
             render_s += result.render_s
             solve_s += time.perf_counter() - t_solve     # PSD projection, nlopt and uncertainty
             stages = {name: stages.get(name, 0.0) + t for name, t in fit["stages_s"].items()}
         estimate = fit["estimate"]
-        recon = _images(result, basis, np.nan_to_num(estimate), problem.cameras)   # unobservable: monomials 0
         sol = fit["solve"]
-        extras = {"n_monomials": basis.size, "gram_nnz": result.system.nnz,
+        extras = {"n_monomials": fit["n_monomials"], "gram_nnz": fit["gram_nnz"],
                   "parameter_blocks": len(sol.blocks) if sol else 0, "psd_skipped_components": list(fit["psd_skipped"]), "solver_evaluations": sol.n_evals if sol else 0,
                   "solver_evaluations_from_guess": sol.guess_evals if sol else 0,
                   "initial_guess": guess0.tolist(), "views_from_cache": result.from_cache,
@@ -171,13 +182,18 @@ class SymbolicMethod(Method):
                   "ill_determined": ill_determined(fit["std"], fit["observable"]).tolist(),
                   "executor": str(settings.executor.get("name", "serial")),
                   "solve_stages_s": stages}
+        if field.active:
+            extras["field"] = field.describe(fit)
+        if fit.get("exposure") is not None:
+            extras["exposure"] = fit["exposure"]
         timings = {"render": render_s, "solve": solve_s}
         relit = self._relight(sub, params, estimate)
         if relit is not None:
             extras["relit_images"], timings["relight"] = relit
         timings["method"] = time.perf_counter() - t0
         return MethodResult(
-            estimate=estimate, renders=renders, parameters=params, reconstructions=recon,
+            estimate=estimate, renders=renders, parameters=params, reconstructions=fit["images"](),
+            pixel_weights=fit.get("pixel_weights"),
             timings_s=timings, std=fit["std"], observable=fit["observable"],
             cost_history=list(sol.cost_history) if sol else [],
             cost_times_s=[at - t0 for at, _ in sol.iterates] if sol else [], trace=trace.entries(),
@@ -204,24 +220,44 @@ class SymbolicMethod(Method):
                                    cache=Cache(settings.cache_dir), executor=executor,
                                    cross_gram=self.cfg.get("gram", "cross") == "cross")
 
-    def _solve(self, system, basis, params, x0, problem, passed=None) -> dict:
+    def _fit(self, result, params, x0, problem, field) -> dict:
+        """The solve of one pass: on the pass's own system, or through the field path
+        (:func:`~methods.symbolic.field.fit_field`: pixel weights, gains, robust IRLS).
+
+        Returns :meth:`_solve`'s dict plus ``n_monomials``, ``gram_nnz``, ``images`` (a
+        function giving the reconstructions) and, from the field path, ``exposure`` and
+        ``pixel_weights``.
+        """
+        if field.active:
+            return fit_field(result, params, x0, problem, field, self._solve)
+        basis = MonomialBasis(len(params), problem.settings.max_bounces, result.system.codes)
+        views = lambda: ((result.view(cam.name)[1], problem.observed[cam.name], None) for cam in problem.cameras)
+        fit = self._solve(result.system, basis, params, x0, problem, views=views)
+        estimate = np.nan_to_num(fit["estimate"])          # unobservable: monomials 0
+        fit.update(n_monomials=basis.size, gram_nnz=result.system.nnz,
+                   images=lambda: _images(result, basis, estimate, problem.cameras))
+        return fit
+
+    def _solve(self, system, basis, params, x0, problem, *, views=None, groups=None) -> dict:
         """Solve on the observable parameters; NaN estimate and std for the others.
 
-        ``passed``: the :class:`PassResult` of ``system``, whose per-pixel coefficients the
-        ``sandwich`` std needs (None: the ``residual`` std).
+        ``views``: a function giving ``(coefficients, y, weights or None)`` per view, the
+        per-pixel terms the ``sandwich`` std needs (None: the ``residual`` std). ``groups``:
+        the parameter indices sharing a Σρ <= 1 constraint (default: per segment).
 
         Returns a dict: ``estimate`` (P, C), ``std`` (P, C), ``observable`` (P,), ``solve``
-        (SolveResult or None when nothing is observable), ``correlation`` (the JSON-able
+        (SolveResult or None when nothing is observable), ``iterates`` (the solve's
+        ``(clock, (P, C) estimate)``, NaN where unobservable), ``correlation`` (the JSON-able
         ``extras["correlation"]``), ``sigma2`` (residual variance per channel, a list),
-        ``std_method`` (``sandwich`` or ``residual``) and ``stages_s`` (seconds of the PSD
-        projection, the nlopt runs and the uncertainty).
+        ``std_method`` (``sandwich`` or ``residual``), ``stages_s`` (seconds of the PSD
+        projection, the nlopt runs and the uncertainty) and ``psd_skipped``.
         """
-        method = str(self.cfg.get("std", "sandwich")) if passed is not None else "residual"
+        method = str(self.cfg.get("std", "sandwich")) if views is not None else "residual"
         P, C = len(params), problem.n_channels
         observable = observable_parameters(system, basis)
         estimate, std = np.full((P, C), np.nan), np.full((P, C), np.nan)
         if not observable.any():
-            return {"estimate": estimate, "std": std, "observable": observable, "solve": None,
+            return {"estimate": estimate, "std": std, "observable": observable, "solve": None, "iterates": [],
                     "correlation": correlation_extra(params, observable, None), "sigma2": None,
                     "std_method": method, "stages_s": {}, "psd_skipped": ()}
         check_solve_memory(system, basis)
@@ -232,7 +268,8 @@ class SymbolicMethod(Method):
         t_psd = time.perf_counter() - t_psd
         kept = np.flatnonzero(observable)
         position = {int(j): k for k, j in enumerate(kept)}
-        groups = [[position[j] for j in g if j in position] for g in segment_groups(params)]
+        groups = segment_groups(params) if groups is None else groups
+        groups = [[position[j] for j in g if j in position] for g in groups]
         solver = self.cfg.solver
         sol = solve_polynomial(sub_system, sub_basis, segments_params=[g for g in groups if g],
                                x0=x0[kept], algorithm=str(solver.algorithm), starts=int(solver.starts),
@@ -242,12 +279,12 @@ class SymbolicMethod(Method):
         t_unc = time.perf_counter()
         meat = None
         if method == "sandwich":
-            views = ((passed.view(cam.name)[1], problem.observed[cam.name]) for cam in problem.cameras)
-            meat = score_meat(sub_basis, sol.estimate, views, columns, basis.codes)
+            meat = score_meat(sub_basis, sol.estimate, views(), columns, basis.codes)
         unc = parameter_uncertainty(sub_system, sub_basis, sol.estimate, meat=meat)
         estimate[kept], std[kept] = sol.estimate, unc.std
         stages = {"psd": t_psd, "nlopt": sol.solve_s, "uncertainty": time.perf_counter() - t_unc}
         return {"estimate": estimate, "std": std, "observable": observable, "solve": sol,
+                "iterates": [(at, _full(observable, x)) for at, x in sol.iterates],
                 "correlation": correlation_extra(params, observable, unc),
                 "sigma2": [float(v) for v in unc.sigma2], "std_method": method, "stages_s": stages,
                 "psd_skipped": sub_system.psd_skipped}
@@ -275,12 +312,14 @@ def _images(result, basis: MonomialBasis, rho: np.ndarray, cameras) -> dict[str,
     return {cam.name: result.image(cam.name, mu, (cam.height, cam.width)) for cam in cameras}
 
 
+def _full(observable: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``(P, C)`` from the observable parameters' ``x``, NaN elsewhere."""
+    full = np.full((len(observable), x.shape[1]), np.nan)
+    full[observable] = x
+    return full
+
+
 def _record_iterates(trace: Trace, renders: int, fit: dict) -> None:
-    """The solve's iterates (observable parameters) as full (P, C) estimates, NaN elsewhere."""
-    if fit["solve"] is None:
-        return
-    observable = fit["observable"]
-    for at, x in fit["solve"].iterates:
-        full = np.full((len(observable), x.shape[1]), np.nan)
-        full[observable] = x
-        trace.record(renders, full, at=at)
+    """The solve's iterates as full (P, C) estimates, NaN where unobservable."""
+    for at, x in fit["iterates"]:
+        trace.record(renders, x, at=at)

@@ -23,10 +23,10 @@ from framework.errors import ConfigError
 def multiset_codes(keys: np.ndarray, n_params: int, max_degree: int) -> np.ndarray:
     """Multiset codes of ordered keys ``Σ_i (p_i + 1)(D + 1)^i`` (the integrator's path keys): the
     digits decoded, sorted (non-empty ones first) and re-encoded, as int64."""
-    digits = _digits(np.asarray(keys, dtype=np.int64), n_params, max_degree)
+    digits = code_digits(np.asarray(keys, dtype=np.int64), n_params, max_degree)
     empty = n_params + 1                          # sorts the empty digits (0) after the others
     digits = np.sort(np.where(digits == 0, empty, digits), axis=1)
-    return _encode(np.where(digits == empty, 0, digits), n_params)
+    return encode_digits(np.where(digits == empty, 0, digits), n_params)
 
 
 # Largest key range canonicalised through a dense lookup table (one int32 per possible key:
@@ -70,12 +70,12 @@ def merge_codes(*codes: np.ndarray) -> np.ndarray:
     return np.unique(np.concatenate([np.asarray(c, dtype=np.int64) for c in codes]))
 
 
-def _digits(codes: np.ndarray, D: int, N: int) -> np.ndarray:
+def code_digits(codes: np.ndarray, D: int, N: int) -> np.ndarray:
     """``(K, N)`` base-``(D + 1)`` digits of ``codes`` (digit 0: no parameter)."""
     return (codes[:, None] // (D + 1) ** np.arange(N, dtype=np.int64)) % (D + 1)
 
 
-def _encode(digits: np.ndarray, D: int) -> np.ndarray:
+def encode_digits(digits: np.ndarray, D: int) -> np.ndarray:
     """Codes of ``(K, N)`` digit rows."""
     return (np.asarray(digits, dtype=np.int64) * (D + 1) ** np.arange(digits.shape[1], dtype=np.int64)).sum(axis=1)
 
@@ -86,7 +86,7 @@ def all_codes(n_params: int, max_degree: int) -> np.ndarray:
     rows = [np.zeros(1, np.int64)]
     for d in range(1, N + 1):
         combos = np.array(list(combinations_with_replacement(range(D), d)), dtype=np.int64).reshape(-1, d)
-        rows.append(_encode(combos + 1, D))
+        rows.append(encode_digits(combos + 1, D))
     return np.sort(np.concatenate(rows))
 
 
@@ -126,7 +126,7 @@ class MonomialBasis:
             raise ValueError(f"code {codes[-1]} is no monomial of degree <= {N} in {D} parameters")
         self.codes = codes
         self.size = len(codes)
-        self.digits = _digits(codes, D, N)
+        self.digits = code_digits(codes, D, N)
         self.degrees = (self.digits > 0).sum(axis=1)
         # Non-zeros of the Jacobian, one per non-empty digit: ∂μ_m/∂ρ_k sums over the positions
         # holding k, so repeated parameters give their exponents.
@@ -165,7 +165,7 @@ class MonomialBasis:
         for r, e in enumerate(E):
             ps = np.repeat(np.arange(self.n_params), e) + 1
             digits[r, :len(ps)] = ps
-        return self._positions(_encode(digits, self.n_params))
+        return self._positions(encode_digits(digits, self.n_params))
 
     def _positions(self, codes: np.ndarray) -> np.ndarray:
         """Indices of ``codes`` in this basis (ValueError for a code it lacks)."""

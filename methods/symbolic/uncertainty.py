@@ -189,7 +189,8 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
     rho : numpy.ndarray
         ``(D, C)`` estimate.
     views : iterable
-        ``(coefficients, y)`` per view: an object with ``gamma``, ``delta`` (lists of ``C``
+        ``(coefficients, y[, weights])`` per view (``weights``: ``(n,)`` pixel weights of the
+        cost, or None for all 1): an object with ``gamma``, ``delta`` (lists of ``C``
         sparse matrices, ``delta`` possibly None), ``split`` and ``codes`` (the monomial codes of
         the matrices' columns, a subset of ``codes``;
         :class:`~methods.symbolic.polynomial_pass.ViewCoefficients`), and the ``(n, C)``
@@ -213,8 +214,9 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
         Jc = basis.jacobian_sparse(rho[:, c]).tocoo()
         J.append(sp.csr_matrix((Jc.data, (columns[Jc.row], Jc.col)), shape=(len(codes), D)))
     outer, total, n = np.zeros((C, D, D)), np.zeros((C, D)), 0
-    for coeffs, y in views:
+    for coeffs, y, *weights in views:
         y = np.asarray(y, dtype=np.float64).reshape(coeffs.gamma[0].shape[0], C)
+        w_pix = weights[0] if weights and weights[0] is not None else None
         n += len(y)
         at = np.searchsorted(codes, coeffs.codes)                # the view's columns in ``codes``
         for c in range(C):
@@ -228,6 +230,8 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
                 d, dJ = coeffs.delta[c] @ mu_v, (coeffs.delta[c] @ J_v).toarray()
                 s = ((gJ + 2 * (1 - w) * dJ) * (r - 2 * w * d)[:, None]
                      + (gJ - 2 * w * dJ) * (r + 2 * (1 - w) * d)[:, None])
+            if w_pix is not None:            # the weighted cost's term: w_p times the unweighted one
+                s = s * np.asarray(w_pix, dtype=np.float64)[:, None]
             outer[c] += s.T @ s
             total[c] += s.sum(axis=0)
     return outer - np.einsum("ci,cj->cij", total, total) / max(n, 1)

@@ -1,0 +1,366 @@
+"""Field photographs in the symbolic fit: pixel weights, per-view exposure gains, robust IRLS.
+
+All three act on the per-pixel coefficients the polynomial pass stored, never on a new render.
+
+Pixel weights
+    A view's Gram system is rebuilt from its coefficients with weights ``w_p``
+    (:func:`weighted_system`): the cost becomes ``Σ_p w_p (γ_p·μ - y_p)²``. Weights come from
+    the scene (0 on masked, saturated, black-clipped pixels and pixels the undistortion left
+    empty) times the robust weights.
+
+Per-view exposure (``photometry: exposure: per_view``)
+    A photograph is ``g_{v,c} · L_v(ρ)``: one unknown gain per view and channel multiplies every
+    monomial of the view, so the pixel stays a polynomial, of degree ``N_max + 1``, in the
+    parameters ``(ρ, h)``. Each non-reference view ``v`` gets a parameter ``h_v = g_v / G_MAX``
+    in ``[0, 1]`` (the solver's box; :data:`GAIN_MAX`), and every monomial of its pixels is
+    multiplied by ``h_v`` (:func:`with_gain`): the gains are solved jointly with ρ, exactly,
+    and their standard errors come from the same sandwich as ρ's. The reference view's gains
+    are 1 and fix the scale, which the data cannot (``g·L(ρ)`` = ``(g/s)·L(sρ)`` at first order).
+
+Robust weights (``method.robust``)
+    Iteratively reweighted least squares: after each solve, the residuals ``r_{p,c}`` of every
+    pixel are divided by a robust scale per view and channel, ``s = max(1.4826·MAD(r),
+    σ_q)`` (``σ_q``: the median quantisation noise of the delivered 8/16-bit encoding, so that
+    quantisation never makes an outlier), combined over channels into ``t_p = sqrt(mean_c
+    (r_{p,c}/s_c)²)``, and the pixel gets the weight ``ψ(t)/t`` of the Cauchy
+    (``1/(1 + (t/2.385)²)``) or Huber (``min(1, 1.345/t)``) loss (95 % Gaussian efficiency
+    each). A car or a pedestrian the model lacks leaves residuals many times the scale and is
+    weighted out; the fit stops when the estimate moves less than ``tol`` between two rounds
+    or after ``iterations`` rounds.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from methods.symbolic.basis import code_digits, encode_digits
+from methods.symbolic.gram import GramSystem
+
+#: largest gain representable: h = g / GAIN_MAX lies in the solver's box [0, 1]
+GAIN_MAX = 4.0
+#: 1.4826 · MAD estimates a Gaussian's standard deviation
+MAD_TO_STD = 1.4826
+#: tuning constants at 95 % efficiency for Gaussian residuals
+CAUCHY_K = 2.385
+HUBER_K = 1.345
+ROBUST_LOSSES = ("none", "cauchy", "huber")
+
+
+@dataclass(frozen=True)
+class Coefficients:
+    """A view's coefficients after :func:`with_gain`: what
+    :class:`~methods.symbolic.polynomial_pass.ViewCoefficients` holds (``gamma``, ``delta``,
+    ``split``, ``codes``), over the parameters ``(ρ, h)``."""
+
+    gamma: list
+    delta: list | None
+    split: float
+    codes: np.ndarray
+
+
+def with_gain(coeffs, *, n_params: int, max_degree: int, n_total: int, gain: int | None) -> Coefficients:
+    """A view's coefficients in the basis of ``n_total`` parameters and degree ``max_degree + 1``.
+
+    Parameters
+    ----------
+    coeffs : ViewCoefficients
+        Over ``n_params`` parameters of degree at most ``max_degree`` (multiset codes, base
+        ``n_params + 1``, :mod:`methods.symbolic.basis`).
+    n_params, max_degree : int
+        The pass's ``D`` and ``N_max``.
+    n_total : int
+        ``D`` plus the gain parameters.
+    gain : int or None
+        Index (``>= n_params``) of this view's gain parameter: every monomial is multiplied by it
+        and the coefficients by :data:`GAIN_MAX`; None for the reference view (only relabelled).
+
+    Returns
+    -------
+    Coefficients
+        Columns sorted by their new codes.
+    """
+    digits = code_digits(np.asarray(coeffs.codes, np.int64), n_params, max_degree)
+    degree = (digits > 0).sum(axis=1)
+    wide = np.zeros((len(digits), max_degree + 1), dtype=np.int64)
+    wide[:, :max_degree] = digits
+    scale = 1.0
+    if gain is not None:
+        # the gain's index exceeds every ρ index: appended after the used digits, it keeps them sorted
+        wide[np.arange(len(wide)), degree] = gain + 1
+        scale = GAIN_MAX
+    codes = encode_digits(wide, n_total)
+    order = np.argsort(codes, kind="stable")
+    move = sp.csr_matrix((np.full(len(order), scale), (order, np.arange(len(order)))),
+                         shape=(len(order), len(order)))
+    relabel = lambda mats: None if mats is None else [sp.csr_matrix(m @ move) for m in mats]
+    return Coefficients(relabel(coeffs.gamma), relabel(coeffs.delta), float(coeffs.split), codes[order])
+
+
+def weighted_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSystem:
+    """The Gram system of one view from its coefficients, pixel ``p`` weighted by ``w_p``.
+
+    With the half-sample difference ``delta`` (``D = (A - B)/2``, ``A`` holding the fraction
+    ``split`` of the samples), ``A = Γ + 2(1 - split)D`` and ``B = Γ - 2·split·D`` are rebuilt and
+    the cross Gram ½(AᵀWB + BᵀWA) formed as in the pass (:meth:`GramSystem.accumulate_sparse`,
+    rows scaled by √w); without it, ΓᵀWΓ. With every weight 1 this is the pass's own system.
+
+    Parameters
+    ----------
+    coeffs : ViewCoefficients or Coefficients
+    y : numpy.ndarray
+        ``(n, C)`` observed pixels.
+    weights : numpy.ndarray or None
+        ``(n,)`` weights >= 0 (None: all 1).
+    """
+    C = len(coeffs.gamma)
+    y = np.asarray(y, dtype=np.float64).reshape(coeffs.gamma[0].shape[0], C)
+    root = None if weights is None else sp.diags(np.sqrt(np.asarray(weights, dtype=np.float64)))
+    scaled = lambda m: m if root is None else (root @ m).tocsr()
+    y = y if weights is None else y * np.sqrt(np.asarray(weights, dtype=np.float64))[:, None]
+    if coeffs.delta is None:
+        A, B = [scaled(g) for g in coeffs.gamma], None
+    else:
+        w = float(coeffs.split)
+        A = [scaled(g + 2 * (1 - w) * d) for g, d in zip(coeffs.gamma, coeffs.delta)]
+        B = [scaled(g - 2 * w * d) for g, d in zip(coeffs.gamma, coeffs.delta)]
+    return GramSystem.zeros(coeffs.codes, C).accumulate_sparse(A, y, B)
+
+
+def predicted(coeffs, mu: np.ndarray, codes: np.ndarray) -> np.ndarray:
+    """``(n, C)`` pixel values of a view at monomials ``mu`` (C, N) over the sorted ``codes``."""
+    at = np.searchsorted(codes, coeffs.codes)
+    return np.stack([coeffs.gamma[c] @ mu[c][at] for c in range(len(coeffs.gamma))], axis=1)
+
+
+def robust_weights(residual: np.ndarray, used: np.ndarray, *, loss: str, floor: np.ndarray | float = 0.0
+                   ) -> np.ndarray:
+    """``(n,)`` IRLS weights of one view's pixels (module docstring).
+
+    Parameters
+    ----------
+    residual : numpy.ndarray
+        ``(n, C)`` residuals ``prediction - observation``.
+    used : numpy.ndarray
+        ``(n,)`` bool: pixels with a non-zero scene weight (the scale is taken over them).
+    loss : str
+        ``cauchy`` or ``huber`` (``none``: all ones).
+    floor : float or numpy.ndarray
+        Smallest scale per channel (the quantisation noise).
+    """
+    n, C = residual.shape
+    if loss == "none" or not used.any():
+        return np.ones(n)
+    r = residual[used]
+    mad = np.median(np.abs(r - np.median(r, axis=0)), axis=0)
+    scale = np.maximum(MAD_TO_STD * mad, np.broadcast_to(np.asarray(floor, float), (C,)))
+    scale = np.maximum(scale, 1e-12 * (np.abs(r).max() + 1e-30))
+    t = np.sqrt(np.mean((residual / scale) ** 2, axis=1))
+    if loss == "cauchy":
+        return 1.0 / (1.0 + (t / CAUCHY_K) ** 2)
+    if loss == "huber":
+        return np.minimum(1.0, HUBER_K / np.maximum(t, 1e-300))
+    raise ValueError(f"robust loss '{loss}' unknown; use one of {', '.join(ROBUST_LOSSES)}")
+
+
+def gain_guess(coeffs, y: np.ndarray, weights: np.ndarray | None, mu: np.ndarray, codes: np.ndarray
+               ) -> np.ndarray:
+    """``(C,)`` least-squares gains ``Σ w m y / Σ w m²`` of a view whose unit-gain image at the
+    guess is ``m`` (the closed form of the gain for a fixed ρ), in ``[0, GAIN_MAX]``."""
+    m = predicted(coeffs, mu, codes)
+    y = np.asarray(y, dtype=np.float64).reshape(m.shape)
+    w = np.ones(len(m)) if weights is None else np.asarray(weights, float)
+    num, den = (w[:, None] * m * y).sum(axis=0), (w[:, None] * m * m).sum(axis=0)
+    g = np.where(den > 0, num / np.where(den > 0, den, 1.0), 1.0)
+    return np.clip(g, 0.0, GAIN_MAX)
+
+
+# ----------------------------------------------------------------------------------------------
+# The fit
+# ----------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class FieldOptions:
+    """What of the field path a run uses, resolved from the method's options and the scene.
+
+    Attributes
+    ----------
+    weights : dict or None
+        View name -> ``(H·W,)`` scene pixel weights (None: every pixel 1).
+    floors : dict
+        View name -> ``(C,)`` smallest robust scale (median quantisation noise; absent: 0).
+    reference : str or None
+        The reference view when gains are estimated (``exposure: per_view``), else None.
+    robust : str
+        ``none``, ``cauchy`` or ``huber``.
+    iterations : int
+        Cap on the IRLS rounds (solves); 1 without robust weights.
+    tol : float
+        IRLS stops when no estimate (ρ or gain) moves more than this between two rounds.
+    """
+
+    weights: dict | None
+    floors: dict
+    reference: str | None
+    robust: str
+    iterations: int
+    tol: float
+
+    @property
+    def active(self) -> bool:
+        return self.weights is not None or self.reference is not None or self.robust != "none"
+
+    @classmethod
+    def from_config(cls, cfg, problem) -> "FieldOptions":
+        """Resolve ``method.exposure`` (``scene``: as scene.yaml says | ``known``),
+        ``method.weights`` (``scene`` | ``none``), ``method.robust`` (``auto``: Cauchy for
+        photographs, i.e. images decoded from 8/16-bit files, pixel weights or per-view exposure;
+        none for linear radiance) and ``method.irls`` against ``problem``."""
+        from framework.errors import ConfigError
+        scene = problem.scene
+        photometry = getattr(scene, "photometry", None)
+        per_view = (str(cfg.get("exposure", "scene")) == "scene" and photometry is not None
+                    and photometry.exposure == "per_view")
+        reference = photometry.reference_view if per_view else None
+        names = [c.name for c in problem.cameras]
+        if per_view and reference not in names:
+            raise ConfigError(f"photometry reference_view {reference} is not among this run's views "
+                              f"({', '.join(names)}): add it to views, or set method.exposure=known")
+        use = str(cfg.get("weights", "scene")) == "scene" and problem.weights is not None
+        weights = {n: np.asarray(w, np.float64).ravel() for n, w in problem.weights.items()} if use else None
+        noise = getattr(scene, "noise", None) or {}
+        floors = {n: np.median(np.asarray(noise[n], float).reshape(-1, noise[n].shape[-1]), axis=0)
+                  for n in names if n in noise}
+        robust = str(cfg.get("robust", "auto"))
+        if robust == "auto":
+            robust = "cauchy" if (weights is not None or per_view or noise) else "none"
+        irls = cfg.get("irls", {}) or {}
+        iterations = int(irls.get("iterations", 10)) if robust != "none" else 1
+        return cls(weights, floors, reference, robust, iterations, float(irls.get("tol", 1e-4)))
+
+    def describe(self, fit: dict) -> dict:
+        """``extras["field"]``: what the fit did (JSON-able)."""
+        return {"exposure": "per_view" if self.reference is not None else "known",
+                "reference_view": self.reference, "robust": self.robust,
+                "scene_weights": self.weights is not None, "irls_rounds": fit["irls_rounds"],
+                "irls_stopped": fit["irls_stopped"]}
+
+
+@dataclass
+class _View:
+    name: str
+    shape: tuple[int, int]
+    coeffs: object               # ViewCoefficients or Coefficients over the solve's parameters
+    y: np.ndarray                # (n, C)
+    scene_w: np.ndarray | None   # (n,)
+    gain: int | None             # index of its gain parameter
+    robust_w: np.ndarray | None = None
+
+    @property
+    def weights(self) -> np.ndarray | None:
+        if self.robust_w is None:
+            return self.scene_w
+        return self.robust_w if self.scene_w is None else self.scene_w * self.robust_w
+
+
+def field_views(result, problem, params, x0: np.ndarray, options: FieldOptions
+                ) -> tuple[list[_View], list, np.ndarray]:
+    """The views of the fit over ``(ρ, h)``, the gain parameters and the extended start.
+
+    Returns ``(views, gain_parameters, x0)``: one :class:`_View` per camera; a
+    :class:`~framework.scene.model.Parameter` per gain (``segment`` -1 - j, kernel ``gain``,
+    ``segment_name`` ``exposure:<view>``); ``x0`` with each view's gain guess
+    (:func:`gain_guess` at ``x0``, over ``GAIN_MAX``) appended.
+    """
+    from framework.scene.model import Parameter
+    from methods.symbolic.basis import MonomialBasis
+    P, N, C = len(params), problem.settings.max_bounces, problem.n_channels
+    gained = [c.name for c in problem.cameras if options.reference is not None and c.name != options.reference]
+    gains = [Parameter(P + j, -1 - j, f"exposure:{name}", "gain") for j, name in enumerate(gained)]
+    base = MonomialBasis(P, N, result.system.codes)
+    mu0 = np.stack([base.evaluate(x0[:, c]) for c in range(C)])
+    views, h0 = [], []
+    for cam in problem.cameras:
+        coeffs = result.view(cam.name)[1]
+        y = np.asarray(problem.observed[cam.name], np.float64).reshape(-1, C)
+        w = options.weights.get(cam.name) if options.weights is not None else None
+        gain = P + gained.index(cam.name) if cam.name in gained else None
+        if gain is not None:
+            h0.append(gain_guess(coeffs, y, w, mu0, result.system.codes) / GAIN_MAX)
+        if gained:
+            coeffs = with_gain(coeffs, n_params=P, max_degree=N, n_total=P + len(gained), gain=gain)
+        views.append(_View(cam.name, (cam.height, cam.width), coeffs, y, w, gain))
+    return views, gains, np.vstack([x0] + [h[None] for h in h0]) if h0 else x0
+
+
+def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, solve) -> dict:
+    """Fit ρ (and the gains) to the weighted pixels, reweighting them (IRLS) from the stored
+    coefficients; the module docstring gives the model.
+
+    ``solve(system, basis, parameters, x0, problem, views=, groups=)`` is the method's solve
+    (nlopt and the sandwich std). Returns its dict restricted to ρ's ``P`` rows, plus
+    ``exposure`` (contract list or None), ``pixel_weights`` (view -> (H, W) weights of the last
+    solve), ``images`` (a function giving the reconstructions), ``iterates`` (every round's),
+    ``irls_rounds``, ``irls_stopped``, ``n_monomials`` and ``gram_nnz``.
+    """
+    from functools import reduce
+
+    from methods._common import segment_groups
+    from methods.symbolic.basis import MonomialBasis
+    P, C = len(params), problem.n_channels
+    views, gains, x = field_views(result, problem, params, x0, options)
+    every = list(params) + gains
+    degree = problem.settings.max_bounces + (1 if gains else 0)
+    iterates, stopped, fit = [], "single solve", None
+    for round_ in range(options.iterations):
+        system = reduce(lambda a, b: a + b, (weighted_system(v.coeffs, v.y, v.weights) for v in views))
+        basis = MonomialBasis(len(every), degree, system.codes)
+        used = [v.weights for v in views]
+        fit = solve(system, basis, every, x, problem, groups=segment_groups(params),
+                    views=lambda: ((v.coeffs, v.y, w) for v, w in zip(views, used)))
+        iterates += fit["iterates"]
+        moved = np.nanmax(np.abs(fit["estimate"] - x)) if np.isfinite(fit["estimate"]).any() else 0.0
+        x = np.where(np.isnan(fit["estimate"]), x, fit["estimate"])
+        if options.robust == "none":
+            break
+        if round_ and moved < options.tol:
+            stopped = f"converged (moved {moved:.2g} < {options.tol:g})"
+            break
+        stopped = f"{options.iterations} rounds"
+        mu = np.stack([basis.evaluate(x[:, c]) for c in range(C)])
+        for v, w in zip(views, used):
+            keep = np.ones(len(v.y), bool) if v.scene_w is None else v.scene_w > 0
+            v.robust_w = robust_weights(predicted(v.coeffs, mu, system.codes) - v.y, keep, loss=options.robust,
+                                        floor=options.floors.get(v.name, 0.0))
+    return _field_outputs(fit, views, used, basis, system, gains, P, C, round_ + 1, stopped, iterates)
+
+
+def _field_outputs(fit, views, used, basis, system, gains, P, C, rounds, stopped, iterates) -> dict:
+    """The method's fit dict from the extended solve (see :func:`fit_field`)."""
+    est, std = fit["estimate"], fit["std"]
+    exposure = None
+    if gains:
+        names = {p.index: p.segment_name.removeprefix("exposure:") for p in gains}
+        exposure = [{"view": v.name, "reference": v.gain is None,
+                     "estimate": [1.0] * C if v.gain is None else _row(GAIN_MAX * est[v.gain]),
+                     "std": None if v.gain is None else _row(GAIN_MAX * std[v.gain])}
+                    for v in views if v.gain is None or v.gain in names]
+    mu = np.stack([basis.evaluate(np.nan_to_num(est[:, c])) for c in range(C)])
+    out = dict(fit)
+    out.update(estimate=est[:P], std=std[:P], observable=fit["observable"][:P], exposure=exposure,
+               iterates=[(at, x[:P]) for at, x in iterates], irls_rounds=rounds, irls_stopped=stopped,
+               n_monomials=basis.size, gram_nnz=system.nnz,
+               pixel_weights={v.name: (np.ones(len(v.y)) if w is None else w).reshape(v.shape).astype(np.float32)
+                              for v, w in zip(views, used)},
+               images=lambda: {v.name: predicted(v.coeffs, mu, system.codes).reshape(*v.shape, C).astype(np.float32)
+                               for v in views})
+    return out
+
+
+def _row(values: np.ndarray) -> list | None:
+    """One number per channel, None for NaN entries; None when all are NaN."""
+    values = np.asarray(values, float)
+    if np.isnan(values).all():
+        return None
+    return [None if np.isnan(v) else float(v) for v in values]
