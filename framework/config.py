@@ -147,6 +147,16 @@ class ObserveSettings:
                    noise=_noise(obs.get("noise", 0.0)), seed=_integer("observe.seed", obs.get("seed", 0), 0))
 
 
+def _tail_bounces(cfg: DictConfig) -> int:
+    """``render.tail_bounces``: an integer in [0, 16], or ``auto`` for the method's own
+    ``method.tail_bounces`` (0 when the method has none)."""
+    value = cfg.render.get("tail_bounces", "auto")
+    if str(value) == "auto":
+        method = cfg.get("method") or {}
+        return _integer("method.tail_bounces", method.get("tail_bounces", 0), 0, 16)
+    return _integer("render.tail_bounces", value, 0, 16)
+
+
 @dataclass(frozen=True)
 class RunSettings:
     """The run-wide settings every method reads, checked once.
@@ -158,7 +168,8 @@ class RunSettings:
     max_bounces : int
         ``render.max_bounces``: N_max, reflections per path (Mitsuba ``max_depth = N_max + 1``).
     tail_bounces : int
-        ``render.tail_bounces``: reflections traced beyond N_max (0 is the paper's truncation).
+        ``render.tail_bounces``: reflections traced beyond N_max (0 is the paper's truncation);
+        ``auto`` (the default) takes the method's ``method.tail_bounces``.
     seed : int
         ``seed``: the run's seed; its renders use even Mitsuba seeds derived from it.
     budget_renders : int
@@ -188,7 +199,7 @@ class RunSettings:
         """The checked settings of a composed configuration; ConfigError names the first bad key."""
         return cls(spp=_integer("render.spp", cfg.render.spp, 1, SPP_MAX, _SPP_WHY),
                    max_bounces=_integer("render.max_bounces", cfg.render.max_bounces, 1, 8),
-                   tail_bounces=_integer("render.tail_bounces", cfg.render.get("tail_bounces", 0), 0, 16),
+                   tail_bounces=_tail_bounces(cfg),
                    seed=_integer("seed", cfg.seed, 0),
                    budget_renders=_integer("budget.renders", cfg.budget.renders, 1),
                    variant=variant or _variant(cfg.variant),

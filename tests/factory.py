@@ -187,3 +187,98 @@ def run_street_cli(tmp_path, folder, *overrides) -> dict:
                           timeout=300, env=dict(os.environ, HYDRA_FULL_ERROR="0"))
     assert proc.returncode == 0, proc.stderr[-2000:]
     return json.loads((tmp_path / "run" / "results.json").read_text())
+
+
+# ------------------------------------------------------------------------------------------------
+# Field photographs: distorted cameras, 8/16-bit files, masks
+# ------------------------------------------------------------------------------------------------
+#: distortion coefficients of the delivered cameras the field tests use (moderate barrel / pincushion)
+FIELD_MODELS = {
+    "SIMPLE_RADIAL": (-0.08,),
+    "RADIAL": (-0.06, 0.01),
+    "OPENCV": (-0.05, 0.008, 0.001, -0.002),
+}
+
+
+def distorted(camera, model: str, coefficients=None, *, fx: float | None = None, fy: float | None = None):
+    """The view ``camera`` (a pinhole :class:`Camera`) as photographed by a COLMAP ``model`` camera
+    of the same pose, size and principal point, focal lengths ``fx``, ``fy`` (default ``camera.f``;
+    SIMPLE_RADIAL and RADIAL have one, ``fx``) and distortion ``coefficients`` (default
+    :data:`FIELD_MODELS`): the Camera the loader builds from it (pinhole f = max(fx, fy))."""
+    from dataclasses import replace
+    fx = camera.f if fx is None else fx
+    fy = fx if fy is None or model in ("SIMPLE_RADIAL", "RADIAL", "SIMPLE_PINHOLE") else fy
+    coefficients = FIELD_MODELS.get(model, ()) if coefficients is None else tuple(coefficients)
+    focal = (fx,) if model in ("SIMPLE_RADIAL", "RADIAL", "SIMPLE_PINHOLE") else (fx, fy)
+    params = tuple(float(x) for x in (*focal, camera.cx, camera.cy, *coefficients))
+    return replace(camera, f=max(fx, fy), distortion=(model, params))
+
+
+def write_field_colmap(sparse_dir: Path, cameras) -> Path:
+    """A text COLMAP model of ``cameras`` with each view's delivered camera (``Camera.delivered``:
+    its distorted model where it has one), camera and image ids 1..n."""
+    import pycolmap
+    rec = pycolmap.Reconstruction()
+    for i, cam in enumerate(cameras, start=1):
+        colmap_camera = cam.delivered()
+        colmap_camera.camera_id = i
+        rec.add_camera_with_trivial_rig(colmap_camera)
+        pose = pycolmap.Rigid3d(pycolmap.Rotation3d(np.asarray(cam.cam_from_world[:, :3], float)),
+                                np.asarray(cam.cam_from_world[:, 3], float))
+        rec.add_image_with_trivial_frame(pycolmap.Image(name=cam.name, camera_id=i, image_id=i), pose)
+    Path(sparse_dir).mkdir(parents=True, exist_ok=True)
+    rec.write_text(str(sparse_dir))
+    return Path(sparse_dir)
+
+
+def make_field_scene(root: Path, models=("OPENCV",), *, size: int = 16, names=None, **tiny) -> Path:
+    """:func:`make_tiny_scene` with one view per entry of ``models`` (a COLMAP model name, or
+    (name, kwargs of :func:`distorted`)) photographed by that camera, named ``names`` (default
+    ``view_<i>.png``). No images/ yet."""
+    from framework.scene import load_scene
+    root = make_tiny_scene(root, size=size, n_views=len(models), **tiny)
+    cams = load_scene(root).cameras
+    out = []
+    for i, (cam, entry) in enumerate(zip(cams, models)):
+        model, kwargs = (entry, {}) if isinstance(entry, str) else entry
+        named = cam if names is None else _renamed(cam, names[i])
+        out.append(distorted(named, model, **kwargs))
+    import shutil
+    shutil.rmtree(root / "sparse")
+    write_field_colmap(root / "sparse", out)
+    return root
+
+
+def _renamed(camera, name: str):
+    from dataclasses import replace
+    return replace(camera, name=name)
+
+
+def write_png16(path: Path, codes: np.ndarray) -> Path:
+    """Write ``(H, W)``, ``(H, W, 1)``, ``(H, W, 3)`` or ``(H, W, 4)`` 16-bit codes as a PNG (Pillow
+    writes 16 bits only for grey): IHDR, one zlib IDAT of unfiltered rows, IEND."""
+    import struct
+    import zlib
+    a = np.asarray(codes)
+    a = a[..., None] if a.ndim == 2 else a
+    h, w, c = a.shape
+    colour_type = {1: 0, 2: 4, 3: 2, 4: 6}[c]
+    rows = b"".join(b"\0" + np.ascontiguousarray(a[y], ">u2").tobytes() for y in range(h))
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Path(path).write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, colour_type, 0, 0, 0))
+                           + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b""))
+    return Path(path)
+
+
+def write_png8(path: Path, codes: np.ndarray, *, fmt: str = "PNG", **save) -> Path:
+    """Write ``(H, W)`` or ``(H, W, C)`` 8-bit codes with Pillow (``fmt`` PNG or JPEG)."""
+    from PIL import Image
+    a = np.asarray(codes, np.uint8)
+    a = a[..., 0] if a.ndim == 3 and a.shape[2] == 1 else a
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(np.ascontiguousarray(a)).save(path, format=fmt, **save)
+    return Path(path)

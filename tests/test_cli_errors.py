@@ -44,7 +44,7 @@ SETTING_ERRORS = [
     ("method.kernels=[nonsense]", "method.kernels has unknown kernel(s) nonsense: use all, or a list of the "
                                   "registered kernels (diffuse, specular)"),
     ("method=nonsense", "method=nonsense is not a method; choose one of: differentiable, iterative, "
-                        "lambertian_prior, symbolic"),
+                        "lambertian_prior, symbolic, symbolic_paper"),
     ("executor=nonsense", "executor=nonsense is not an executor; choose one of: dask, serial"),
     ("scene=nonsense", "scene=nonsense is not a bundled scene; choose one of: "),
     ("foo=1", "Could not override 'foo'. To append to your config use +foo=1 (docs/cli.md lists the keys)"),

@@ -93,10 +93,12 @@ def test_blind_view_errors(tiny_scene, caplog):
 
 def test_blind_view_without_sky_still_inverts(tiny_scene):
     """Under a sun alone, a view facing away gets no event at all: the check only warns, so the
-    pass must accept an empty tile (``EventBuffer.compact`` returns no event)."""
+    pass must accept an empty tile (``EventBuffer.compact`` returns no event). One pass: under
+    the sun alone the block's mirror weight is seen through a handful of paths, and a refinement
+    pass may see none of them (then it is reported unobservable, NaN)."""
     _emitters(tiny_scene, [SUN])
     _views(tiny_scene, [CENTRE, AWAY[1]])
-    assert np.isfinite(run_symbolic(make_problem(tiny_scene)).estimate).all()
+    assert np.isfinite(run_symbolic(make_problem(tiny_scene), refine=0).estimate).all()
 
 
 def test_camera_pose_errors(tiny_scene):

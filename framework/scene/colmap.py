@@ -12,6 +12,12 @@ dropped. Without those files every pose comes from ``images.txt``. The loader ke
 choice, records the file (:attr:`ColmapModel.pose_source`, then ``Scene.pose_source``) and
 refuses a text model whose ``images.txt`` disagrees with its frames, since an edit of
 ``images.txt`` alone would otherwise be ignored without a word.
+
+Cameras: ``SIMPLE_PINHOLE`` and ``PINHOLE`` with fx == fy are used as they are; ``PINHOLE``
+with fx != fy and the distorted ``SIMPLE_RADIAL``, ``RADIAL`` and ``OPENCV`` become the pinhole
+camera :func:`framework.scene.undistort.pinhole_for` (same size and principal point,
+f = max(fx, fy)), the delivered camera kept in :attr:`Camera.distortion` for the loader to
+resample the photographs (:mod:`framework.scene.photos`). Fisheye and other models are refused.
 """
 from __future__ import annotations
 
@@ -24,10 +30,19 @@ import numpy as np
 from framework.errors import SceneError
 from framework.scene.model import Camera
 from framework.scene.schema import one_line
+from framework.scene.undistort import DISTORTED_MODELS, PINHOLE_MODELS, pinhole_for
 
 log = logging.getLogger(__name__)
 
-PINHOLE_PARAMS = {"SIMPLE_PINHOLE": ("f", "cx", "cy"), "PINHOLE": ("fx", "fy", "cx", "cy")}
+MODEL_PARAMS = {"SIMPLE_PINHOLE": ("f", "cx", "cy"), "PINHOLE": ("fx", "fy", "cx", "cy"),
+                "SIMPLE_RADIAL": ("f", "cx", "cy", "k"), "RADIAL": ("f", "cx", "cy", "k1", "k2"),
+                "OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")}
+ACCEPTED_MODELS = PINHOLE_MODELS + DISTORTED_MODELS
+#: COLMAP models with a fisheye (non-perspective) projection
+FISHEYE_MODELS = ("SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE", "OPENCV_FISHEYE", "THIN_PRISM_FISHEYE",
+                  "RAD_TAN_THIN_PRISM_FISHEYE", "SIMPLE_FISHEYE", "FISHEYE", "FOV", "EUCM")
+#: relative difference of fx and fy below which a PINHOLE camera has square pixels
+SQUARE_TOLERANCE = 1e-6
 CORE = ("cameras", "images", "points3D")
 RIG = ("rigs", "frames")
 # Relative agreement of an images.txt pose with its frame: text models hold 17 digits, so
@@ -118,25 +133,39 @@ def _reconstruction(sparse: Path):
 
 
 def _camera(rec, image, cameras_file: Path) -> Camera:
-    """The pinhole :class:`Camera` of ``image``, checked."""
+    """The pinhole :class:`Camera` of ``image``, checked, with the delivered camera where it
+    differs (:attr:`Camera.distortion`)."""
     c = rec.cameras[image.camera_id]
+    model = c.model.name
     what = f"{cameras_file}: camera {image.camera_id} (of image {image.name})"
-    if c.model.name not in PINHOLE_PARAMS:
-        raise SceneError(f"{what} is {c.model.name}; undistort the images to a PINHOLE camera "
-                         "(colmap image_undistorter)")
+    if model not in ACCEPTED_MODELS:
+        kind = "a fisheye model" if model in FISHEYE_MODELS else "a model the loader does not resample"
+        raise SceneError(f"{what} is {model}, {kind}; undistort the images to a pinhole camera (colmap "
+                         "image_undistorter) or use SIMPLE_RADIAL, RADIAL or OPENCV")
     if c.width <= 0 or c.height <= 0:
         raise SceneError(f"{what} is {c.width}x{c.height} pixels; give its WIDTH and HEIGHT (> 0)")
     fx, fy = c.focal_length_x, c.focal_length_y
     if not (np.isfinite([fx, fy]).all() and fx > 0 and fy > 0):
         raise SceneError(f"{what} has focal length {fx:g}, {fy:g}; focal lengths are > 0 pixels "
                          "(flip a mirrored image instead)")
-    if abs(fx - fy) > 1e-6 * fx:
-        raise SceneError(f"{what} has fx={fx} != fy={fy}; resample the images to square pixels")
+    params = tuple(float(x) for x in c.params)
+    if not np.isfinite(params).all():
+        raise SceneError(f"{what} has NaN/Inf parameters ({' '.join(f'{x:g}' for x in params)}); fix them")
     T = np.asarray(image.cam_from_world().matrix(), dtype=float)
     if not np.isfinite(T).all():
         raise SceneError(f"{cameras_file.parent}: image {image.name} has a NaN/Inf pose; fix its pose")
-    return Camera(image.name, int(c.width), int(c.height), float(fx),
-                  float(c.principal_point_x), float(c.principal_point_y), T)
+    cx, cy = float(c.principal_point_x), float(c.principal_point_y)
+    square = abs(fx - fy) <= SQUARE_TOLERANCE * fx
+    coefficients = params[len(MODEL_PARAMS[model]) - len(_distortion_names(model)):]
+    if square and not any(coefficients):
+        return Camera(image.name, int(c.width), int(c.height), float(fx), cx, cy, T)
+    f = float(pinhole_for(c).focal_length_x)
+    return Camera(image.name, int(c.width), int(c.height), f, cx, cy, T, distortion=(model, params))
+
+
+def _distortion_names(model: str) -> tuple[str, ...]:
+    """The distortion coefficients among the parameters of an accepted model."""
+    return tuple(n for n in MODEL_PARAMS[model] if n not in ("f", "fx", "fy", "cx", "cy"))
 
 
 def _check_names(names: list[str], images_file: Path) -> None:
@@ -185,7 +214,10 @@ def _camera_ids(path: Path) -> dict[int, int]:
     for n, f in _data_lines(path):
         if len(f) < 4 or not all(_reads_as(int, x) for x in (f[0], f[2], f[3])):
             raise SceneError(f"{path}: line {n} is not 'CAMERA_ID MODEL WIDTH HEIGHT PARAMS...'; fix it")
-        cid, expected = int(f[0]), PINHOLE_PARAMS.get(f[1])
+        cid, expected = int(f[0]), _model_params(f[1])
+        if expected is None:
+            raise SceneError(f"{path}: line {n}: camera model '{f[1]}' is not a COLMAP model; use "
+                             f"{', '.join(ACCEPTED_MODELS)}")
         if cid in ids:
             raise SceneError(f"{path}: line {n}: camera {cid} is already defined on line {ids[cid]}; "
                              "give each camera its own CAMERA_ID")
@@ -194,6 +226,17 @@ def _camera_ids(path: Path) -> dict[int, int]:
                              f"({' '.join(expected)}), this line {len(f) - 4}; fix the line")
         ids[cid] = n
     return ids
+
+
+def _model_params(model: str) -> tuple[str, ...] | None:
+    """The parameter names of a COLMAP camera model (pycolmap's list for models the loader refuses
+    later, with the image that uses them), None for a name COLMAP does not know."""
+    if model in MODEL_PARAMS:
+        return MODEL_PARAMS[model]
+    import pycolmap
+    if model not in pycolmap.CameraModelId.__members__ or model == "INVALID":
+        return None
+    return tuple(pycolmap.Camera(model=model).params_info.split(", "))
 
 
 def _image_lines(path: Path) -> dict[int, _ImageLine]:

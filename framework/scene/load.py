@@ -4,7 +4,8 @@
 :class:`~framework.scene.model.Scene`. It checks ``scene.yaml`` completely first
 (:mod:`framework.scene.schema`), before it opens anything heavy; then it reads the Open3D
 meshes, the environment maps, the COLMAP model (:mod:`framework.scene.colmap`) and the observed
-EXR images. Every problem raises :class:`~framework.errors.SceneError` with one line naming the
+images as delivered (:mod:`framework.scene.photos`: EXR, PNG, JPEG, masks, undistortion onto
+the pinhole cameras). Every problem raises :class:`~framework.errors.SceneError` with one line naming the
 file and the fix; nothing in the folder is ever written.
 """
 from __future__ import annotations
@@ -15,7 +16,7 @@ import sys
 import tempfile
 import threading
 from contextlib import contextmanager
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 from typing import Iterator
 
 import numpy as np
@@ -24,7 +25,10 @@ from framework.errors import SceneError
 from framework.scene.colmap import read_model
 from framework.scene.exr import read_exr_checked
 from framework.scene.model import Emitter, Mesh, Scene
+from framework.scene.photos import image_file, read_photos
 from framework.scene.schema import EmitterSpec, SceneSpec, one_line, read_scene_yaml
+
+__all__ = ["image_file", "load_scene"]     # image_file: where a view's observed image is read
 
 # One redirection of the process's stderr at a time: two threads interleaving their dup2 calls
 # would leave stderr pointing at a deleted temporary file.
@@ -56,15 +60,28 @@ def load_scene(directory: str | os.PathLike) -> Scene:
     _check_surfaces(spec, meshes)
     emitters = tuple(_emitter(root, e, spec.channels) for e in spec.emitters)
     model = read_model(root)
-    images = _images(root, model.cameras, spec.channels)
-    if images is None and not all(s.reference is not None and set(s.reference) == set(s.kernels)
+    _check_reference_view(spec, model)
+    photos = read_photos(root, model.cameras, spec.channels, spec.photometry)
+    if photos is None and not all(s.reference is not None and set(s.reference) == set(s.kernels)
                                   for s in spec.segments):
         raise SceneError(f"{root}: no images/ folder and not every segment has a reference for each "
-                         "kernel; add images/<view>.exr or references to scene.yaml")
-    inputs = _inputs(root, spec, meshes, model.files, model.cameras if images is not None else ())
+                         "kernel; add images/<view> (.exr, .png or .jpg) or references to scene.yaml")
+    inputs = _inputs(root, spec, meshes, model.files, photos.files if photos is not None else ())
     return Scene(name=spec.name or root.name, root=root, channels=spec.channels,
                  segments=spec.segments, meshes=meshes, emitters=emitters, cameras=model.cameras,
-                 images=images, content_hash=_content_hash(inputs), pose_source=model.pose_source)
+                 images=None if photos is None else photos.images, content_hash=_content_hash(inputs),
+                 pose_source=model.pose_source, weights=None if photos is None else photos.weights,
+                 noise=None if photos is None else photos.noise, photometry=spec.photometry)
+
+
+def _check_reference_view(spec: SceneSpec, model) -> None:
+    """``photometry: reference_view`` names an image of the COLMAP model."""
+    view = spec.photometry.reference_view
+    names = [c.name for c in model.cameras]
+    if view is not None and view not in names:
+        shown = ", ".join(names[:8]) + (f", ... ({len(names)} images)" if len(names) > 8 else "")
+        raise SceneError(f"{spec.path}: photometry reference_view '{view}' is not an image of "
+                         f"{model.files['images']}; name one of: {shown}")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -162,40 +179,18 @@ def _emitter(root: Path, e: EmitterSpec, channels: tuple[str, ...]) -> Emitter:
 
 
 # ----------------------------------------------------------------------------------------------
-# Observed images and the content hash
+# The content hash
 # ----------------------------------------------------------------------------------------------
 
-def image_file(root: Path, camera_name: str) -> Path:
-    """The observed EXR of a COLMAP image: its name with the extension replaced by ``.exr``,
-    under ``images/`` (``street_003.png`` -> ``images/street_003.exr``,
-    ``left/top_000.png`` -> ``images/left/top_000.exr``)."""
-    return root / "images" / PurePosixPath(camera_name).with_suffix(".exr")
-
-
-def _images(root: Path, cameras, channels) -> dict[str, np.ndarray] | None:
-    if not (root / "images").is_dir():
-        return None
-    owner: dict[Path, str] = {}
-    for c in cameras:
-        path = image_file(root, c.name)
-        if path in owner:
-            raise SceneError(f"{path}: the images {owner[path]} and {c.name} would both read it; rename "
-                             "one in the COLMAP model so their names differ beyond the extension")
-        owner[path] = c.name
-    return {c.name: read_exr_checked(image_file(root, c.name), channels=channels,
-                                     size=(c.height, c.width)) for c in cameras}
-
-
-def _inputs(root: Path, spec: SceneSpec, meshes, model_files: dict[str, Path], cameras) -> dict[str, Path]:
+def _inputs(root: Path, spec: SceneSpec, meshes, model_files: dict[str, Path], photos) -> dict[str, Path]:
     """Every file the loader read, by its name in the scene (as scene.yaml writes it, or relative
-    to the folder): the scene description, meshes, environment maps, COLMAP files and, when
-    ``cameras`` is not empty, their observed images."""
+    to the folder): the scene description, meshes, environment maps, COLMAP files and the
+    observed images and masks (``photos``, the files read)."""
     inputs = {"scene.yaml": spec.path}
     inputs.update({m.path: root / m.path for m in meshes})
     inputs.update({e.file: root / e.file for e in spec.emitters if e.type == "envmap"})
     inputs.update({path.relative_to(root).as_posix(): path for path in model_files.values()})
-    inputs.update({image_file(root, c.name).relative_to(root).as_posix(): image_file(root, c.name)
-                   for c in cameras})
+    inputs.update({path.relative_to(root).as_posix(): path for path in photos})
     return inputs
 
 

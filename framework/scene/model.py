@@ -65,7 +65,13 @@ class Emitter:
 
 @dataclass(frozen=True)
 class Camera:
-    """A pinhole camera of the COLMAP model: ``cam_from_world`` (3, 4), x right, y down, z forward."""
+    """A pinhole camera of the COLMAP model: ``cam_from_world`` (3, 4), x right, y down, z forward.
+
+    This is the camera the renderer uses: square pixels, focal length ``f``. Where the
+    photographs came from another camera of the same pose (a distorted COLMAP model, or
+    ``fx != fy``), ``distortion`` records that delivered camera and the loader has resampled
+    the photographs onto this one (:mod:`framework.scene.undistort`).
+    """
 
     name: str
     width: int
@@ -74,12 +80,42 @@ class Camera:
     cx: float
     cy: float
     cam_from_world: np.ndarray
+    #: the camera that took the photographs, where it is not this pinhole: (COLMAP model name,
+    #: its parameters in COLMAP's order), e.g. ``("OPENCV", (fx, fy, cx, cy, k1, k2, p1, p2))``;
+    #: None for a pinhole camera with fx == fy (the photographs are used as they are)
+    distortion: tuple[str, tuple[float, ...]] | None = None
 
     def project(self, points: np.ndarray) -> np.ndarray:
         """Pixel coordinates (x right, y down, pixel centres at .5) of world points (N, 3)."""
         pc = points @ self.cam_from_world[:, :3].T + self.cam_from_world[:, 3]
         return np.stack([self.f * pc[:, 0] / pc[:, 2] + self.cx,
                          self.f * pc[:, 1] / pc[:, 2] + self.cy], axis=1)
+
+    def pinhole(self):
+        """This camera as a ``pycolmap.Camera`` (``PINHOLE``, fx = fy = f)."""
+        import pycolmap
+        return pycolmap.Camera(model="PINHOLE", width=int(self.width), height=int(self.height),
+                               params=[self.f, self.f, self.cx, self.cy])
+
+    def delivered(self):
+        """The camera that took the photographs, as a ``pycolmap.Camera``: ``distortion``'s
+        model and parameters, or :meth:`pinhole` where ``distortion`` is None."""
+        if self.distortion is None:
+            return self.pinhole()
+        import pycolmap
+        model, params = self.distortion
+        return pycolmap.Camera(model=model, width=int(self.width), height=int(self.height),
+                               params=[float(x) for x in params])
+
+
+@dataclass(frozen=True)
+class Photometry:
+    """How the photographs encode radiance (scene.yaml ``photometry``, ``docs/scene-format.md``)."""
+
+    encoding: str | None = None          # "linear" | "srgb" as declared; None: by file type
+    exposure: str = "known"              # "known": pixel = radiance; "per_view": one gain per view, channel
+    reference_view: str | None = None    # with "per_view": the view whose gains are 1
+    saturation: float | None = None      # as declared; None: 0.99 for 8/16-bit files, none for EXR
 
 
 @dataclass(frozen=True)
@@ -91,12 +127,19 @@ class Scene:
     meshes: tuple[Mesh, ...]
     emitters: tuple[Emitter, ...]
     cameras: tuple[Camera, ...]               # sorted by name
-    images: dict[str, np.ndarray] | None      # camera name -> (H, W, C); None: synthesise
+    images: dict[str, np.ndarray] | None      # camera name -> (H, W, C) linear; None: synthesise
     content_hash: str = field(default="", compare=False)   # of every file read (load._content_hash)
     #: the COLMAP file the camera poses came from, relative to ``root``: ``sparse/frames.txt``
     #: when the model has rigs and frames (pycolmap then ignores the poses of images.txt),
     #: ``sparse/images.txt`` otherwise (or their ``.bin`` twins)
     pose_source: str = field(default="", compare=False)
+    #: view -> (H, W) float32: 1 = use the pixel, 0 = ignore it (masked, saturated, black-clipped,
+    #: outside the delivered image after undistortion); None when every pixel of every view is usable
+    weights: dict[str, np.ndarray] | None = field(default=None, compare=False)
+    #: view -> (H, W, C) float32: the standard deviation of the quantisation of the delivered
+    #: 8/16-bit encoding, in linear units (0 for an EXR view); None when no view is integer-coded
+    noise: dict[str, np.ndarray] | None = field(default=None, compare=False)
+    photometry: Photometry = field(default_factory=Photometry)
 
     def parameters(self, *, kernels: tuple[str, ...] | None = None):
         """The unknowns (segment, kernel) in segment order; ``kernels`` restricts the kernel set."""

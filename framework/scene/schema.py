@@ -8,7 +8,7 @@ or COLMAP file, and returns a :class:`SceneSpec` of checked values. Every proble
 from __future__ import annotations
 
 import difflib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -16,10 +16,10 @@ import yaml
 
 from framework import kernels as kernel_registry
 from framework.errors import SceneError
-from framework.scene.model import CHANNELS, Segment
+from framework.scene.model import CHANNELS, Photometry, Segment
 
 # The keys of each mapping, in the order the docs list them: True for a required key.
-TOP_KEYS = {"name": False, "channels": False, "segments": True, "emitters": True}
+TOP_KEYS = {"name": False, "channels": False, "segments": True, "emitters": True, "photometry": False}
 SEGMENT_KEYS = {"name": True, "meshes": True, "kernels": False, "reference": False}
 EMITTER_KEYS = {
     "constant": {"type": True, "radiance": True},
@@ -28,6 +28,9 @@ EMITTER_KEYS = {
     "area": {"type": True, "meshes": True, "radiance": True},
 }
 EMITTER_TYPES = tuple(EMITTER_KEYS)
+PHOTOMETRY_KEYS = {"encoding": False, "exposure": False, "reference_view": False, "saturation": False}
+ENCODINGS = {"linear": "pixel values are radiance", "srgb": "8/16-bit camera output, decoded to linear"}
+EXPOSURES = {"known": "pixel = radiance", "per_view": "one unknown gain per view and channel"}
 DEFAULT_KERNELS = ("diffuse",)
 # Σ ρ ≤ 1 up to the rounding of the 7 decimals scene.yaml is written with
 SUM_TOLERANCE = 1e-9
@@ -55,6 +58,7 @@ class SceneSpec:
     channels: tuple[str, ...]
     segments: tuple[Segment, ...]
     emitters: tuple[EmitterSpec, ...]
+    photometry: Photometry = field(default_factory=Photometry)
 
 
 def one_line(text: object, limit: int = 160) -> str:
@@ -105,7 +109,8 @@ def read_scene_yaml(root: Path) -> SceneSpec:
     if not emitters:
         raise SceneError(f"{path}: no emitters; the illumination must be known: list at least one")
     name = _text(desc["name"], f"{path}: name") if "name" in desc else None
-    return SceneSpec(path, name, channels, segments, emitters)
+    photometry = _photometry(desc["photometry"], f"{path}: photometry") if "photometry" in desc else Photometry()
+    return SceneSpec(path, name, channels, segments, emitters, photometry)
 
 
 class _StrictLoader(yaml.SafeLoader):
@@ -220,6 +225,33 @@ def _emitter(e: object, i: int, path: Path, channels: tuple[str, ...]) -> Emitte
                        radiance=spectrum("radiance"))
 
 
+def _photometry(value: object, where: str) -> Photometry:
+    """The ``photometry`` mapping: how the photographs encode radiance."""
+    p = _mapping(value, PHOTOMETRY_KEYS, where)
+    encoding = p.get("encoding")
+    if "encoding" in p and encoding not in ENCODINGS:
+        raise SceneError(f"{where} encoding {_quoted(encoding)} unknown; use "
+                         + " or ".join(f"{k} ({v})" for k, v in ENCODINGS.items()))
+    exposure = p.get("exposure", "known")
+    if exposure not in EXPOSURES:
+        raise SceneError(f"{where} exposure {_quoted(exposure)} unknown; use "
+                         + " or ".join(f"{k} ({v})" for k, v in EXPOSURES.items()))
+    reference = _text(p["reference_view"], f"{where} reference_view") if "reference_view" in p else None
+    if exposure == "per_view" and reference is None:
+        raise SceneError(f"{where} exposure per_view needs reference_view: add reference_view: <an image "
+                         "name of images.txt>, the view whose gains are 1 (they fix the scale)")
+    if exposure == "known" and reference is not None:
+        raise SceneError(f"{where} reference_view is used only with exposure: per_view; add exposure: "
+                         "per_view, or remove reference_view")
+    saturation = None
+    if "saturation" in p:
+        saturation = _number(p["saturation"], f"{where} saturation", "a number in (0, 1]")
+        if not 0 < saturation <= 1:
+            raise SceneError(f"{where} saturation = {saturation:g} must lie in (0, 1] (a fraction of the "
+                             "largest encoded value, e.g. 0.99; 1 ignores only pixels at the maximum)")
+    return Photometry(encoding=encoding, exposure=exposure, reference_view=reference, saturation=saturation)
+
+
 def _unique_names(segments: tuple[Segment, ...], path: Path) -> None:
     first: dict[str, int] = {}
     for i, seg in enumerate(segments):
@@ -315,6 +347,11 @@ def _direction(value: object, where: str) -> np.ndarray:
     if d.shape != (3,) or not np.isfinite(d).all() or np.linalg.norm(d) == 0:
         raise SceneError(f"{where} must be {what}; got {_shown(value)}")
     return d / np.linalg.norm(d)
+
+
+def _quoted(value: object) -> str:
+    """A value that should have been one of some names, for a message: 'gamma', or as shown."""
+    return f"'{one_line(value, 60)}'" if isinstance(value, str) else _shown(value)
 
 
 def _shown(value: object) -> str:

@@ -69,26 +69,79 @@ def resample(image: np.ndarray, *, source, target, valid: np.ndarray | None = No
     Returns
     -------
     (resampled, ok)
-        ``resampled``: ``(H_t, W_t[, C])`` float64; ``ok``: ``(H_t, W_t)`` bool, True where all
-        four source pixels of the interpolation lie inside the image and are valid (elsewhere
-        ``resampled`` is 0).
+        ``resampled``: ``(H_t, W_t[, C])`` float64; ``ok``: ``(H_t, W_t)`` bool, True where the
+        point sampled lies between the source's outer pixel centres and every source pixel
+        the interpolation weighs (up to four) is valid (elsewhere ``resampled`` is 0).
     """
-    image = np.asarray(image, dtype=np.float64)
-    flat = image[..., None] if image.ndim == 2 else image
-    hs, ws = flat.shape[:2]
-    valid = np.ones((hs, ws), bool) if valid is None else np.asarray(valid, bool)
-    at = source_pixels(source=source, target=target) - 0.5        # pixel centres at integers
-    x0, y0 = np.floor(at[..., 0]), np.floor(at[..., 1])
-    fx, fy = at[..., 0] - x0, at[..., 1] - y0
-    inside = np.isfinite(x0) & np.isfinite(y0) & (x0 >= 0) & (y0 >= 0) & (x0 <= ws - 2) & (y0 <= hs - 2)
-    xi = np.where(inside, x0, 0).astype(np.int64)
-    yi = np.where(inside, y0, 0).astype(np.int64)
-    fx, fy = np.where(inside, fx, 0.0), np.where(inside, fy, 0.0)
-    out = np.zeros(at.shape[:2] + flat.shape[2:])
-    ok = inside.copy()
-    for dy, dx, weight in ((0, 0, (1 - fx) * (1 - fy)), (0, 1, fx * (1 - fy)),
-                           (1, 0, (1 - fx) * fy), (1, 1, fx * fy)):
-        out += weight[..., None] * flat[yi + dy, xi + dx]
-        ok &= valid[yi + dy, xi + dx]
-    out[~ok] = 0.0
-    return (out[..., 0] if image.ndim == 2 else out), ok
+    return Resampling(source=source, target=target).apply(image, valid=valid)
+
+
+class Resampling:
+    """The bilinear interpolation from ``source``'s pixels to ``target``'s (same pose), computed
+    once and applied to an image, its validity and the standard deviation of its noise.
+
+    A target pixel centre is mapped to a continuous source position (:func:`source_pixels`);
+    positions up to :data:`EDGE` outside the outer pixel centres count as on them (round-off of
+    an identity mapping), fractions within :data:`SNAP` of 0 or 1 as exact, so that a source
+    pixel of weight 0 does not invalidate its neighbour.
+    """
+
+    EDGE = 1e-6
+    SNAP = 1e-9
+
+    def __init__(self, *, source, target):
+        self.shape = (int(source.height), int(source.width))
+        hs, ws = self.shape
+        at = source_pixels(source=source, target=target) - 0.5       # pixel centres at integers
+        x, y = at[..., 0], at[..., 1]
+        with np.errstate(invalid="ignore"):
+            self.inside = (np.isfinite(x) & np.isfinite(y) & (x >= -self.EDGE) & (y >= -self.EDGE)
+                           & (x <= ws - 1 + self.EDGE) & (y <= hs - 1 + self.EDGE))
+        x = np.clip(np.where(self.inside, x, 0.0), 0, ws - 1)
+        y = np.clip(np.where(self.inside, y, 0.0), 0, hs - 1)
+        x0 = np.clip(np.floor(x), 0, max(ws - 2, 0))
+        y0 = np.clip(np.floor(y), 0, max(hs - 2, 0))
+        fx, fy = self._snap(x - x0), self._snap(y - y0)
+        xi, yi = x0.astype(np.int64), y0.astype(np.int64)
+        x1, y1 = np.minimum(xi + 1, ws - 1), np.minimum(yi + 1, hs - 1)
+        #: (row index, column index, weight) of the up to four source pixels of each target pixel
+        self.taps = [(yi, xi, (1 - fx) * (1 - fy)), (yi, x1, fx * (1 - fy)),
+                     (y1, xi, (1 - fx) * fy), (y1, x1, fx * fy)]
+
+    @classmethod
+    def _snap(cls, frac: np.ndarray) -> np.ndarray:
+        return np.where(frac < cls.SNAP, 0.0, np.where(frac > 1 - cls.SNAP, 1.0, frac))
+
+    def ok(self, valid: np.ndarray | None = None) -> np.ndarray:
+        """``(H_t, W_t)`` bool: inside, and every source pixel of non-zero weight valid."""
+        ok = self.inside.copy()
+        if valid is not None:
+            valid = np.asarray(valid, bool)
+            for yi, xi, w in self.taps:
+                ok &= valid[yi, xi] | (w == 0)
+        return ok
+
+    def apply(self, image: np.ndarray, *, valid: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(resampled, ok)`` as :func:`resample` returns them."""
+        image = np.asarray(image, dtype=np.float64)
+        flat = image[..., None] if image.ndim == 2 else image
+        if flat.shape[:2] != self.shape:
+            raise ValueError(f"image is {flat.shape[1]}x{flat.shape[0]}, its camera {self.shape[1]}x{self.shape[0]}")
+        out = np.zeros(self.inside.shape + flat.shape[2:])
+        for yi, xi, w in self.taps:
+            out += w[..., None] * flat[yi, xi]
+        ok = self.ok(valid)
+        out[~ok] = 0.0
+        return (out[..., 0] if image.ndim == 2 else out), ok
+
+    def apply_std(self, std: np.ndarray) -> np.ndarray:
+        """The standard deviation of the resampled image when the source pixels carry independent
+        noise of standard deviation ``std`` (``(H_s, W_s[, C])``): sqrt(sum_i w_i^2 std_i^2)."""
+        std = np.asarray(std, dtype=np.float64)
+        flat = std[..., None] if std.ndim == 2 else std
+        var = np.zeros(self.inside.shape + flat.shape[2:])
+        for yi, xi, w in self.taps:
+            var += (w * w)[..., None] * flat[yi, xi] ** 2
+        var[~self.inside] = 0.0
+        out = np.sqrt(var)
+        return out[..., 0] if std.ndim == 2 else out

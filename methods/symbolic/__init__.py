@@ -54,11 +54,36 @@ class SymbolicMethod(Method):
         Project each channel's G onto the positive semi-definite matrices before the solve
         (:meth:`GramSystem.psd`): the cross Gram is unbiased but not PSD, and along directions
         the pixels barely constrain its negative eigenvalues pull the solve to the constraints.
-    refine : int in [0, 8], default 0
-        Further polynomial passes, each rendered with the previous estimate as guesses and
-        solved from it (one render each). With ``render.tail_bounces`` > 0 this moves the tail's
-        linearisation point to the estimate, so the light beyond N_max is weighted by nearly
-        the right ρ; it also makes the kernel selection match the estimate.
+    tail_bounces : int in [0, 16], default 4
+        T, reflections traced beyond N_max and weighted by the guesses (the light the paper's
+        truncation drops; :class:`PolynomialPathIntegrator`); taken when ``render.tail_bounces``
+        is ``auto`` (its default). ``method=symbolic_paper`` sets 0.
+    refine : int in [0, 8], default 3
+        Cap on further polynomial passes, each rendered with the previous estimate as guesses
+        and solved from it (one render each). With a tail this moves its linearisation point to
+        the estimate, so the light beyond N_max is weighted by nearly the right ρ; it also makes
+        the kernel selection match the estimate. ``method=symbolic_paper`` sets 0.
+    refine_tol : float >= 0, default 0.005
+        Refinement stops once no weight moved more than ``refine_tol + 2 std`` between two
+        passes (each pass has its own samples, so the estimate cannot settle closer than its
+        Monte Carlo noise). ``extras["refine_moves"]`` holds each pass's largest move in those
+        units and ``extras["refine_stopped"]`` why the passes stopped.
+    exposure : ``scene`` | ``known``, default ``scene``
+        ``scene``: as scene.yaml's ``photometry`` says; with ``exposure: per_view`` one gain per
+        view and channel is solved jointly with ρ (:mod:`methods.symbolic.field`), reported in
+        results.json ``exposure``. ``known``: every gain 1.
+    weights : ``scene`` | ``none``, default ``scene``
+        ``scene``: the scene's pixel weights (masks, saturated and black-clipped pixels, pixels
+        outside the delivered image are left out). ``none``: every pixel counts.
+    robust : ``auto`` | ``none`` | ``cauchy`` | ``huber``, default ``auto``
+        Robust reweighting (IRLS from the stored coefficients, no render) against objects the
+        model lacks (cars, people). ``auto``: Cauchy for photographs (images decoded from 8/16-bit
+        files, pixel weights or per-view exposure: unmodelled objects are certain there), none for
+        linear radiance (synthetic renders of the model, where every pixel is the model's and
+        the L2 fit is the efficient one). The final weights are the run's
+        ``images/<view>.weights.exr``.
+    irls.iterations : int in [1, 100], default 10; irls.tol : float >= 0, default 1e-3
+        Cap on the robust rounds, and the largest move of a weight or gain below which they stop.
     memory_mb : float > 0, default 512
         Memory for the coefficient tiles of the pass; sets the tile size.
     std : ``sandwich`` | ``residual``, default ``sandwich``
@@ -132,6 +157,10 @@ class SymbolicMethod(Method):
         check_choice(solver, "precondition", ("True", "False"), section=section)
         if "refine" in self.cfg:
             check_number(self.cfg, "refine", 0, 8, integer=True)
+        if "refine_tol" in self.cfg:
+            check_number(self.cfg, "refine_tol", 0.0)
+        if "tail_bounces" in self.cfg:
+            check_number(self.cfg, "tail_bounces", 0, 16, integer=True)
         if "std" in self.cfg:
             check_choice(self.cfg, "std", ("sandwich", "residual"))
         check_choice(solver, "algorithm", ("LD_SLSQP", "LD_MMA", "LD_CCSAQ"), section=section)
@@ -160,17 +189,25 @@ class SymbolicMethod(Method):
         render_s = solve_s = 0.0
         stages = {}
         field = FieldOptions.from_config(self.cfg, problem)
-        for k in range(1 + int(self.cfg.get("refine", 0))):
+        refine, tol = int(self.cfg.get("refine", 0)), float(self.cfg.get("refine_tol", 0.0))
+        moves, stopped = [], "single pass" if refine == 0 else f"cap of {refine} refinement pass(es)"
+        for k in range(1 + refine):
             if k:      # re-render at the estimate: better kernel selection, and a tail at the estimate
                 x0 = np.where(np.isnan(fit["estimate"]), x0, fit["estimate"])
             result = self._pass(sub, params, x0, seed=int(problem.seed) + 7777 * renders)
             renders += 1
             t_solve = time.perf_counter()
-            fit = self._fit(result, params, x0, problem, field)
+            previous, fit = (fit["estimate"] if k else None), self._fit(result, params, x0, problem, field)
             _record_iterates(trace, renders, fit)
             render_s += result.render_s
             solve_s += time.perf_counter() - t_solve     # PSD projection, nlopt and uncertainty
             stages = {name: stages.get(name, 0.0) + t for name, t in fit["stages_s"].items()}
+            if k:
+                moves.append(_moved(previous, fit["estimate"], fit["std"], tol))
+                if moves[-1] <= 1.0:
+                    stopped = (f"converged after {k} refinement pass(es): no weight moved more than "
+                               f"refine_tol + 2 std ({moves[-1]:.2f} of it)")
+                    break
         estimate = fit["estimate"]
         sol = fit["solve"]
         extras = {"n_monomials": fit["n_monomials"], "gram_nnz": fit["gram_nnz"],
@@ -181,7 +218,7 @@ class SymbolicMethod(Method):
                   "std_method": fit["std_method"],
                   "ill_determined": ill_determined(fit["std"], fit["observable"]).tolist(),
                   "executor": str(settings.executor.get("name", "serial")),
-                  "solve_stages_s": stages}
+                  "solve_stages_s": stages, "refine_moves": moves, "refine_stopped": stopped}
         if field.active:
             extras["field"] = field.describe(fit)
         if fit.get("exposure") is not None:
@@ -310,6 +347,20 @@ def _images(result, basis: MonomialBasis, rho: np.ndarray, cameras) -> dict[str,
     """Every view's polynomial evaluated at ρ (P, C): (H, W, C) images."""
     mu = np.stack([basis.evaluate(rho[:, c]) for c in range(rho.shape[1])])
     return {cam.name: result.image(cam.name, mu, (cam.height, cam.width)) for cam in cameras}
+
+
+def _moved(previous: np.ndarray, current: np.ndarray, std: np.ndarray, tol: float) -> float:
+    """Largest change of an estimate between two passes in units of ``tol + 2 std``: below 1 the
+    passes agree within their Monte Carlo noise (each pass has its own samples, so the estimate
+    never settles closer than that) or within ``tol``. Parameters estimated in both count; a NaN
+    std counts as 0."""
+    both = np.isfinite(previous) & np.isfinite(current)
+    if not both.any():
+        return 0.0
+    scale = tol + 2.0 * np.nan_to_num(std, nan=0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.abs(current - previous) / scale
+    return float(np.nanmax(np.where(both, ratio, 0.0)))
 
 
 def _full(observable: np.ndarray, x: np.ndarray) -> np.ndarray:

@@ -1,0 +1,83 @@
+"""Section "defaults": what a user gets with default settings, against stated targets.
+
+Each run is ``python -m framework.run`` with the shipped options (``method=symbolic``: light
+beyond N_max and refinement passes until the estimate stops moving; ``method=symbolic_paper``:
+the paper's single truncated pass, for contrast), in a fresh subprocess (peak RSS measured by
+:mod:`bench.child`), on urban_canyon with its default spp.
+
+Targets checked (a row per run):
+
+* urban_canyon, all views, ``method=symbolic``: every parameter within 0.02 (diffuse) and 0.03
+  (specular) of its reference;
+* urban_canyon, default view, ``method=lambertian_prior``: balcony, asphalt and awning within 0.01;
+* urban_canyon, default view, ``method=symbolic``: no parameter with ``|error| > 3·std + 0.005``
+  (the std tells the truth).
+"""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+from bench.memory import run_child
+
+DIFFUSE_TOL, SPECULAR_TOL, LAMBERTIAN_TOL = 0.02, 0.03, 0.01
+LAMBERTIAN_SEGMENTS = ("balcony", "asphalt", "awning")
+RUNS = (  # label, overrides, target
+    ("symbolic, all views", ["method=symbolic", "views=all"], "all_within"),
+    ("symbolic_paper, all views", ["method=symbolic_paper", "views=all"], "all_within"),
+    ("lambertian_prior, default view", ["method=lambertian_prior"], "lambertian"),
+    ("symbolic, default view", ["method=symbolic"], "std_covers"),
+    ("symbolic_paper, default view", ["method=symbolic_paper"], "std_covers"),
+)
+
+
+def _errors(res: dict):
+    """(segment, kernel, |error| per channel, std per channel or None) of each parameter with an error."""
+    for p in res.get("parameters", []):
+        if p.get("error") is not None:
+            yield p["segment"], p["kernel"], [abs(e) for e in p["error"] if e is not None], p.get("std")
+
+
+def check(res: dict, target: str) -> tuple[bool, str]:
+    """Whether ``res`` meets ``target`` and the worst offender, in words."""
+    if target == "all_within":
+        worst = {"diffuse": (0.0, ""), "specular": (0.0, "")}
+        for seg, kernel, err, _ in _errors(res):
+            if kernel in worst and max(err) > worst[kernel][0]:
+                worst[kernel] = (max(err), seg)
+        ok = worst["diffuse"][0] <= DIFFUSE_TOL and worst["specular"][0] <= SPECULAR_TOL
+        return ok, (f"worst diffuse {worst['diffuse'][0]:.4f} ({worst['diffuse'][1]}), "
+                    f"worst specular {worst['specular'][0]:.4f} ({worst['specular'][1]})")
+    if target == "lambertian":
+        errs = {seg: max(err) for seg, kernel, err, _ in _errors(res) if seg in LAMBERTIAN_SEGMENTS}
+        ok = len(errs) == len(LAMBERTIAN_SEGMENTS) and max(errs.values()) <= LAMBERTIAN_TOL
+        return ok, ", ".join(f"{s} {errs.get(s, float('nan')):.4f}" for s in LAMBERTIAN_SEGMENTS)
+    worst, where = -1.0, ""
+    for seg, kernel, err, std in _errors(res):
+        for c, e in enumerate(err):
+            s = std[c] if std and std[c] is not None else float("nan")
+            excess = e - (3 * s + 0.005)          # NaN std: not covered
+            excess = e if excess != excess else excess
+            if excess > worst:
+                worst, where = excess, f"{seg}/{kernel} channel {c}: |error| {e:.4f}, std {s:.4f}"
+    return worst <= 0, f"largest |error| - (3 std + 0.005) = {worst:.4f} ({where})"
+
+
+def run(sizes, work: Path, log=print) -> list[dict]:
+    """Every run of :data:`RUNS`; a row dict each."""
+    rows = []
+    for label, overrides, target in RUNS:
+        tag = label.replace(", ", "_").replace(" ", "_")
+        run_dir, cache = work / "runs" / tag, work / "cache"
+        shutil.rmtree(run_dir, ignore_errors=True)
+        out = run_child(["scene=urban_canyon", *overrides, "report=false", f"cache.dir={cache}",
+                         f"hydra.run.dir={run_dir}", *sizes.extra, *sizes.defaults_extra], timeout=3600)
+        path = run_dir / "results.json"
+        res = json.loads(path.read_text()) if path.is_file() else {}
+        ok, detail = check(res, target) if res else (False, out["stderr_tail"][-300:])
+        rows.append({"label": label, "target": target, "met": ok, "detail": detail, "rc": out["rc"],
+                     "wall_s": out["wall_s"], "maxrss_mib": out["maxrss_mib"], "renders": res.get("renders"),
+                     "stopped": res.get("refine_stopped"), "method_s": res.get("timings_s", {}).get("method")})
+        log(f"[defaults] {label}: {'met' if ok else 'NOT met'} ({detail}), {out['wall_s']:.0f} s")
+    return rows
