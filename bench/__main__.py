@@ -1,4 +1,15 @@
-"""``python -m bench [--quick] [--out BENCHMARKS.md]``: run the benchmark, rewrite BENCHMARKS.md."""
+"""``python -m bench [--quick] [--sections a,b] [--out BENCHMARKS.md]``: run the benchmark, rewrite
+BENCHMARKS.md.
+
+Sections: ``ratio`` (1, pass vs render), ``memory`` (2), ``compare`` (3, methods at equal spp, the
+learning-rate sweep), ``paper`` (4, Tables 1 and 2), ``materials`` (5), ``defaults`` (6,
+accurate by default), ``field`` (7, field photographs), ``glossy`` (8, glossy kernels). Each
+section's numbers are stored in ``bench/results/<section>.json`` (with the date, the commit and
+the wall time of the run that measured them) and BENCHMARKS.md is rendered from every stored
+section, so ``--sections field`` re-measures one section and keeps the others; each section of
+BENCHMARKS.md states when it was measured. ``--quick`` stores under the run folder instead and
+writes ``--out`` (default: the run folder's BENCHMARKS.md), never the committed results.
+"""
 from __future__ import annotations
 
 import argparse
@@ -8,21 +19,31 @@ import sys
 import time
 from pathlib import Path
 
-from bench import compare, materials, memory, paper, render_ratio
+from bench import accuracy, compare, field, glossy, materials, memory, paper, render_ratio
 from bench.common import ROOT
 from bench.machine import describe
 from bench.markdown import render
 from bench.sizes import DEFAULT, QUICK
 from reports import write_comparison
 
+SECTIONS = ("ratio", "memory", "compare", "paper", "materials", "defaults", "field", "glossy")
+RESULTS = ROOT / "bench" / "results"
+
 
 def parse(argv=None) -> argparse.Namespace:
     """Command-line arguments."""
-    p = argparse.ArgumentParser(prog="python -m bench", description=__doc__)
+    p = argparse.ArgumentParser(prog="python -m bench", description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="toy sizes, to check the code paths")
-    p.add_argument("--out", default=str(ROOT / "BENCHMARKS.md"), help="markdown file to (re)write")
+    p.add_argument("--sections", default=",".join(SECTIONS),
+                   help=f"comma-separated sections to measure (default all: {','.join(SECTIONS)})")
+    p.add_argument("--out", default=None, help="markdown file to (re)write (default BENCHMARKS.md; "
+                                               "with --quick the run folder's)")
     p.add_argument("--runs", default=None, help="folder of the run folders (default bench/runs/<timestamp>)")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    unknown = [x for x in args.sections.split(",") if x not in SECTIONS]
+    if unknown:
+        p.error(f"unknown section(s) {', '.join(unknown)}; choose from {', '.join(SECTIONS)}")
+    return args
 
 
 def log(msg: str) -> None:
@@ -40,30 +61,69 @@ def comparison_report(rows: list[dict], out: Path):
         return f"(not written: {exc!r})"
 
 
+def measure(name: str, sizes, root: Path):
+    """Run one section; its JSON-able data."""
+    if name == "ratio":
+        return render_ratio.run(sizes, root / "cache" / "ratio", log)
+    if name == "memory":
+        return memory.run(sizes, root / "memory", log)
+    if name == "compare":
+        rows = compare.run(sizes, root, log)
+        lr = compare.lr_sweep(sizes, root, log)
+        return {"rows": rows, "lr": lr, "report": _rel(comparison_report(rows, root / "comparison"))}
+    if name == "paper":
+        return paper.run(sizes, root, log)
+    if name == "materials":
+        return materials.run(sizes, root / "materials", log)
+    if name == "defaults":
+        return accuracy.run(sizes, root / "defaults", log)
+    if name == "field":
+        return field.run(sizes, root / "field", log)
+    return glossy.run(sizes, root / "glossy", log)
+
+
 def main(argv=None) -> int:
-    """Run the four sections and write the markdown; returns the exit code."""
+    """Run the chosen sections, store them, render the markdown from every stored section."""
     args = parse(argv)
     sizes = QUICK if args.quick else DEFAULT
     stamp = datetime.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     root = Path(args.runs) if args.runs else ROOT / "bench" / "runs" / f"{stamp}{'_quick' if args.quick else ''}"
     root.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
+    store = root / "results" if args.quick else RESULTS
+    store.mkdir(parents=True, exist_ok=True)
     machine = describe()
     log(f"bench ({sizes.name}) into {root}")
-    ratio = render_ratio.run(sizes, root / "cache" / "ratio", log)
-    mem = memory.run(sizes, root / "memory", log)
-    cmp_rows = compare.run(sizes, root, log)
-    lr_rows = compare.lr_sweep(sizes, root, log)
-    mat_rows = materials.run(sizes, root / "materials", log)
-    mono = paper.run(sizes, root, log)
-    report_md = comparison_report(cmp_rows + mono, root / "comparison")
+    for name in args.sections.split(","):
+        t0 = time.perf_counter()
+        data = measure(name, sizes, root)
+        record = {"section": name, "sizes": sizes.name, "date": machine["date"], "git": machine["git"],
+                  "wall_s": time.perf_counter() - t0, "data": data}
+        (store / f"{name}.json").write_text(json.dumps(_light(record), indent=1, default=str))
+        log(f"[{name}] done in {record['wall_s'] / 60:.1f} min")
+    stored = {p.stem: json.loads(p.read_text()) for p in store.glob("*.json") if p.stem in SECTIONS}
     command = "python -m bench" + (" --quick" if args.quick else "")
-    wall = time.perf_counter() - t0
-    text = render(machine, command, wall, sizes, ratio, mem, cmp_rows, mono, _rel(report_md), lr_rows, mat_rows)
-    Path(args.out).write_text(text, encoding="utf-8")
-    _dump(root, ratio, mem, cmp_rows + mono + lr_rows, mat_rows)
-    log(f"wrote {args.out} in {wall / 60:.1f} min")
+    out = Path(args.out) if args.out else (root / "BENCHMARKS.md" if args.quick else ROOT / "BENCHMARKS.md")
+    out.write_text(render(machine, command, sizes, stored), encoding="utf-8")
+    log(f"wrote {out}")
     return 0
+
+
+#: results.json keys no section reads back (kept in the run folders)
+HEAVY = ("cost_history", "cost_times_s", "correlation", "views", "relit", "initial_guess")
+
+
+def _light(record: dict) -> dict:
+    """The record with the rows' results.json stripped of what no table reads (:data:`HEAVY`)."""
+    def strip(row):
+        if isinstance(row, dict) and isinstance(row.get("results"), dict):
+            return {**row, "results": {k: v for k, v in row["results"].items() if k not in HEAVY}}
+        return row
+    data = record["data"]
+    if isinstance(data, list):
+        data = [strip(r) for r in data]
+    elif isinstance(data, dict) and "rows" in data:
+        data = {**data, "rows": [strip(r) for r in data["rows"]], "lr": [strip(r) for r in data["lr"]]}
+    return {**record, "data": data}
 
 
 def _rel(path) -> str:
@@ -71,14 +131,6 @@ def _rel(path) -> str:
         return str(Path(path).resolve().relative_to(ROOT))
     except (ValueError, TypeError):
         return str(path)
-
-
-def _dump(root: Path, ratio: dict, mem: list, rows: list, mat_rows: list) -> None:
-    """The raw numbers as bench.json next to the runs."""
-    light = [{k: v for k, v in r.items() if k != "results"} | {"timings_s": r["results"]["timings_s"],
-             "renders": r["results"]["renders"]} for r in rows]
-    (root / "bench.json").write_text(json.dumps({"ratio": ratio, "memory": mem, "runs": light,
-                                                 "materials": mat_rows}, indent=2))
 
 
 if __name__ == "__main__":

@@ -59,7 +59,18 @@ def test_markdown_renders_from_fake_numbers():
             for lab, v in (("lambertian_prior", "single"), ("symbolic", "single"), ("symbolic", "all"))]
     machine = {"cpu": "c", "cores": 2, "ram_gib": 1.0, "variant": "v", "mitsuba": "m", "drjit": "d",
                "python": "p", "platform": "x", "date": "today", "git": "g"}
-    text = markdown.render(machine, "python -m bench --quick", 60.0, sizes, ratio, mem, rows, mono, "r.md")
+    stamp = {"date": "today", "git": "g", "sizes": "quick", "wall_s": 60.0}
+    defaults = [{"label": "symbolic, all views", "target": "all_within", "met": True, "detail": "worst 0.004",
+                 "renders": 3, "stopped": "converged", "wall_s": 10.0, "maxrss_mib": 500.0}]
+    field = [{"label": "default (+ robust Cauchy)", "worst_diffuse": 0.01, "worst_specular": 0.02, "median": 0.003,
+              "gain_error": 0.01, "ill_determined": 1, "image_rmse": 0.01, "renders": 2, "wall_s": 5.0,
+              "met": True}]
+    stored = {name: {**stamp, "data": data} for name, data in (
+        ("ratio", ratio), ("memory", mem), ("compare", {"rows": rows, "lr": [], "report": "r.md"}), ("paper", mono),
+        ("defaults", defaults), ("field", field))}
+    text = markdown.render(machine, "python -m bench --quick", sizes, stored)
+    assert "## 6. Accurate by default" in text and "## 7. Field photographs" in text
+    assert "_Measured today at commit g (quick sizes, 1.0 min)._" in text
     assert "python -m bench --quick" in text and "Table 2" in text and "**not met**" in text
     # every method ends at the same error 0.01 at t = 2 s: the baselines reach the symbolic's there
     assert "| differentiable | 0.010 | 2.0 s (1 renders), 1.0 x symbolic | 0.010 |" in text
