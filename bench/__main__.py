@@ -1,7 +1,7 @@
 """``python -m bench [--quick] [--sections a,b] [--out BENCHMARKS.md]``: run the benchmark, rewrite
 BENCHMARKS.md.
 
-Sections: ``ratio`` (1, pass vs render), ``memory`` (2), ``compare`` (3, methods at equal spp, the
+Sections: ``ratio`` (1, pass vs render), ``megapixel`` (1, a 1920x1080 view), ``memory`` (2), ``compare`` (3, methods at equal spp, the
 learning-rate sweep), ``paper`` (4, Tables 1 and 2), ``materials`` (5), ``defaults`` (6,
 accurate by default), ``field`` (7, field photographs), ``glossy`` (8, glossy kernels). Each
 section's numbers are stored in ``bench/results/<section>.json`` (with the date, the commit and
@@ -19,14 +19,14 @@ import sys
 import time
 from pathlib import Path
 
-from bench import accuracy, compare, field, glossy, materials, memory, paper, render_ratio
+from bench import accuracy, compare, field, glossy, materials, megapixel, memory, paper, render_ratio
 from bench.common import ROOT
 from bench.machine import describe
 from bench.markdown import render
 from bench.sizes import DEFAULT, QUICK
 from reports import write_comparison
 
-SECTIONS = ("ratio", "memory", "compare", "paper", "materials", "defaults", "field", "glossy")
+SECTIONS = ("ratio", "megapixel", "memory", "compare", "paper", "materials", "defaults", "field", "glossy")
 RESULTS = ROOT / "bench" / "results"
 
 
@@ -65,6 +65,8 @@ def measure(name: str, sizes, root: Path):
     """Run one section; its JSON-able data."""
     if name == "ratio":
         return render_ratio.run(sizes, root / "cache" / "ratio", log)
+    if name == "megapixel":
+        return megapixel.run(sizes, root / "megapixel", log)
     if name == "memory":
         return memory.run(sizes, root / "memory", log)
     if name == "compare":
@@ -121,7 +123,7 @@ def _light(record: dict) -> dict:
     data = record["data"]
     if isinstance(data, list):
         data = [strip(r) for r in data]
-    elif isinstance(data, dict) and "rows" in data:
+    elif isinstance(data, dict) and "lr" in data:          # the comparison
         data = {**data, "rows": [strip(r) for r in data["rows"]], "lr": [strip(r) for r in data["lr"]]}
     return {**record, "data": data}
 

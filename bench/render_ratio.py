@@ -1,7 +1,8 @@
 """Section 1: one polynomial (symbolic) pass vs a plain Mitsuba ``path`` render of the same view.
 
-Both at the same spp on the same 200x200 view; ``path`` with ``max_depth = N_max + 1`` and the
-box filter (as the pass). The pass is timed as the method runs it
+Both at the same spp on the same 200x200 view; ``path`` with ``max_depth = N_max + T + 1`` and
+the box filter (as the pass): the paper's pass (``method=symbolic_paper``, T = 0) at every spp,
+and the default pass (``method=symbolic``, T = 4) at one. The pass is timed as the method runs it
 (:func:`methods.symbolic.polynomial_pass.render_view_task`: coefficients, Gram accumulation,
 sparse coefficients), and the solve (:meth:`SymbolicMethod._solve`: nlopt and the uncertainty)
 on its Gram system; each the median of ``reps`` runs after a warm-up (the solve's stages and
@@ -42,10 +43,10 @@ def _pass_fn(problem, method, spp: int):
     """A no-argument function running the method's polynomial pass of view 0 at ``spp``."""
     params = problem.parameters
     x0, _ = initial_guess(method.cfg, problem)
-    N = problem.settings.max_bounces
-    tile = tile_pixels_for(float(method.cfg.memory_mb), spp, N, problem.n_channels)
+    N, T = problem.settings.max_bounces, problem.settings.tail_bounces
+    tile = tile_pixels_for(float(method.cfg.memory_mb), spp, N, problem.n_channels, T)
     task = view_task(problem, params, x0, N, 0, spp=spp, seed=int(problem.seed), prob_floor=float(
-        method.cfg.prob_floor), tile_pixels=tile)
+        method.cfg.prob_floor), tile_pixels=tile, tail_bounces=T)
     variant = problem.settings.variant
     return (lambda: render_view_task(task, variant=variant)), x0
 
@@ -77,14 +78,19 @@ def measure_spp(problem, method, spp: int, reps: int) -> dict:
 
 def run(sizes, cache_dir, log=print) -> dict:
     """Section 1 on urban_canyon's default view; returns ``{"rows": [...], "view": ..., ...}``."""
-    cfg = compose(["scene=urban_canyon", f"observe.spp={sizes.cmp_observe_spp}", f"cache.dir={cache_dir}",
-                   *sizes.extra])
+    base = ["scene=urban_canyon", f"observe.spp={sizes.cmp_observe_spp}", f"cache.dir={cache_dir}", *sizes.extra]
+    cfg = compose(["method=symbolic_paper", *base])          # the paper's pass: N_max, no tail
     problem, method = build_problem(cfg)
     rows = []
     for spp in sizes.ratio_spps:
-        rows.append(measure_spp(problem, method, spp, sizes.ratio_reps))
+        rows.append(measure_spp(problem, method, spp, sizes.ratio_reps) | {"tail": 0})
         log(f"[ratio] spp {spp}: pass {rows[-1]['pass_s']:.2f} s, render {rows[-1]['render_s']:.3f} s, "
             f"ratio {rows[-1]['ratio']:.1f}")
+    # the default symbolic pass (tail T beyond N_max) against path at max_depth N_max + T + 1
+    default, method_default = build_problem(compose(["method=symbolic", *base]))
+    spp = sizes.ratio_spps[min(1, len(sizes.ratio_spps) - 1)]
+    rows.append(measure_spp(default, method_default, spp, sizes.ratio_reps) | {"tail": default.settings.tail_bounces})
+    log(f"[ratio] default (tail {rows[-1]['tail']}) spp {spp}: ratio {rows[-1]['ratio']:.1f}")
     cam = problem.cameras[0]
     return {"rows": rows, "view": cam.name, "size": f"{cam.width}x{cam.height}",
             "max_bounces": int(cfg.render.max_bounces), "reps": sizes.ratio_reps,

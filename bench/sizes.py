@@ -44,6 +44,8 @@ class Sizes:
         Seconds each may take before it is stopped (reported as failed).
     extra : tuple of str
         Overrides added to every in-process run.
+    mega_spp, mega_reps : int
+        Samples per pixel and timed repetitions of the 1920x1080 view (section "megapixel").
     defaults_extra, field_extra : tuple of str
         Overrides added to the runs of the "defaults" and "field" sections (the quick bench
         makes them small; the real one runs the shipped settings).
@@ -64,10 +66,12 @@ class Sizes:
     cmp_budget: int = 200
     cmp_budget_all: int = 200
     all_views: int = 0
-    mat_buildings: tuple = (1, 2, 4, 8)
+    mat_buildings: tuple = (1, 2, 4, 8, 16)
     mat_image: int = 200
     mat_timeout_s: float = 900.0
     extra: tuple = field(default_factory=tuple)
+    mega_spp: int = 64
+    mega_reps: int = 1
     defaults_extra: tuple = field(default_factory=tuple)
     field_extra: tuple = field(default_factory=tuple)
 
@@ -78,5 +82,5 @@ QUICK = Sizes(name="quick", ratio_spps=(4,), ratio_reps=1, mem_views=(1, 2), mem
               mem_spp=4, mem_observe_spp=8, cmp_spp=4, cmp_observe_spp=16, cmp_budget=20,
               cmp_budget_all=14, all_views=2, mat_buildings=(1, 2), mat_image=32, mat_timeout_s=300.0,
               extra=("method.solver.starts=1",),
-              defaults_extra=("render.spp=4", "observe.spp=16", "method.refine=1"),
+              mega_spp=2, defaults_extra=("render.spp=4", "observe.spp=16", "method.refine=1"),
               field_extra=("render.spp=4", "method.refine=0", "method.irls.iterations=2"))

@@ -16,7 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 from framework.cache import Cache
 from framework.config import RunSettings, requested_views, scene_dir
 from framework.errors import ConfigError
-from framework.kernels import KERNELS
+from framework.kernels import KERNELS, canonical
 from framework.observe import observed_images
 from framework.registry import Method, Problem, get_method
 from framework.render import backend
@@ -53,7 +53,7 @@ def kernel_selection(method_cfg: DictConfig) -> tuple[str, ...] | None:
         what = f"has unknown kernel(s) {', '.join(unknown)}" if unknown else "is empty"
         raise ConfigError(f"method.kernels {what}: use all, or a list of the registered kernels "
                           f"({', '.join(sorted(KERNELS))})")
-    return tuple(str(k) for k in kernels)
+    return tuple(canonical(str(k)) for k in kernels)       # glossy(0.150) is glossy(0.15)
 
 
 def check_config(cfg: DictConfig) -> RunSettings:

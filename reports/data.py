@@ -188,8 +188,11 @@ def fmt_pm(mean, std, *, digits: int = 4) -> str:
 
 
 def kernel_label(kernel: str, *, html: bool = False) -> str:
-    """The paper's symbol for a kernel (ρ_d, ρ_s), or the kernel's name."""
+    """The paper's symbol for a kernel (ρ_d, ρ_s; ρ_g(α) for ``glossy(α)``), or the kernel's name."""
     pair = KERNEL_SYMBOLS.get(kernel)
+    if pair is None and kernel.startswith("glossy(") and kernel.endswith(")"):
+        alpha = kernel[len("glossy("):-1]
+        pair = (f"ρ_g(α={alpha})", f"ρ<sub>g</sub>(α={alpha})")
     if pair is None:
         return kernel
     return pair[1] if html else pair[0]

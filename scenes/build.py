@@ -13,6 +13,7 @@ from functools import partial
 from pathlib import Path
 
 from scenes import BUNDLED_DIR, cornell_box, furnace, plane_sky, street_block, urban_canyon
+from scenes import urban_canyon_field, urban_canyon_glossy
 from scenes.preview import write_preview
 
 BUILDERS = {
@@ -22,6 +23,8 @@ BUILDERS = {
     "plane_sky": plane_sky.build,
     "furnace": furnace.build,
     "street_block": partial(street_block.build, buildings=2, seed=0),
+    "urban_canyon_glossy": urban_canyon_glossy.build,
+    "urban_canyon_field": urban_canyon_field.build,
 }
 
 

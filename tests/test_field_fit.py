@@ -162,3 +162,21 @@ def test_baselines_ignore_masked_pixels(problem, method):
     a = run_method(method, masked)
     b = run_method(method, dataclasses.replace(masked, observed={**problem.observed, name: garbage}))
     assert a.cost_history[0] == pytest.approx(b.cost_history[0], rel=1e-6)
+
+
+def test_boundary_pixels_are_left_out(problem):
+    """``method.boundary=1`` gives weight 0 to the pixels next to a change of segment (here the
+    block's outline against the ground and the sky) and 1 elsewhere; ``auto`` is 0 for pinhole
+    cameras (nothing was resampled)."""
+    from framework.render.mitsuba_scene import MitsubaScene
+    result = run_symbolic(problem, boundary=1, robust="none", refine=0)
+    seg = MitsubaScene(problem.scene, list(problem.cameras), spp=1).segment_map(0)
+    w = result.pixel_weights[problem.cameras[0].name]
+    same = np.ones(seg.shape, bool)
+    same[:, 1:] &= seg[:, 1:] == seg[:, :-1]
+    same[:, :-1] &= seg[:, 1:] == seg[:, :-1]
+    same[1:] &= seg[1:] == seg[:-1]
+    same[:-1] &= seg[1:] == seg[:-1]
+    np.testing.assert_array_equal(w, same.astype(np.float32))
+    assert 0 < (w == 0).mean() < 0.5
+    assert "field" not in run_symbolic(problem, refine=0).extras        # auto: no resampled view

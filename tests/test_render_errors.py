@@ -122,7 +122,7 @@ def test_memory_errors(tiny_scene, monkeypatch):
     """render.spp=4194304 used to crash the process: the smallest tile (64 pixels) would need
     64 x 4194304 samples x 3 events (N_max = 2) x 16 bytes x 3 copies = 36864 MiB. At 4096 spp
     the tile is the whole 16x16 view: 256 x 4096 x 3 x 16 x 3 bytes = 144 MiB."""
-    problem = make_problem(tiny_scene, None, "render.spp=4194304")
+    problem = make_problem(tiny_scene, None, "render.spp=4194304", "render.tail_bounces=0")
     with pytest.raises(ConfigError, match=r"render.spp=4194304 needs 36864 MiB for the smallest tile of the "
                                           r"polynomial pass \(64 pixels\), above method.memory_mb=512: lower "
                                           r"render.spp to at most 58254 or raise method.memory_mb to at least 36864"):
@@ -131,7 +131,7 @@ def test_memory_errors(tiny_scene, monkeypatch):
     with pytest.raises(ConfigError, match=r"the polynomial pass's tiles \(1 at once\) need 144 MiB, but this "
                                           r"machine has 1 MiB available: lower method.memory_mb \(smaller tiles\) "
                                           r"or render.spp"):
-        run_symbolic(make_problem(tiny_scene, None, "render.spp=4096"))
+        run_symbolic(make_problem(tiny_scene, None, "render.spp=4096", "render.tail_bounces=0"))
     monkeypatch.setattr(checks, "available_memory_bytes", lambda: 0)
     with pytest.raises(ConfigError, match=r"the observation renders' films need 1 MiB, but this machine has 0 MiB "
                                           r"available: resample the views to fewer pixels"):
@@ -172,11 +172,11 @@ def test_failed_render_leaves_whole_cache_entries(tmp_path, monkeypatch):
 
     monkeypatch.setattr(pp, "render_view_task", fail_on_second_view)
     with pytest.raises(RuntimeError, match="renderer died"):
-        run_symbolic(problem)
+        run_symbolic(problem, refine=0)
     entries = list((cache_dir / "polynomial_pass").iterdir())
     assert len(entries) == 1 and entries[0].suffix == ".npz"
     monkeypatch.setattr(pp, "render_view_task", render)
-    assert run_symbolic(problem).extras["views_from_cache"] == ["view_0.png"]
+    assert run_symbolic(problem, refine=0).extras["views_from_cache"] == ["view_0.png"]
 
     def no_rename(*args):
         raise OSError("disk full")

@@ -124,8 +124,8 @@ def test_joint_inversion_equals_solve_of_summed_gram_systems(tmp_path):
     from methods._common import segment_groups
     from methods.symbolic.polynomial_pass import polynomial_pass
     from methods.symbolic.solve import solve_polynomial
-    problem = make_problem(make_tiny_scene(tmp_path / "s", kernels=("diffuse",)))
-    result = run_symbolic(problem)
+    problem = make_problem(make_tiny_scene(tmp_path / "s", kernels=("diffuse",)), None, "render.tail_bounces=0")
+    result = run_symbolic(problem, refine=0)
     params = problem.parameters
     x0 = np.full((len(params), 3), 0.5)
     passed = polynomial_pass(problem, params, x0, 2, spp=8, seed=0, prob_floor=0.1, memory_mb=512,

@@ -33,10 +33,25 @@ _UNITS: dict[tuple[str, str], object] = {}
 def _unit(name: str):
     """The unit-weight BSDF of kernel ``name`` for the current variant, loaded once and shared by
     every kernel sum (it has no state; loading one per segment cost 4 ms each)."""
-    key = (mi.variant(), name)
+    kernel = K.get(name)
+    key = (mi.variant(), kernel.name)           # canonical: glossy(0.150) is glossy(0.15)
     if key not in _UNITS:
-        _UNITS[key] = mi.load_dict(K.get(name).weighted_bsdf(1.0))
+        _UNITS[key] = mi.load_dict(kernel.weighted_bsdf(1.0))
     return _UNITS[key]
+
+
+#: The reflection lobe types a kernel's flags can have, in the order they are looked for.
+_LOBES = ("DeltaReflection", "GlossyReflection", "DiffuseReflection")
+
+
+def _lobe_flag(unit):
+    """The reflection lobe type of a unit kernel as Mitsuba flags it (``conductor``: Delta,
+    ``roughconductor``: Glossy, ``diffuse``: Diffuse); every kernel has exactly one lobe."""
+    for lobe in _LOBES:
+        flag = getattr(mi.BSDFFlags, lobe)
+        if mi.has_flag(unit.flags(), flag):
+            return flag
+    raise ValueError(f"kernel BSDF {unit} has no reflection lobe among {', '.join(_LOBES)}")
 
 
 class KernelSumMixin:
@@ -45,6 +60,8 @@ class KernelSumMixin:
     and registered once per variant by :func:`ensure_registered`.
 
     Properties: ``kernels`` (comma-separated registry names); the weights ``rho_<i>`` start at 0.
+    Component ``i`` has the lobe type of kernel ``i``'s own Mitsuba BSDF (Delta, Glossy or
+    Diffuse reflection), on both sides.
     """
 
     def __init__(self, props):
@@ -55,7 +72,7 @@ class KernelSumMixin:
         self.delta = [K.get(k).delta for k in names]
         for i in range(len(names)):
             setattr(self, f"rho_{i}", dr.zeros(mi.UnpolarizedSpectrum))
-        flags = [mi.BSDFFlags.DeltaReflection if d else mi.BSDFFlags.DiffuseReflection for d in self.delta]
+        flags = [_lobe_flag(u) for u in self.units]     # Glossy for glossy(α): not Diffuse
         both = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
         self.m_components = [f | both for f in flags]
         self.m_flags = mi.BSDFFlags(0)

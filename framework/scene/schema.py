@@ -170,11 +170,10 @@ def _segment(s: object, i: int, path: Path, channels: tuple[str, ...]) -> Segmen
 def _kernels(value: object, where: str) -> tuple[str, ...]:
     ks = _names(value, where, "diffuse", empty=f"{where} is empty; list at least one kernel, e.g. "
                                                  f"[diffuse] (leaving the key out means [diffuse])")
-    for k in ks:
-        try:
-            kernel_registry.get(k)
-        except SceneError as exc:
-            raise SceneError(f"{where}: {exc}") from None
+    try:
+        ks = tuple(kernel_registry.canonical(k) for k in ks)      # glossy(0.150) is glossy(0.15)
+    except SceneError as exc:
+        raise SceneError(f"{where}: {exc}") from None
     twice = next((k for j, k in enumerate(ks) if k in ks[:j]), None)
     if twice is not None:
         raise SceneError(f"{where} lists the kernel '{twice}' twice: {list(ks)}; list each kernel once")
@@ -185,6 +184,7 @@ def _reference(value: object, kernels: tuple[str, ...], channels, where: str) ->
     if not isinstance(value, dict):
         raise SceneError(f"{where} must map the segment's kernels {list(kernels)} to weights, "
                          f"e.g. {{{kernels[0]}: 0.5}}; got {_shown(value)}")
+    value = {_canonical_or_same(k): v for k, v in value.items()}
     ref = {k: _spectrum(v, channels, f"{where} {k}", unit=True)
            for k, v in _mapping(value, dict.fromkeys(kernels, False), where).items()}
     total = sum(ref.values(), np.zeros(len(channels)))
@@ -193,6 +193,15 @@ def _reference(value: object, kernels: tuple[str, ...], channels, where: str) ->
         raise SceneError(f"{where}: {' + '.join(ref)} = {total[c]:.6g} > 1 in channel {channels[c]}; a "
                          "segment's weights sum to at most 1 per channel (energy conservation): lower them")
     return ref
+
+
+def _canonical_or_same(key: object) -> object:
+    """A reference key as its kernel's canonical name, or unchanged when it names no kernel (the
+    mapping check then reports it)."""
+    try:
+        return kernel_registry.canonical(str(key))
+    except SceneError:
+        return key
 
 
 def _emitter(e: object, i: int, path: Path, channels: tuple[str, ...]) -> EmitterSpec:

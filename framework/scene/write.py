@@ -73,10 +73,12 @@ def pinhole_camera(name: str, width: int, height: int, focal: float, cam_from_wo
     return Camera(name, width, height, focal, width / 2, height / 2, np.asarray(cam_from_world, float))
 
 
-def write_colmap(sparse_dir: Path, cameras: Sequence[Camera], points: np.ndarray | None = None) -> Path:
+def write_colmap(sparse_dir: Path, cameras: Sequence[Camera], points: np.ndarray | None = None,
+                 models: Sequence[tuple[str, Sequence[float]] | None] | None = None) -> Path:
     """Write a text COLMAP model (cameras.txt, images.txt, points3D.txt, ...) with pycolmap.
 
-    Each view gets its own ``PINHOLE`` camera (ids 1..n, in list order) and image of the same id.
+    Each view gets its own ``PINHOLE`` camera (ids 1..n, in list order) and image of the same id,
+    unless ``models`` gives it another COLMAP camera model.
 
     Parameters
     ----------
@@ -86,6 +88,11 @@ def write_colmap(sparse_dir: Path, cameras: Sequence[Camera], points: np.ndarray
         The views.
     points : ndarray, shape (k, 3), optional
         A few 3D points of the scene for ``points3D.txt`` (empty tracks).
+    models : sequence of (str, sequence of float) or None, optional
+        One entry per view: a COLMAP camera model name (``SIMPLE_RADIAL``, ``OPENCV``, ...) and
+        its full parameter list in COLMAP's order (e.g. ``fx, fy, cx, cy, k1, k2, p1, p2``),
+        which replace the view's ``PINHOLE`` intrinsics (its width, height and pose are kept);
+        ``None`` (for the list or an entry) keeps ``PINHOLE``.
 
     Returns
     -------
@@ -94,9 +101,11 @@ def write_colmap(sparse_dir: Path, cameras: Sequence[Camera], points: np.ndarray
     """
     import pycolmap
 
+    if models is not None and len(models) != len(cameras):
+        raise ValueError(f"write_colmap: {len(models)} camera models for {len(cameras)} views")
     rec = pycolmap.Reconstruction()
     for i, cam in enumerate(cameras, start=1):
-        _add_view(rec, i, cam)
+        _add_view(rec, i, cam, None if models is None else models[i - 1])
     for p in (np.zeros((0, 3)) if points is None else np.asarray(points, float)):
         rec.add_point3D(p, pycolmap.Track(), np.array([128, 128, 128], np.uint8))
     sparse_dir = Path(sparse_dir)
@@ -105,13 +114,15 @@ def write_colmap(sparse_dir: Path, cameras: Sequence[Camera], points: np.ndarray
     return sparse_dir
 
 
-def _add_view(rec, i: int, cam: Camera) -> None:
-    """Add ``cam`` to the reconstruction ``rec`` as camera and image ``i``."""
+def _add_view(rec, i: int, cam: Camera, model: tuple[str, Sequence[float]] | None = None) -> None:
+    """Add ``cam`` to the reconstruction ``rec`` as camera and image ``i`` (``model``: another
+    COLMAP model name and its parameters instead of ``PINHOLE``)."""
     import pycolmap
 
+    name, params = ("PINHOLE", [cam.f, cam.f, cam.cx, cam.cy]) if model is None else model
     rec.add_camera_with_trivial_rig(pycolmap.Camera(
-        model="PINHOLE", width=cam.width, height=cam.height,
-        params=[cam.f, cam.f, cam.cx, cam.cy], camera_id=i))
+        model=name, width=cam.width, height=cam.height,
+        params=[float(x) for x in params], camera_id=i))
     pose = pycolmap.Rigid3d(pycolmap.Rotation3d(np.asarray(cam.cam_from_world[:, :3], float)),
                             np.asarray(cam.cam_from_world[:, 3], float))
     rec.add_image_with_trivial_frame(pycolmap.Image(name=cam.name, camera_id=i, image_id=i), pose)

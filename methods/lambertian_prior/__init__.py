@@ -5,10 +5,9 @@ The paper's Table 1 setting, and the initial guess of the kernel inversions (sec
 """
 from __future__ import annotations
 
-from framework.config import method_defaults
 from framework.errors import ConfigError
 from framework.registry import MethodResult, register
-from methods.symbolic import SymbolicMethod
+from methods.symbolic import SymbolicMethod, prior_config
 
 
 @register("lambertian_prior")
@@ -29,6 +28,7 @@ class LambertianPriorMethod(SymbolicMethod):
 
 
 def lambertian_prior(problem) -> MethodResult:
-    """The Lambertian prior of ``problem`` with this method's shipped options: the ``prior`` that
-    render-in-the-loop methods give :func:`methods._common.initial_guess`."""
-    return LambertianPriorMethod(method_defaults("lambertian_prior")).run(problem)
+    """The Lambertian prior of ``problem`` with this method's shipped options and one pass (a start
+    needs no refinement): the ``prior`` that render-in-the-loop methods give
+    :func:`methods._common.initial_guess`."""
+    return LambertianPriorMethod(prior_config()).run(problem)

@@ -82,6 +82,11 @@ class SymbolicMethod(Method):
         linear radiance (synthetic renders of the model, where every pixel is the model's and
         the L2 fit is the efficient one). The final weights are the run's
         ``images/<view>.weights.exr``.
+    boundary : ``auto`` or int in [0, 8], default ``auto``
+        Pixels within this many pixels of a change of segment are left out: a photograph
+        resampled from a distorted camera interpolates across the edge, mixing two materials
+        that the pass's box-filtered pixel keeps apart. ``auto``: 1 when some view was resampled
+        (a distorted camera), else 0.
     irls.iterations : int in [1, 100], default 10; irls.tol : float >= 0, default 1e-3
         Cap on the robust rounds, and the largest move of a weight or gain below which they stop.
     memory_mb : float > 0, default 512
@@ -168,6 +173,8 @@ class SymbolicMethod(Method):
                              ("robust", ("auto",) + ROBUST_LOSSES)):
             if key in self.cfg:
                 check_choice(self.cfg, key, choices)
+        if "boundary" in self.cfg and str(self.cfg.boundary) != "auto":
+            check_number(self.cfg, "boundary", 0, 8, integer=True)
         if "irls" in self.cfg:
             check_number(self.cfg.irls, "iterations", 1, 100, integer=True, section="method.irls")
             check_number(self.cfg.irls, "tol", 0.0, section="method.irls")
@@ -197,13 +204,15 @@ class SymbolicMethod(Method):
             result = self._pass(sub, params, x0, seed=int(problem.seed) + 7777 * renders)
             renders += 1
             t_solve = time.perf_counter()
-            previous, fit = (fit["estimate"] if k else None), self._fit(result, params, x0, problem, field)
+            previous = fit if k else {}
+            fit = self._fit(result, params, x0, problem, field, start=previous.get("robust_weights"))
             _record_iterates(trace, renders, fit)
             render_s += result.render_s
             solve_s += time.perf_counter() - t_solve     # PSD projection, nlopt and uncertainty
             stages = {name: stages.get(name, 0.0) + t for name, t in fit["stages_s"].items()}
             if k:
-                moves.append(_moved(previous, fit["estimate"], fit["std"], tol))
+                fit = _carried(previous, fit)
+                moves.append(_moved(previous["estimate"], fit["estimate"], fit["std"], tol))
                 if moves[-1] <= 1.0:
                     stopped = (f"converged after {k} refinement pass(es): no weight moved more than "
                                f"refine_tol + 2 std ({moves[-1]:.2f} of it)")
@@ -257,16 +266,16 @@ class SymbolicMethod(Method):
                                    cache=Cache(settings.cache_dir), executor=executor,
                                    cross_gram=self.cfg.get("gram", "cross") == "cross")
 
-    def _fit(self, result, params, x0, problem, field) -> dict:
+    def _fit(self, result, params, x0, problem, field, start=None) -> dict:
         """The solve of one pass: on the pass's own system, or through the field path
         (:func:`~methods.symbolic.field.fit_field`: pixel weights, gains, robust IRLS).
 
         Returns :meth:`_solve`'s dict plus ``n_monomials``, ``gram_nnz``, ``images`` (a
         function giving the reconstructions) and, from the field path, ``exposure`` and
-        ``pixel_weights``.
+        ``pixel_weights``; ``start``: the robust weights the previous pass ended with.
         """
         if field.active:
-            return fit_field(result, params, x0, problem, field, self._solve)
+            return fit_field(result, params, x0, problem, field, self._solve, start=start)
         basis = MonomialBasis(len(params), problem.settings.max_bounces, result.system.codes)
         views = lambda: ((result.view(cam.name)[1], problem.observed[cam.name], None) for cam in problem.cameras)
         fit = self._solve(result.system, basis, params, x0, problem, views=views)
@@ -339,14 +348,39 @@ class SymbolicMethod(Method):
 
 def _lambertian_prior(problem) -> MethodResult:
     """``method.init=lambertian_prior``: the symbolic inversion of the diffuse weights with the
-    ``lambertian_prior`` method's shipped options (that method is this class with diffuse kernels)."""
-    return SymbolicMethod(method_defaults("lambertian_prior")).run(problem)
+    ``lambertian_prior`` method's shipped options but one pass (a start needs no refinement;
+    that method is this class with diffuse kernels)."""
+    return SymbolicMethod(prior_config()).run(problem)
+
+
+def prior_config():
+    """The ``lambertian_prior`` method's shipped options with ``refine: 0``: the one-pass prior
+    that ``method.init=lambertian_prior`` starts from (:func:`methods._common.initial_guess`)."""
+    from omegaconf import open_dict
+    cfg = method_defaults("lambertian_prior")
+    with open_dict(cfg):
+        cfg.refine = 0
+    return cfg
 
 
 def _images(result, basis: MonomialBasis, rho: np.ndarray, cameras) -> dict[str, np.ndarray]:
     """Every view's polynomial evaluated at ρ (P, C): (H, W, C) images."""
     mu = np.stack([basis.evaluate(rho[:, c]) for c in range(rho.shape[1])])
     return {cam.name: result.image(cam.name, mu, (cam.height, cam.width)) for cam in cameras}
+
+
+def _carried(previous: dict, fit: dict) -> dict:
+    """``fit`` with the estimate and std of the parameters it could not observe but the previous
+    pass could taken from that pass: a weight seen through a handful of paths may get none in
+    the next pass's samples, which says nothing new about it."""
+    lost = previous["observable"] & ~fit["observable"]
+    if not lost.any():
+        return fit
+    out = dict(fit)
+    out["estimate"], out["std"] = fit["estimate"].copy(), fit["std"].copy()
+    out["estimate"][lost], out["std"][lost] = previous["estimate"][lost], previous["std"][lost]
+    out["observable"] = fit["observable"] | lost
+    return out
 
 
 def _moved(previous: np.ndarray, current: np.ndarray, std: np.ndarray, tol: float) -> float:

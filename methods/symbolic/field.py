@@ -187,7 +187,9 @@ class FieldOptions:
     Attributes
     ----------
     weights : dict or None
-        View name -> ``(H·W,)`` scene pixel weights (None: every pixel 1).
+        View name -> ``(H·W,)`` scene pixel weights times 0 on material boundaries (``boundary``
+        pixels of a change of segment, where resampled photographs mix two materials); None:
+        every pixel 1.
     floors : dict
         View name -> ``(C,)`` smallest robust scale (median quantisation noise; absent: 0).
     reference : str or None
@@ -229,6 +231,10 @@ class FieldOptions:
                               f"({', '.join(names)}): add it to views, or set method.exposure=known")
         use = str(cfg.get("weights", "scene")) == "scene" and problem.weights is not None
         weights = {n: np.asarray(w, np.float64).ravel() for n, w in problem.weights.items()} if use else None
+        boundary = _boundary_width(cfg, problem)
+        if boundary:
+            edges = segment_boundaries(problem, boundary)
+            weights = {n: (1.0 if weights is None else weights[n]) * ~edges[n] for n in names}
         noise = getattr(scene, "noise", None) or {}
         floors = {n: np.median(np.asarray(noise[n], float).reshape(-1, noise[n].shape[-1]), axis=0)
                   for n in names if n in noise}
@@ -245,6 +251,39 @@ class FieldOptions:
                 "reference_view": self.reference, "robust": self.robust,
                 "scene_weights": self.weights is not None, "irls_rounds": fit["irls_rounds"],
                 "irls_stopped": fit["irls_stopped"]}
+
+
+def _boundary_width(cfg, problem) -> int:
+    """``method.boundary`` in pixels: ``auto`` is 1 when some view was resampled from a distorted
+    camera (its interpolation mixes the materials on either side of an edge, which the pass's
+    box-filtered pixels do not), else 0."""
+    value = str(cfg.get("boundary", "auto"))
+    if value != "auto":
+        return int(value)
+    return int(any(getattr(c, "distortion", None) is not None for c in problem.cameras))
+
+
+def segment_boundaries(problem, width: int) -> dict[str, np.ndarray]:
+    """View name -> ``(H·W,)`` bool: pixels within ``width`` pixels (a square) of a pixel whose
+    centre sees another segment (or the sky)."""
+    from framework.render.mitsuba_scene import MitsubaScene
+    ms = MitsubaScene(problem.scene, list(problem.cameras), spp=1)
+    out = {}
+    for i, cam in enumerate(problem.cameras):
+        seg = ms.segment_map(i)
+        edge = np.zeros(seg.shape, bool)
+        edge[:, 1:] |= seg[:, 1:] != seg[:, :-1]
+        edge[:, :-1] |= seg[:, 1:] != seg[:, :-1]
+        edge[1:] |= seg[1:] != seg[:-1]
+        edge[:-1] |= seg[1:] != seg[:-1]
+        grown = edge.copy()
+        for _ in range(width - 1):
+            grown[:, 1:] |= grown[:, :-1].copy()
+            grown[:, :-1] |= grown[:, 1:].copy()
+            grown[1:] |= grown[:-1].copy()
+            grown[:-1] |= grown[1:].copy()
+        out[cam.name] = grown.ravel()
+    return out
 
 
 @dataclass
@@ -294,7 +333,8 @@ def field_views(result, problem, params, x0: np.ndarray, options: FieldOptions
     return views, gains, np.vstack([x0] + [h[None] for h in h0]) if h0 else x0
 
 
-def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, solve) -> dict:
+def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, solve, *,
+              start: dict | None = None) -> dict:
     """Fit ρ (and the gains) to the weighted pixels, reweighting them (IRLS) from the stored
     coefficients; the module docstring gives the model.
 
@@ -302,7 +342,9 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
     (nlopt and the sandwich std). Returns its dict restricted to ρ's ``P`` rows, plus
     ``exposure`` (contract list or None), ``pixel_weights`` (view -> (H, W) weights of the last
     solve), ``images`` (a function giving the reconstructions), ``iterates`` (every round's),
-    ``irls_rounds``, ``irls_stopped``, ``n_monomials`` and ``gram_nnz``.
+    ``irls_rounds``, ``irls_stopped``, ``n_monomials``, ``gram_nnz`` and ``robust_weights``
+    (view -> the robust weights after the last round: a refinement pass starts from them,
+    ``start``, instead of a plain L2 round that outliers drag).
     """
     from functools import reduce
 
@@ -310,6 +352,9 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
     from methods.symbolic.basis import MonomialBasis
     P, C = len(params), problem.n_channels
     views, gains, x = field_views(result, problem, params, x0, options)
+    if start and options.robust != "none":
+        for v in views:
+            v.robust_w = start.get(v.name)
     every = list(params) + gains
     degree = problem.settings.max_bounces + (1 if gains else 0)
     iterates, stopped, fit = [], "single solve", None
@@ -350,7 +395,7 @@ def _field_outputs(fit, views, used, basis, system, gains, P, C, rounds, stopped
     out = dict(fit)
     out.update(estimate=est[:P], std=std[:P], observable=fit["observable"][:P], exposure=exposure,
                iterates=[(at, x[:P]) for at, x in iterates], irls_rounds=rounds, irls_stopped=stopped,
-               n_monomials=basis.size, gram_nnz=system.nnz,
+               n_monomials=basis.size, gram_nnz=system.nnz, robust_weights={v.name: v.robust_w for v in views},
                pixel_weights={v.name: (np.ones(len(v.y)) if w is None else w).reshape(v.shape).astype(np.float32)
                               for v, w in zip(views, used)},
                images=lambda: {v.name: predicted(v.coeffs, mu, system.codes).reshape(*v.shape, C).astype(np.float32)

@@ -1,0 +1,76 @@
+"""Section "megapixel": one 1920x1080 street view, the paper's pass against a plain render.
+
+The default street view of urban_canyon (same pose, 65 degree horizontal field of view) at
+1920x1080 pixels, 64 spp: the polynomial pass of ``method=symbolic_paper`` (tiles of
+``method.memory_mb``) against Mitsuba ``path`` at max_depth N_max + 1, timed as section 1 does
+(:func:`bench.render_ratio.measure_spp`, one warm-up, median of ``reps``), in a fresh
+subprocess whose peak RSS is reported: memory stays bounded by the tiles, not the image.
+
+``python -m bench.megapixel <work folder> <spp> <reps>`` is that subprocess; it prints one line
+``MEGAPIXEL {json}``.
+"""
+from __future__ import annotations
+
+import json
+import resource
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+from bench.common import ROOT
+
+WIDTH, HEIGHT, VIEW = 1920, 1080, "street_002.png"
+
+
+def variant(work: Path) -> Path:
+    """urban_canyon with only its default view, at WIDTH x HEIGHT (same pose and field of view)."""
+    from framework.scene import load_scene
+    from framework.scene.write import pinhole_camera, write_colmap
+    from scenes import BUNDLED_DIR
+    from scenes.cameras import focal_from_fov
+    from scenes.urban_canyon import FOV, landmarks
+    folder = work / "urban_canyon_1080p"
+    if (folder / "scene.yaml").is_file():
+        return folder
+    shutil.rmtree(folder, ignore_errors=True)
+    shutil.copytree(BUNDLED_DIR / "urban_canyon", folder, ignore=shutil.ignore_patterns("sparse", "preview.png"))
+    cam = load_scene(BUNDLED_DIR / "urban_canyon").camera(VIEW)
+    big = pinhole_camera(VIEW, WIDTH, HEIGHT, focal_from_fov(WIDTH, FOV), cam.cam_from_world)
+    write_colmap(folder / "sparse", [big], landmarks())
+    return folder
+
+
+def child(work: Path, spp: int, reps: int) -> dict:
+    """Measure in this process (the subprocess of :func:`run`)."""
+    from bench.render_ratio import build_problem, measure_spp
+    from framework.config import compose
+    folder = variant(work)
+    cfg = compose(["method=symbolic_paper", f"scene.dir={folder}", f"views=[{VIEW}]", "observe.spp=16",
+                   f"cache.dir={work / 'cache'}"])
+    problem, method = build_problem(cfg)
+    row = measure_spp(problem, method, spp, reps)
+    row.update(size=f"{WIDTH}x{HEIGHT}", memory_mb=float(method.cfg.memory_mb),
+               maxrss_mib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+    return row
+
+
+def run(sizes, work: Path, log=print) -> dict:
+    """The subprocess; its row (or the error)."""
+    work.mkdir(parents=True, exist_ok=True)
+    proc = subprocess.run([sys.executable, "-m", "bench.megapixel", str(work), str(sizes.mega_spp),
+                           str(sizes.mega_reps)], cwd=ROOT, capture_output=True, text=True, timeout=3600)
+    for line in proc.stdout.splitlines():
+        if line.startswith("MEGAPIXEL "):
+            row = json.loads(line[len("MEGAPIXEL "):])
+            log(f"[megapixel] pass {row['pass_s']:.1f} s, render {row['render_s']:.1f} s, ratio {row['ratio']:.2f}, "
+                f"peak {row['maxrss_mib']:.0f} MiB")
+            return row
+    return {"error": proc.stderr[-1500:], "rc": proc.returncode}
+
+
+if __name__ == "__main__":
+    from framework.render.backend import set_variant
+    set_variant("llvm_ad_rgb")
+    out = child(Path(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]))
+    print("MEGAPIXEL " + json.dumps(out, default=float), flush=True)
