@@ -9,7 +9,8 @@ path switched off at a time, so the gain from each part shows:
 * naive: exposure taken as known (gains 1), no pixel weights (masks, saturation ignored), plain L2;
 * + exposure: per-view gains estimated;
 * + masks: the scene's pixel weights (masks, saturated and clipped pixels out);
-* default: + robust Cauchy reweighting (``method.robust=auto``).
+* default: + robust Cauchy reweighting (``method.robust=auto``);
+* the default without leaving out the pixels next to a change of segment (``method.boundary=0``).
 
 Targets (default row): every parameter the run calls determined within 0.03 (diffuse) / 0.05
 (specular) of its reference, every gain within 3 % of the truth (``truth.yaml`` of the scene).
@@ -33,6 +34,7 @@ VARIANTS = (  # label, overrides
     ("+ per-view exposure", ["method.weights=none", "method.robust=none"]),
     ("+ masks and saturation", ["method.robust=none"]),
     ("default (+ robust Cauchy)", []),
+    ("default without the boundary exclusion", ["method.boundary=0"]),
 )
 
 
@@ -71,7 +73,7 @@ def run(sizes, work: Path, log=print) -> list[dict]:
     gains = true_gains(folder)
     rows = []
     for label, overrides in VARIANTS:
-        tag = label.split(" ")[0].strip("+") or "x"
+        tag = "".join(ch if ch.isalnum() else "_" for ch in label)[:24]
         run_dir = work / "runs" / f"{len(rows)}_{tag}"
         shutil.rmtree(run_dir, ignore_errors=True)
         out = run_child([f"scene={SCENE}", "views=all", "method=symbolic", *overrides, "report=false",
