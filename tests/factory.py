@@ -282,3 +282,51 @@ def write_png8(path: Path, codes: np.ndarray, *, fmt: str = "PNG", **save) -> Pa
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(np.ascontiguousarray(a)).save(path, format=fmt, **save)
     return Path(path)
+
+
+def scene_error_message(root, match: str) -> str:
+    """The SceneError message of loading ``root``: it matches ``match`` and is one line."""
+    import pytest
+
+    from framework.errors import SceneError
+    from framework.scene import load_scene
+    with pytest.raises(SceneError, match=match) as info:
+        load_scene(root)
+    message = str(info.value)
+    assert "\n" not in message and "\r" not in message
+    return message
+
+
+def ad_and_fd_gradients(problem, *, spp: int, rho: float, repeats: int, step: float):
+    """``(ad, fd)``: ``repeats`` independent AD and finite-difference estimates ``(repeats, P, C)``
+    of dε/dρ at ρ = ``rho`` (every weight and channel) on the first view of ``problem``.
+
+    AD: the differentiable method's own pass (``_Fit.cost_and_gradient``: primal and adjoint
+    renders at independent seeds), i.e. ``2 (I_a - obs) · dI_b/dρ``, the gradient of the
+    expected image's cost. FD: the same from primal renders only, ``2 (I_r - obs) ·
+    (I_c(ρ + h e_j) - I_c(ρ - h e_j)) / 2h`` with common random numbers (seed ``c`` on both
+    sides) and the residual from an independent seed ``r``.
+    """
+    from methods import _common as C
+    from methods.differentiable import _Fit
+    ledger = C.RenderLedger(10 ** 6, desc="gradient test")
+    fit = _Fit(problem, ledger, {"spp": spp, "spp_grad": spp})
+    x = np.full((len(problem.parameters), problem.n_channels), rho)
+    obs = C.observed_list(problem)[0]
+
+    def render(r, seed):
+        fit.write(r, grad=False)
+        return fit.ms.render(0, spp=spp, seed=seed)
+
+    ad = np.array([fit.cost_and_gradient(x, it)[1] for it in range(repeats)])
+    fd = np.zeros_like(ad)
+    for s in range(repeats):
+        residual = 2 * (render(x, 100_001 + 2 * s) - obs)
+        for j in range(len(problem.parameters)):
+            up, down = x.copy(), x.copy()
+            up[j] += step
+            down[j] -= step
+            diff = render(up, 200_001 + 2 * s) - render(down, 200_001 + 2 * s)
+            fd[s, j] = np.sum(residual * diff, axis=(0, 1)) / (2 * step)
+    ledger.close()
+    return ad, fd

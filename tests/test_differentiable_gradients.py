@@ -3,10 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from factory import mean_difference, tiny_problem
+from factory import ad_and_fd_gradients, mean_difference, tiny_problem
 
-from methods import _common as C
-from methods.differentiable import _Fit
 
 REPEATS, SPP, STEP = 16, 64, 0.05
 RHO = 0.3            # every weight, every channel: away from the references (0.1 .. 0.6)
@@ -31,27 +29,7 @@ def gradients(tmp_path_factory):
     central difference's own error is O(h²) and below the noise at h = 0.05.
     """
     problem = tiny_problem(tmp_path_factory.mktemp("grad") / "s", kernels=("diffuse", "specular"), obs_spp=64)
-    ledger = C.RenderLedger(10 ** 6, desc="gradient test")
-    fit = _Fit(problem, ledger, {"spp": SPP, "spp_grad": SPP})
-    rho = np.full((len(problem.parameters), 3), RHO)
-    obs = C.observed_list(problem)[0]
-
-    def render(r, seed):
-        fit.write(r, grad=False)
-        return fit.ms.render(0, spp=SPP, seed=seed)
-
-    ad = np.array([fit.cost_and_gradient(rho, it)[1] for it in range(REPEATS)])
-    fd = np.zeros_like(ad)
-    for s in range(REPEATS):
-        residual = 2 * (render(rho, 100_001 + 2 * s) - obs)
-        for j in range(len(problem.parameters)):
-            up, down = rho.copy(), rho.copy()
-            up[j] += STEP
-            down[j] -= STEP
-            diff = render(up, 200_001 + 2 * s) - render(down, 200_001 + 2 * s)
-            fd[s, j] = np.sum(residual * diff, axis=(0, 1)) / (2 * STEP)
-    ledger.close()
-    return problem, ad, fd
+    return (problem,) + ad_and_fd_gradients(problem, spp=SPP, rho=RHO, repeats=REPEATS, step=STEP)
 
 
 def test_gradient_matches_finite_differences(gradients):

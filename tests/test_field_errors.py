@@ -9,20 +9,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from factory import edit_scene_yaml, make_tiny_scene, write_png8
+from factory import edit_scene_yaml, make_tiny_scene, scene_error_message, write_png8
 
 import framework.run
-from framework.errors import SceneError
 from framework.scene import load_scene
 
 
-def _message(root: Path, match: str) -> str:
-    """The SceneError message of loading ``root``: it matches ``match`` and is one line."""
-    with pytest.raises(SceneError, match=match) as info:
-        load_scene(root)
-    message = str(info.value)
-    assert "\n" not in message and "\r" not in message
-    return message
+_message = scene_error_message
 
 
 def _camera_line(root: Path, camera: int, line: str) -> None:

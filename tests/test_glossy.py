@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from factory import edit_scene_yaml, make_problem, make_tiny_scene, mean_difference, run_symbolic
+from factory import ad_and_fd_gradients, edit_scene_yaml, make_problem, make_tiny_scene, mean_difference, run_symbolic
 
 from framework import kernels as K
 from framework.errors import SceneError
@@ -254,36 +254,13 @@ def glossy_gradients(tmp_path_factory):
     from framework.observe import render_references
     from framework.registry import Problem
     from framework.scene import load_scene
-    from methods import _common as C
-    from methods.differentiable import _Fit
-
     scene = load_scene(_glossy_scene(tmp_path_factory.mktemp("glossy_grad") / "s"))
     cams = list(scene.cameras)[:1]
     obs = render_references(scene, cams, spp=64, max_depth=4, seed=0)
     settings = RunSettings(spp=SPP, max_bounces=3, budget_renders=100, seed=0, cache_dir=None)
     problem = Problem(scene=scene, cameras=cams, observed={c.name: o for c, o in zip(cams, obs)},
                       parameters=scene.parameters(), settings=settings)
-    ledger = C.RenderLedger(10 ** 6, desc="glossy gradient test")
-    fit = _Fit(problem, ledger, {"spp": SPP, "spp_grad": SPP})
-    rho = np.full((len(problem.parameters), 3), RHO)
-    observed = C.observed_list(problem)[0]
-
-    def render(r, seed):
-        fit.write(r, grad=False)
-        return fit.ms.render(0, spp=SPP, seed=seed)
-
-    ad = np.array([fit.cost_and_gradient(rho, it)[1] for it in range(REPEATS)])
-    fd = np.zeros_like(ad)
-    for s in range(REPEATS):
-        residual = 2 * (render(rho, 100_001 + 2 * s) - observed)
-        for j in range(len(problem.parameters)):
-            up, down = rho.copy(), rho.copy()
-            up[j] += STEP
-            down[j] -= STEP
-            diff = render(up, 200_001 + 2 * s) - render(down, 200_001 + 2 * s)
-            fd[s, j] = np.sum(residual * diff, axis=(0, 1)) / (2 * STEP)
-    ledger.close()
-    return problem, ad, fd
+    return (problem,) + ad_and_fd_gradients(problem, spp=SPP, rho=RHO, repeats=REPEATS, step=STEP)
 
 
 def test_glossy_gradient_matches_finite_differences(glossy_gradients):
@@ -322,3 +299,19 @@ def test_symbolic_run_names_glossy_parameters(tmp_path):
     est = result.estimate[np.isfinite(result.estimate)]
     assert est.size and (est >= 0).all() and (est <= 1).all()
 
+
+
+def test_kernel_names_are_canonical_in_the_scene(tmp_path):
+    """``glossy(0.20)`` in ``kernels`` and ``glossy(0.200)`` as a reference key load as the kernel
+    ``glossy(0.2)``: the segment, its reference and the parameters use the canonical name."""
+    from framework.scene import load_scene
+    root = make_tiny_scene(tmp_path / "s", kernels=("diffuse",))
+
+    def edit(d):
+        d["segments"][0]["kernels"] = ["diffuse", "glossy(0.20)"]
+        d["segments"][0]["reference"] = {"diffuse": 0.5, "glossy(0.200)": 0.1}
+    edit_scene_yaml(root, edit)
+    scene = load_scene(root)
+    assert scene.segments[0].kernels == ("diffuse", "glossy(0.2)")
+    assert set(scene.segments[0].reference) == {"diffuse", "glossy(0.2)"}
+    assert [p.kernel for p in scene.parameters()][:2] == ["diffuse", "glossy(0.2)"]

@@ -16,7 +16,6 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from factory import mean_and_se, mean_difference  # noqa: E402
 
-from framework import kernels as K  # noqa: E402
 from framework.render import kernel_bsdf as KB  # noqa: E402
 from framework.errors import ConfigError  # noqa: E402
 from methods.symbolic.basis import MonomialBasis  # noqa: E402

@@ -11,9 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from factory import edit_scene_yaml, quad
+from factory import edit_scene_yaml, quad, scene_error_message
 
-from framework.errors import SceneError
 from framework.images import write_exr
 from framework.scene import load_scene
 from framework.scene.write import write_mesh
@@ -25,13 +24,7 @@ def _replace(path: Path, old: str, new: str) -> None:
     path.write_text(text.replace(old, new))
 
 
-def _message(root: Path, match: str) -> str:
-    """The SceneError message of loading ``root``: it matches ``match`` and is one line."""
-    with pytest.raises(SceneError, match=match) as info:
-        load_scene(root)
-    message = str(info.value)
-    assert "\n" not in message and "\r" not in message
-    return message
+_message = scene_error_message
 
 
 def _tree(root: Path) -> dict[str, bytes]:
