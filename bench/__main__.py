@@ -39,6 +39,8 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--out", default=None, help="markdown file to (re)write (default BENCHMARKS.md; "
                                                "with --quick the run folder's)")
     p.add_argument("--runs", default=None, help="folder of the run folders (default bench/runs/<timestamp>)")
+    p.add_argument("--render-only", action="store_true",
+                   help="measure nothing: rewrite the markdown from the stored sections")
     args = p.parse_args(argv)
     unknown = [x for x in args.sections.split(",") if x not in SECTIONS]
     if unknown:
@@ -95,7 +97,7 @@ def main(argv=None) -> int:
     store.mkdir(parents=True, exist_ok=True)
     machine = describe()
     log(f"bench ({sizes.name}) into {root}")
-    for name in args.sections.split(","):
+    for name in [] if args.render_only else args.sections.split(","):
         t0 = time.perf_counter()
         data = measure(name, sizes, root)
         record = {"section": name, "sizes": sizes.name, "date": machine["date"], "git": machine["git"],

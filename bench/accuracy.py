@@ -98,7 +98,7 @@ def run(sizes, work: Path, log=print) -> list[dict]:
         path = run_dir / "results.json"
         res = json.loads(path.read_text()) if path.is_file() else {}
         ok, detail = check(res, target) if res else (False, out["stderr_tail"][-300:])
-        rows.append({"label": label, "target": target, "met": ok, "detail": detail, "rc": out["rc"],
+        rows.append({"label": label, "target": target, "met": bool(ok), "detail": detail, "rc": out["rc"],
                      "wall_s": out["wall_s"], "maxrss_mib": out["maxrss_mib"], "renders": res.get("renders"),
                      "stopped": res.get("refine_stopped"), "method_s": res.get("timings_s", {}).get("method")})
         log(f"[defaults] {label}: {'met' if ok else 'NOT met'} ({detail}), {out['wall_s']:.0f} s")

@@ -57,7 +57,7 @@ def summarise(res: dict, gains: dict[str, np.ndarray]) -> dict:
                for e, t in zip(x["estimate"], gains[x["view"]]) if e is not None]
         gain_err = max(rel) if rel else None
     worst = {k: max(v) if v else None for k, v in errs.items()}
-    met = (worst["diffuse"] is not None and worst["diffuse"] <= DIFFUSE_TOL
+    met = bool(worst["diffuse"] is not None and worst["diffuse"] <= DIFFUSE_TOL
            and (worst["specular"] is None or worst["specular"] <= SPECULAR_TOL)
            and gain_err is not None and gain_err <= GAIN_TOL)
     n_ill = sum(bool(p.get("ill_determined")) for p in res.get("parameters", []))

@@ -27,8 +27,9 @@ def table(header: list[str], rows: list[list]) -> list[str]:
     return out + ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
 
 
-def yes(ok: bool) -> str:
-    return "**met**" if ok else "**not met**"
+def yes(ok) -> str:
+    """``ok`` may come back from JSON as a string (numpy booleans were stored as text)."""
+    return "**met**" if ok in (True, "True") else "**not met**"
 
 
 def section_machine(m: dict, command: str, sizes, stored: dict) -> list[str]:
