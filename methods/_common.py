@@ -18,7 +18,7 @@ import numpy as np
 
 from framework import optim
 from framework.errors import ConfigError
-from framework.registry import MethodResult
+from framework.registry import Method, MethodResult
 from framework.render.mitsuba_scene import max_depth_for
 
 
@@ -258,3 +258,19 @@ def loop_result(problem, ledger: RenderLedger, *, started: float, rho: np.ndarra
         cost_history=costs, cost_times_s=times, trace=trace.entries(),
         reconstructions={c.name: img for c, img in zip(problem.cameras, reconstructions)},
         extras=extras)
+
+
+class RenderingBaseline(Method):
+    """A method that renders the scene again at its iterates (``iterative``, ``differentiable``):
+    it does not estimate per-view exposure gains, so such photographs are refused up front."""
+
+    def check_problem(self, problem) -> None:
+        refuse_per_view_exposure(problem, self.name)
+
+    def _start(self, problem, prior) -> tuple[float, np.ndarray, "RenderLedger"]:
+        """``(t0, ρ0, ledger)``: the checks, the clock, the initial guess (``prior`` for
+        ``method.init=lambertian_prior``) and the render ledger with the prior's renders spent."""
+        self.check_problem(problem)
+        t0 = time.perf_counter()
+        rho0, spent = initial_guess(self.cfg, problem, prior=prior)
+        return t0, rho0, RenderLedger(problem.settings.budget_renders, desc=self.name, spent=spent)

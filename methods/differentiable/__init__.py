@@ -6,7 +6,7 @@ import time
 import numpy as np
 
 from framework.observe import inversion_seed
-from framework.registry import Method, MethodResult, Problem, register
+from framework.registry import MethodResult, Problem, register
 from framework.render.mitsuba_scene import MitsubaScene
 from methods import _common as C
 from methods.differentiable.integrator import integrator_dict
@@ -14,7 +14,7 @@ from methods.lambertian_prior import lambertian_prior
 
 
 @register("differentiable")
-class DifferentiableMethod(Method):
+class DifferentiableMethod(C.RenderingBaseline):
     r"""Inverse rendering as most people would do it today: differentiable path tracing + Adam.
 
     Each iteration renders every selected view with the ``prb_dirac`` integrator
@@ -80,15 +80,9 @@ class DifferentiableMethod(Method):
     ``lr`` and raise the budget for a tighter estimate.
     """
 
-    def check_problem(self, problem: Problem) -> None:
-        C.refuse_per_view_exposure(problem, "differentiable")
-
     def run(self, problem: Problem) -> MethodResult:
-        self.check_problem(problem)
         opts = _options(self.cfg, problem)
-        t0 = time.perf_counter()
-        rho, spent = C.initial_guess(self.cfg, problem, prior=lambertian_prior)
-        ledger = C.RenderLedger(problem.settings.budget_renders, desc="differentiable", spent=spent)
+        t0, rho, ledger = self._start(problem, lambertian_prior)
         try:
             fit = _Fit(problem, ledger, opts, trace=C.Trace(t0))
             fit.trace.record(ledger.used, rho)

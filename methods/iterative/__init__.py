@@ -7,14 +7,14 @@ import numpy as np
 
 from framework.observe import inversion_seed
 from framework.optim import StopOptimization, check_algorithm, minimize
-from framework.registry import Method, MethodResult, Problem, register
+from framework.registry import MethodResult, Problem, register
 from framework.render.mitsuba_scene import MitsubaScene
 from methods import _common as C
 from methods.lambertian_prior import lambertian_prior
 
 
 @register("iterative")
-class IterativeMethod(Method):
+class IterativeMethod(C.RenderingBaseline):
     r"""Plain iterative inversion: every cost evaluation is a new Mitsuba rendering.
 
     This is the baseline of the paper's section 4.1 (figure 2). The cost is eq. 6 with
@@ -76,15 +76,9 @@ class IterativeMethod(Method):
     with the number of parameters.
     """
 
-    def check_problem(self, problem: Problem) -> None:
-        C.refuse_per_view_exposure(problem, "iterative")
-
     def run(self, problem: Problem) -> MethodResult:
-        self.check_problem(problem)
         opts = _options(self.cfg, problem)
-        t0 = time.perf_counter()
-        rho0, spent = C.initial_guess(self.cfg, problem, prior=lambertian_prior)
-        ledger = C.RenderLedger(problem.settings.budget_renders, desc="iterative", spent=spent)
+        t0, rho0, ledger = self._start(problem, lambertian_prior)
         objective = _Objective(problem, ledger, opts, trace=C.Trace(t0))
         objective.trace.record(ledger.used, rho0)
         try:

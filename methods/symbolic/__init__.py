@@ -198,13 +198,14 @@ class SymbolicMethod(Method):
         field = FieldOptions.from_config(self.cfg, problem)
         refine, tol = int(self.cfg.get("refine", 0)), float(self.cfg.get("refine_tol", 0.0))
         moves, stopped = [], "single pass" if refine == 0 else f"cap of {refine} refinement pass(es)"
+        fit: dict = {}
         for k in range(1 + refine):
             if k:      # re-render at the estimate: better kernel selection, and a tail at the estimate
                 x0 = np.where(np.isnan(fit["estimate"]), x0, fit["estimate"])
             result = self._pass(sub, params, x0, seed=int(problem.seed) + 7777 * renders)
             renders += 1
             t_solve = time.perf_counter()
-            previous = fit if k else {}
+            previous = fit
             fit = self._fit(result, params, x0, problem, field, start=previous.get("robust_weights"))
             _record_iterates(trace, renders, fit)
             render_s += result.render_s
