@@ -102,7 +102,7 @@ def main(argv=None) -> int:
         data = measure(name, sizes, root)
         record = {"section": name, "sizes": sizes.name, "date": machine["date"], "git": machine["git"],
                   "wall_s": time.perf_counter() - t0, "data": data}
-        (store / f"{name}.json").write_text(json.dumps(_light(record), indent=1, default=str))
+        (store / f"{name}.json").write_text(json.dumps(_relative(_light(record)), indent=1, default=str))
         log(f"[{name}] done in {record['wall_s'] / 60:.1f} min")
     stored = {p.stem: json.loads(p.read_text()) for p in store.glob("*.json") if p.stem in SECTIONS}
     command = "python -m bench" + (" --quick" if args.quick else "")
@@ -114,6 +114,18 @@ def main(argv=None) -> int:
 
 #: results.json keys no section reads back (kept in the run folders)
 HEAVY = ("cost_history", "cost_times_s", "correlation", "views", "relit", "initial_guess")
+
+
+def _relative(obj):
+    """``obj`` with every string path inside the repository written relative to it: the stored
+    results are committed and name no machine's folders."""
+    if isinstance(obj, dict):
+        return {k: _relative(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_relative(v) for v in obj]
+    if isinstance(obj, str) and obj.startswith(str(ROOT)):
+        return obj[len(str(ROOT)):].lstrip("/") or "."
+    return obj
 
 
 def _light(record: dict) -> dict:

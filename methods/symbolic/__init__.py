@@ -181,7 +181,7 @@ class SymbolicMethod(Method):
 
     def check_problem(self, problem) -> None:
         self.check()
-        FieldOptions.from_config(self.cfg, problem)     # a reference view outside the run's views
+        FieldOptions.from_config(self.cfg, problem, boundaries=False)   # a reference view outside the views
 
     def run(self, problem) -> MethodResult:
         self.check()

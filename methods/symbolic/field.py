@@ -214,11 +214,12 @@ class FieldOptions:
         return self.weights is not None or self.reference is not None or self.robust != "none"
 
     @classmethod
-    def from_config(cls, cfg, problem) -> "FieldOptions":
+    def from_config(cls, cfg, problem, *, boundaries: bool = True) -> "FieldOptions":
         """Resolve ``method.exposure`` (``scene``: as scene.yaml says | ``known``),
         ``method.weights`` (``scene`` | ``none``), ``method.robust`` (``auto``: Cauchy for
         photographs, i.e. images decoded from 8/16-bit files, pixel weights or per-view exposure;
-        none for linear radiance) and ``method.irls`` against ``problem``."""
+        none for linear radiance), ``method.boundary`` and ``method.irls`` against ``problem``;
+        ``boundaries=False`` skips the segment maps the boundary needs (the checks before a run)."""
         from framework.errors import ConfigError
         scene = problem.scene
         photometry = getattr(scene, "photometry", None)
@@ -231,7 +232,7 @@ class FieldOptions:
                               f"({', '.join(names)}): add it to views, or set method.exposure=known")
         use = str(cfg.get("weights", "scene")) == "scene" and problem.weights is not None
         weights = {n: np.asarray(w, np.float64).ravel() for n, w in problem.weights.items()} if use else None
-        boundary = _boundary_width(cfg, problem)
+        boundary = _boundary_width(cfg, problem) if boundaries else 0
         if boundary:
             edges = segment_boundaries(problem, boundary)
             weights = {n: (1.0 if weights is None else weights[n]) * ~edges[n] for n in names}
