@@ -126,7 +126,7 @@ def _target(run_dir: Path, rel: str) -> Path:
     return path
 
 
-def _listify(row: np.ndarray) -> list | None:
+def per_channel(row: np.ndarray) -> list | None:
     """One number per channel, None for NaN (unknown) entries; None if all unknown."""
     if row is None or np.all(np.isnan(row)):
         return None
@@ -142,11 +142,11 @@ def parameter_rows(problem: Problem, result: MethodResult) -> list[dict]:
         est = result.estimate[p.index]
         observable = True if result.observable is None else bool(result.observable[p.index])
         row = {"segment": p.segment_name, "kernel": p.kernel,
-               "estimate": _listify(est) if observable else None,
-               "reference": _listify(ref[p.index]),
-               "error": _listify(est - ref[p.index]) if observable else None}
+               "estimate": per_channel(est) if observable else None,
+               "reference": per_channel(ref[p.index]),
+               "error": per_channel(est - ref[p.index]) if observable else None}
         if result.std is not None:
-            row["std"] = _listify(result.std[p.index]) if observable else None
+            row["std"] = per_channel(result.std[p.index]) if observable else None
         if result.observable is not None:
             row["observable"] = observable
         if ill is not None:

@@ -35,8 +35,10 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from framework.results import per_channel
 from methods.symbolic.basis import code_digits, encode_digits
 from methods.symbolic.gram import GramSystem
+from methods.symbolic.polynomial_pass import predicted
 
 #: largest gain representable: h = g / GAIN_MAX lies in the solver's box [0, 1]
 GAIN_MAX = 4.0
@@ -126,12 +128,6 @@ def weighted_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSy
         A = [scaled(g + 2 * (1 - w) * d) for g, d in zip(coeffs.gamma, coeffs.delta)]
         B = [scaled(g - 2 * w * d) for g, d in zip(coeffs.gamma, coeffs.delta)]
     return GramSystem.zeros(coeffs.codes, C).accumulate_sparse(A, y, B)
-
-
-def predicted(coeffs, mu: np.ndarray, codes: np.ndarray) -> np.ndarray:
-    """``(n, C)`` pixel values of a view at monomials ``mu`` (C, N) over the sorted ``codes``."""
-    at = np.searchsorted(codes, coeffs.codes)
-    return np.stack([coeffs.gamma[c] @ mu[c][at] for c in range(len(coeffs.gamma))], axis=1)
 
 
 def robust_weights(residual: np.ndarray, used: np.ndarray, *, loss: str, floor: np.ndarray | float = 0.0
@@ -389,8 +385,8 @@ def _field_outputs(fit, views, used, basis, system, gains, P, C, rounds, stopped
     if gains:
         names = {p.index: p.segment_name.removeprefix("exposure:") for p in gains}
         exposure = [{"view": v.name, "reference": v.gain is None,
-                     "estimate": [1.0] * C if v.gain is None else _row(GAIN_MAX * est[v.gain]),
-                     "std": None if v.gain is None else _row(GAIN_MAX * std[v.gain])}
+                     "estimate": [1.0] * C if v.gain is None else per_channel(GAIN_MAX * est[v.gain]),
+                     "std": None if v.gain is None else per_channel(GAIN_MAX * std[v.gain])}
                     for v in views if v.gain is None or v.gain in names]
     mu = np.stack([basis.evaluate(np.nan_to_num(est[:, c])) for c in range(C)])
     out = dict(fit)
@@ -402,11 +398,3 @@ def _field_outputs(fit, views, used, basis, system, gains, P, C, rounds, stopped
                images=lambda: {v.name: predicted(v.coeffs, mu, system.codes).reshape(*v.shape, C).astype(np.float32)
                                for v in views})
     return out
-
-
-def _row(values: np.ndarray) -> list | None:
-    """One number per channel, None for NaN entries; None when all are NaN."""
-    values = np.asarray(values, float)
-    if np.isnan(values).all():
-        return None
-    return [None if np.isnan(v) else float(v) for v in values]

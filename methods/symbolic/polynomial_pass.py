@@ -74,10 +74,15 @@ class PassResult:
     def image(self, view: str, mu: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         """The polynomial image of ``view`` at monomials ``mu`` (C, N) over ``system.codes``:
         (H, W, C) float32."""
-        coeffs = self.view(view)[1]
-        at = np.searchsorted(self.system.codes, coeffs.codes)
-        chans = [coeffs.gamma[c] @ mu[c][at] for c in range(len(mu))]
-        return np.stack(chans, axis=-1).reshape(*shape, len(mu)).astype(np.float32)
+        pixels = predicted(self.view(view)[1], mu, self.system.codes)
+        return pixels.reshape(*shape, len(mu)).astype(np.float32)
+
+
+def predicted(coeffs, mu: np.ndarray, codes: np.ndarray) -> np.ndarray:
+    """``(n, C)`` pixel values of a view's coefficients (``gamma`` over ``coeffs.codes``) at
+    monomials ``mu`` (C, N) over the sorted ``codes``, a superset of the view's."""
+    at = np.searchsorted(codes, coeffs.codes)
+    return np.stack([coeffs.gamma[c] @ mu[c][at] for c in range(len(coeffs.gamma))], axis=1)
 
 
 def event_bytes_per_pixel(spp: int, max_bounces: int, n_channels: int, tail_bounces: int = 0) -> int:
