@@ -86,7 +86,7 @@ def try_one(*args, log=print) -> dict | None:
 
 #: Adam learning rates of the differentiable baseline's sweep (single view); the default (in
 #: differentiable.yaml) is the comparison's own run
-LR_SWEEP = (0.02, 0.1)
+LR_SWEEP = (0.05, 0.2)
 
 
 def lr_sweep(sizes, root: Path, log=print) -> list[dict]:

@@ -154,12 +154,16 @@ def _equal_error(rows: list[dict], keys: set) -> list[str]:
         reach = (f"{f(row['time_s'], 1)} s ({row['renders']} renders), {f(row['ratio'], 1)} x symbolic"
                  if row["time_s"] is not None else
                  f"not reached in {row['max_renders']} renders / {f(row['max_time_s'], 1)} s")
-        out.append([row["method"], f(row["target"]), reach, f(row["floor"])])
+        floor = f"{f(row['floor'])} " + ("(flat)" if row["flattened"] else "(too few iterates to tell)"
+                                         if row["before_floor"] != row["before_floor"] else
+                                         f"(still falling: {f(row['before_floor'])} the tenth before)")
+        out.append([row["method"], f(row["target"]), reach, floor])
     if not out:
         return []
     return (["At equal error (from each run's iterates, results.json `trace`): the time a baseline needs "
-             "to reach the symbolic run's final worst |error|, and its floor (median worst |error| over "
-             "the last 10 % of its iterates).", ""]
+             "to reach the symbolic run's final worst |error|, and its floor: the median worst |error| over "
+             "the last 10 % of its iterates, *flat* when it is less than 10 % below the median over the "
+             "10 % before (the curve has levelled off within the budget).", ""]
             + table(["method", "symbolic worst |error|", "time to reach it", "floor"], out) + [""])
 
 
@@ -173,14 +177,18 @@ def _lr_sweep(rows: list[dict], sweep: list[dict]) -> list[str]:
         return []
     keys = observable_keys(base["results"])
     runs = [(r["results"]["settings"]["method_settings"]["lr"], r) for r in sweep + [default]]
+    def floor(r):
+        c = error_curve(r["results"], keys)
+        return "-" if c is None else f"{f(c.floor)}{' (flat)' if c.flattened else ''}"
     out = [[f"{lr}{' (default)' if r is default else ''}", r["results"]["renders"],
-            *(f(x) for x in error_stats(r["results"], keys)), f(r["results"]["image_rmse"], 4),
+            *(f(x) for x in error_stats(r["results"], keys)), floor(r), f(r["results"]["image_rmse"], 4),
             f(r["results"]["timings_s"]["total"], 1)] for lr, r in sorted(runs, key=lambda t: t[0])]
     return (["### Learning rate of the differentiable baseline (single view)", "",
-             "Adam's learning rate swept at the comparison's budget; the default is the one with the "
-             "lowest errors that also keeps the diffuse-only test scenes within their tolerances.", ""]
-            + table(["lr", "renders", "worst abs. error", "mean abs. error", "image RMSE", "total (s)"], out)
-            + [""])
+             "Adam's learning rate swept at the comparison's budget; the shipped default is marked. "
+             "Errors at the end and the floor as above (a constant rate ends in a noise ball of radius "
+             "about the rate: smaller rates end lower but need more renders).", ""]
+            + table(["lr", "renders", "worst abs. error", "mean abs. error", "floor", "image RMSE", "total (s)"],
+                    out) + [""])
 
 
 def section_compare(rows: list[dict], sizes, report_path) -> list[str]:

@@ -63,8 +63,8 @@ class Sizes:
     mem_observe_spp: int = 128
     cmp_spp: int = 32
     cmp_observe_spp: int = 256
-    cmp_budget: int = 200
-    cmp_budget_all: int = 200
+    cmp_budget: int = 600
+    cmp_budget_all: int = 400
     all_views: int = 0
     mat_buildings: tuple = (1, 2, 4, 8, 16)
     mat_image: int = 200

@@ -15,6 +15,9 @@ import numpy as np
 
 #: the floor is the median worst error over this last fraction of a run's iterates
 FLOOR_FRACTION = 0.1
+#: a curve has flattened when its floor is less than this fraction below the median worst error
+#: of the same number of iterates just before (the last tenth of the budget gained < 10 %)
+FLAT_DROP = 0.1
 
 
 @dataclass(frozen=True)
@@ -39,10 +42,27 @@ class ErrorCurve:
         return int(self.renders[hit[0]]) if hit.size else None
 
     @property
+    def _tail(self) -> int:
+        return max(1, int(np.ceil(FLOOR_FRACTION * len(self))))
+
+    @property
     def floor(self) -> float:
         """The median worst error over the last :data:`FLOOR_FRACTION` of the iterates."""
-        tail = max(1, int(np.ceil(FLOOR_FRACTION * len(self))))
-        return float(np.median(self.worst[-tail:]))
+        return float(np.median(self.worst[-self._tail:]))
+
+    @property
+    def before_floor(self) -> float:
+        """The median worst error over the :data:`FLOOR_FRACTION` of the iterates before the
+        floor's (NaN if the run has too few iterates)."""
+        n = self._tail
+        return float(np.median(self.worst[-2 * n:-n])) if len(self) >= 2 * n else float("nan")
+
+    @property
+    def flattened(self) -> bool:
+        """Whether the curve has levelled off: its floor is less than :data:`FLAT_DROP` below
+        :attr:`before_floor` (False when that is unknown)."""
+        before = self.before_floor
+        return bool(np.isfinite(before) and self.floor >= (1.0 - FLAT_DROP) * before)
 
 
 def _references(results: dict, only) -> np.ndarray:
@@ -108,6 +128,8 @@ def equal_error_rows(curves: dict[str, list[ErrorCurve]], baseline: str) -> list
                      "renders": int(np.median(renders)) if renders else None,
                      "ratio": float(np.median(reached)) / base_time if reached and base_time > 0 else None,
                      "floor": float(np.median([c.floor for c in runs])),
+                     "before_floor": float(np.median([c.before_floor for c in runs])),
+                     "flattened": all(c.flattened for c in runs),
                      "max_time_s": float(max(c.time_s[-1] for c in runs)),
                      "max_renders": int(max(c.renders[-1] for c in runs))})
     return rows

@@ -47,6 +47,24 @@ def test_equal_error_rows():
     assert (r["max_renders"], r["max_time_s"]) == (12, 40.0)
 
 
+def test_flattened_by_hand():
+    """20 iterates, tail = 2: a curve whose last two worst errors (median 0.095) are < 10 % below
+    the two before (median 0.1) has flattened; one still dropping 0.2 -> 0.1 has not; with one
+    iterate it is unknown (NaN before, not flat)."""
+    def curve(worst):
+        n = len(worst)
+        return error_curve(_results("m", [(float(i), i, [[0.5 + w, 0.5], [0.2, 0.2]]) for i, w in enumerate(worst)],
+                                    refs=((0.5, 0.5), (0.2, 0.2))))
+    flat = curve([0.5] * 16 + [0.1, 0.1, 0.095, 0.095])
+    assert (flat.floor, flat.before_floor, flat.flattened) == (pytest.approx(0.095), pytest.approx(0.1), True)
+    falling = curve([0.5] * 16 + [0.2, 0.2, 0.1, 0.1])
+    assert (falling.floor, falling.before_floor, falling.flattened) == (pytest.approx(0.1), pytest.approx(0.2), False)
+    one = curve([0.1])
+    assert np.isnan(one.before_floor) and not one.flattened
+    rows = equal_error_rows({"symbolic": [one], "d": [flat]}, "symbolic")
+    assert rows[0]["flattened"] and rows[0]["before_floor"] == pytest.approx(0.1)
+
+
 def test_variant_labels_separate_variants_not_seeds():
     """Runs of one method that differ in an option are labelled apart (the most common value
     keeps the bare name); runs that differ only in their seed share a label."""

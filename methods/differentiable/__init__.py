@@ -47,17 +47,18 @@ class DifferentiableMethod(C.RenderingBaseline):
     Parameters (``framework/conf/method/differentiable.yaml``)
     -----------------------------------------------------------
     lr : float
-        Adam learning rate in ρ units, > 0 (default 0.05). On urban_canyon (default view, 16
+        Adam learning rate in ρ units, > 0 (default 0.1). On urban_canyon (default view, 16
         spp, 200 renders, seed 0) the mean |error| of the visible segments' weights was
         0.18, 0.13, 0.07, 0.018, 0.013, 0.024 at lr 0.005, 0.01, 0.02, 0.05, 0.1, 0.2 (seed 1
         within 0.001 at 0.02, 0.05, 0.1): the mirror weights travel far from the 0.5 guess.
-        0.1 is best there, but its noise ball costs accuracy on diffuse-only scenes
+        The benchmark's sweep at the comparison's settings (BENCHMARKS.md, section 3) keeps the
+        best as the default. On diffuse-only scenes a smaller rate has the smaller noise ball
         (cornell_box, 120 renders, seeds 0-5: worst |error| 0.019 at lr 0.02, 0.026 at 0.05,
-        0.043 at 0.1); 0.05 is the compromise.
+        0.043 at 0.1).
     beta1, beta2 : float
         Adam moment decay rates in [0, 1) (defaults 0.9, 0.999).
     iterations : int
-        Most iterations (default 200; the budget usually stops the run first).
+        Most iterations (default 1000; the budget usually stops the run first).
     spp_grad : int or null
         Samples per pixel of the backward pass (null, default: ``render.spp``).
     init : str
