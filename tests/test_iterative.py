@@ -152,6 +152,67 @@ def test_minimize_stop_keeps_best():
     assert res.f == min(res.history)
 
 
+def test_minimize_sqp_projection_by_hand():
+    """min ½|x - a|² (Hessian I) on [0, 1]⁴ with x0 + x1 <= 1, a = (0.9, 0.6, 1.4, -0.2): the
+    Euclidean projection of a, by hand (0.9 + 0.6 = 1.5 exceeds 1 by 0.5, each loses 0.25):
+    (0.65, 0.35, 1, 0). One Newton step on the exact Hessian reaches it; the next QP step is 0."""
+    from framework.optim import minimize_sqp
+    a = np.array([0.9, 0.6, 1.4, -0.2])
+    res = minimize_sqp(lambda x, g: (float(0.5 * np.sum((x - a) ** 2)), x - a), lambda x: np.eye(4),
+                       np.full(4, 0.2), inequality_groups=[[0, 1]])
+    np.testing.assert_allclose(res.x, [0.65, 0.35, 1.0, 0.0], atol=1e-12)
+    assert res.status == "XTOL_REACHED" and res.n_eval == 2
+
+
+def test_minimize_sqp_agrees_with_slsqp_on_a_polynomial():
+    """A non-quadratic polynomial, f = Σ_i (x_i x_{i+1} - t_i)² + 0.1 Σ (x_i - 0.3)⁴ on [0, 1]⁴ with
+    x0 + x1 <= 1 and x2 + x3 <= 1 (the optimum is on a constraint): SQP with its exact Hessian and
+    nlopt's SLSQP end within 1e-7 of each other from the same start."""
+    from framework.optim import minimize, minimize_sqp
+    t = np.array([0.3, 0.05, 0.4])
+
+    def f(x, need=True):
+        r = x[:-1] * x[1:] - t
+        g = np.zeros(4)
+        g[:-1] += 2 * r * x[1:]
+        g[1:] += 2 * r * x[:-1]
+        return float(r @ r + 0.1 * np.sum((x - 0.3) ** 4)), g + 0.4 * (x - 0.3) ** 3
+
+    def hess(x):
+        r, H = x[:-1] * x[1:] - t, np.diag(1.2 * (x - 0.3) ** 2)
+        for i in range(3):
+            u = np.zeros(4)
+            u[i], u[i + 1] = x[i + 1], x[i]
+            H += 2 * np.outer(u, u)
+            H[i, i + 1] += 2 * r[i]
+            H[i + 1, i] += 2 * r[i]
+        return H
+
+    groups, x0 = [[0, 1], [2, 3]], np.full(4, 0.5)
+    sqp = minimize_sqp(f, hess, x0, inequality_groups=groups, xtol=1e-12, ftol_rel=1e-16)
+    ref = minimize(f, x0, inequality_groups=groups, xtol_rel=1e-12, ftol_rel=1e-16)
+    np.testing.assert_allclose(sqp.x, ref.x, atol=1e-7)
+    assert sqp.f <= ref.f + 1e-12 and sqp.x[2] + sqp.x[3] <= 1 + 1e-12
+
+
+def test_minimize_sqp_stop_keeps_last_accepted():
+    """StopOptimization at the second evaluation (the first step's line search): status
+    FORCED_STOP, the start (the last accepted iterate) and its cost."""
+    from framework.optim import StopOptimization, minimize_sqp
+    calls = []
+
+    def f(x, need):
+        if len(calls) == 1:
+            raise StopOptimization
+        calls.append(x.copy())
+        return float(np.sum((x - 0.9) ** 2)), 2 * (x - 0.9)
+
+    res = minimize_sqp(f, lambda x: 2 * np.eye(2), np.array([0.1, 0.1]))
+    assert res.status == "FORCED_STOP" and res.n_eval == 1
+    np.testing.assert_allclose(res.x, [0.1, 0.1])
+    assert res.f == pytest.approx(2 * 0.8 ** 2)
+
+
 def test_minimize_rejects_lbfgs_with_constraints():
     from framework.optim import minimize
     with pytest.raises(ConfigError, match="LD_LBFGS"):

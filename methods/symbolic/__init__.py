@@ -102,16 +102,25 @@ class SymbolicMethod(Method):
         estimate is <= 0. Neither covers the bias of observations holding more than N_max
         reflections (``observe.max_depth`` above N_max + 1) nor that of ``gram: plain``, whose
         sandwich also lacks the halves (first-order noise only).
-    solver.algorithm : ``LD_SLSQP`` | ``LD_MMA`` | ``LD_CCSAQ``, default ``LD_SLSQP``
-        nlopt algorithm; all take the per-segment Σρ <= 1 constraints.
-    solver.starts : int >= 1, default 4
-        Starts per channel: the initial guess, then seeded random feasible points.
+    solver.algorithm : ``SQP`` | ``LD_SLSQP`` | ``LD_MMA`` | ``LD_CCSAQ``, default ``SQP``
+        ``SQP``: sequential quadratic programming on the exact Hessian of the polynomial cost
+        (:func:`framework.optim.minimize_sqp`; each step an exact QP under the bounds and the
+        Σρ <= 1 constraints); the others are nlopt's. On urban_canyon and cornell_box (all
+        views) SQP and ``LD_SLSQP`` end within 5e-8 of each other; SQP needs fewer
+        evaluations, and its QP stays cheap where SLSQP's dense subproblem over hundreds of
+        parameters dominates the solve (BENCHMARKS.md, section 5).
+    solver.starts : int >= 1 or ``auto``, default ``auto``
+        Starts per channel and parameter block: the initial guess, then seeded random feasible
+        points; ``auto``: 4 for blocks of at most 32 parameters, 1 above
+        (:data:`~methods.symbolic.solve.AUTO_STARTS_MAX_PARAMS` says what was measured).
     solver.max_eval : int >= 1, default 2000
-        Evaluations per start.
+        Evaluations per start (SQP: iterations per start).
     solver.xtol_rel, solver.ftol_rel : float >= 0, default 1e-8, 1e-12
-        nlopt's relative tolerances on the (preconditioned) weights and on the cost.
+        nlopt's relative tolerances on the (preconditioned) weights and on the cost; SQP stops
+        when no weight steps more than ``xtol_rel`` or the cost drops by at most ``ftol_rel``
+        of itself.
     solver.precondition : bool, default true
-        Solve in coordinates where the cost's Hessian is about the identity
+        nlopt only: solve in coordinates where the cost's Hessian is about the identity
         (:func:`~methods.symbolic.solve.solve_polynomial`): 3-5 times fewer evaluations.
 
     relight : mapping, optional
@@ -155,7 +164,8 @@ class SymbolicMethod(Method):
         check_choice(self.cfg, "psd", ("True", "False"))
         check_number(self.cfg, "memory_mb", 0.0, lo_open=True)
         solver, section = self.cfg.solver, "method.solver"
-        check_number(solver, "starts", 1, integer=True, section=section)
+        if str(solver.starts) != "auto":
+            check_number(solver, "starts", 1, integer=True, section=section)
         check_number(solver, "max_eval", 1, integer=True, section=section)
         check_number(solver, "xtol_rel", 0.0, section=section)
         check_number(solver, "ftol_rel", 0.0, section=section)
@@ -168,7 +178,7 @@ class SymbolicMethod(Method):
             check_number(self.cfg, "tail_bounces", 0, 16, integer=True)
         if "std" in self.cfg:
             check_choice(self.cfg, "std", ("sandwich", "residual"))
-        check_choice(solver, "algorithm", ("LD_SLSQP", "LD_MMA", "LD_CCSAQ"), section=section)
+        check_choice(solver, "algorithm", ("SQP", "LD_SLSQP", "LD_MMA", "LD_CCSAQ"), section=section)
         for key, choices in (("exposure", ("scene", "known")), ("weights", ("scene", "none")),
                              ("robust", ("auto",) + ROBUST_LOSSES)):
             if key in self.cfg:
@@ -319,7 +329,7 @@ class SymbolicMethod(Method):
         groups = [[position[j] for j in g if j in position] for g in groups]
         solver = self.cfg.solver
         sol = solve_polynomial(sub_system, sub_basis, segments_params=[g for g in groups if g],
-                               x0=x0[kept], algorithm=str(solver.algorithm), starts=int(solver.starts),
+                               x0=x0[kept], algorithm=str(solver.algorithm), starts=solver.starts if str(solver.starts) == "auto" else int(solver.starts),
                                max_eval=int(solver.max_eval), xtol_rel=float(solver.xtol_rel),
                                ftol_rel=float(solver.ftol_rel), precondition=bool(solver.precondition),
                                seed=int(problem.seed))

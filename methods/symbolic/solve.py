@@ -19,7 +19,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from framework.errors import ConfigError
-from framework.optim import check_algorithm, minimize, project_feasible
+from framework.optim import check_algorithm, minimize, minimize_sqp, project_feasible
 from framework.render.checks import check_memory
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.gram import GramSystem
@@ -148,6 +148,25 @@ def check_solve_memory(system: GramSystem, basis: MonomialBasis) -> None:
                        f"{D} parameters)", "lower render.max_bounces or estimate fewer parameters (method.kernels)")
 
 
+#: ``starts=auto``: this many starts for a block of at most :data:`AUTO_STARTS_MAX_PARAMS` parameters
+AUTO_STARTS = 4
+#: Above this many parameters in a block, ``starts=auto`` runs the guess start only. Measured
+#: (SQP, default settings): the 3 random starts ended at the guess start's minimum on urban_canyon,
+#: all views (12 parameters: within 5e-8), and on street_block with 8 and 16 buildings per side
+#: (124 and 228 parameters: within 1.5e-6, equal costs), where they took 55 % and 50 % of the solve.
+AUTO_STARTS_MAX_PARAMS = 32
+
+
+def _starts(starts, block: np.ndarray) -> int:
+    if starts != "auto":
+        return int(starts)
+    return AUTO_STARTS if len(block) <= AUTO_STARTS_MAX_PARAMS else 1
+
+
+#: ``solver.algorithm`` of the sequential quadratic programming solve (:func:`framework.optim.minimize_sqp`)
+SQP = "SQP"
+
+
 def _random_start(rng, D, segments_params) -> np.ndarray:
     """Uniform in the feasible set of each segment (Dirichlet(1,...,1) with a slack component)."""
     x = rng.uniform(0.0, 1.0, D)
@@ -158,7 +177,7 @@ def _random_start(rng, D, segments_params) -> np.ndarray:
 
 
 def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_params: list[list[int]],
-                     x0: np.ndarray, algorithm: str = "LD_SLSQP", starts: int = 4,
+                     x0: np.ndarray, algorithm: str = "SQP", starts: int | str = "auto",
                      max_eval: int = 2000, xtol_rel: float = 1e-8, ftol_rel: float = 1e-12,
                      precondition: bool = True, seed: int = 0) -> SolveResult:
     """Minimise the cost of every channel over ρ with nlopt, one independent parameter block at a
@@ -176,10 +195,15 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
     x0 : numpy.ndarray
         ``(D, C)`` (or ``(D,)``) initial guess; projected onto the feasible set.
     algorithm : str
-        nlopt algorithm name; must accept inequality constraints when a segment has several
-        parameters (``LD_SLSQP``, ``LD_CCSAQ``, ``LD_MMA``...; not ``LD_LBFGS``).
-    starts : int
-        Number of starts per channel (>= 1): ``x0``, then seeded random feasible points.
+        ``SQP`` (default: :func:`framework.optim.minimize_sqp` with the exact Hessian,
+        :meth:`ChannelCost.metric`), or an nlopt algorithm name that accepts inequality
+        constraints when a segment has several parameters (``LD_SLSQP``, ``LD_CCSAQ``,
+        ``LD_MMA``...; not ``LD_LBFGS``).
+    starts : int or "auto"
+        Number of starts per channel and block (>= 1): ``x0``, then seeded random feasible
+        points. ``auto``: :data:`AUTO_STARTS` for a block of at most :data:`AUTO_STARTS_MAX_PARAMS`
+        parameters, 1 for a larger one (there the random starts cost most of the solve and, where
+        measured, found nothing: see :data:`AUTO_STARTS_MAX_PARAMS`).
     max_eval : int
         Evaluation limit per start.
     xtol_rel, ftol_rel : float
@@ -200,8 +224,8 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
     D, C = basis.n_params, system.n_channels
     if system.n_monomials != basis.size:
         raise ConfigError(f"system has {system.n_monomials} monomials, basis {basis.size}")
-    if int(starts) < 1:
-        raise ConfigError(f"starts={starts}: must be >= 1")
+    if starts != "auto" and (isinstance(starts, str) or int(starts) < 1):
+        raise ConfigError(f"starts={starts}: must be an integer >= 1 or auto")
     if int(max_eval) < 1:
         raise ConfigError(f"max_eval={max_eval}: must be >= 1")
     segs = [[int(p) for p in ps] for ps in segments_params]
@@ -209,7 +233,8 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
         for p in ps:
             if not 0 <= p < D:
                 raise ConfigError(f"segments_params: index {p} outside [0, {D - 1}]")
-    check_algorithm(algorithm, constrained=any(len(ps) > 1 for ps in segs))
+    if algorithm != SQP:
+        check_algorithm(algorithm, constrained=any(len(ps) > 1 for ps in segs))
     x0 = np.asarray(x0, dtype=float)
     x0 = project_feasible(np.broadcast_to(x0.reshape(D, -1), (D, C)), segs)
     rng = np.random.default_rng(seed)
@@ -223,7 +248,7 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
     for c in range(C):
         for b, block in enumerate(blocks):
             f_ref = costs[c][b].value(trace.current[:, c])
-            best, evals, from_guess = _solve_block(costs[c][b], trace, c, f_ref, rng, segs, starts=int(starts),
+            best, evals, from_guess = _solve_block(costs[c][b], trace, c, f_ref, rng, segs, starts=_starts(starts, block),
                                                    algorithm=algorithm, max_eval=int(max_eval),
                                                    xtol_rel=float(xtol_rel), ftol_rel=float(ftol_rel),
                                                    precondition=precondition)
@@ -331,14 +356,20 @@ def _solve_block(cost: _BlockCost, trace: _Trace, c: int, f_ref: float, rng, seg
 
     x0 = trace.current[block, c].copy()
     best, evals, from_guess = None, 0, 0
+    precondition = precondition or algorithm == SQP     # SQP: the curvature of its first steps
     metric = metric_at(x0)
     for k in range(starts):
         start = x0 if k == 0 else _random_start(rng, len(block), block_segs)
         if precondition and k == 1:       # the random starts: curvature at the first minimum
             metric = metric_at(best.x)
-        run = minimize(cost_grad, start, lower=0.0, upper=1.0, inequality_groups=block_segs,
-                       algorithm=algorithm, max_eval=max_eval, xtol_rel=xtol_rel, ftol_rel=ftol_rel,
-                       constraint_tol=1e-12, metric=metric)
+        if algorithm == SQP:           # Newton steps on the exact Hessian: no metric needed
+            run = minimize_sqp(cost_grad, lambda xb: cost.cost.metric(full(xb))[np.ix_(block, block)], start,
+                               lower=0.0, upper=1.0, inequality_groups=block_segs, max_iter=max_eval,
+                               xtol=xtol_rel, ftol_rel=ftol_rel, start_hessian=metric)
+        else:
+            run = minimize(cost_grad, start, lower=0.0, upper=1.0, inequality_groups=block_segs,
+                           algorithm=algorithm, max_eval=max_eval, xtol_rel=xtol_rel, ftol_rel=ftol_rel,
+                           constraint_tol=1e-12, metric=metric)
         evals += run.n_eval
         from_guess += run.n_eval if k == 0 else 0
         if best is None or run.f < best.f:

@@ -222,18 +222,20 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
         for c in range(C):
             mu_v, J_v = mu[c, at], J[c][at]
             gamma = coeffs.gamma[c]
-            r, gJ = gamma @ mu_v - y[:, c], (gamma @ J_v).toarray()
+            # sparse scores: a pixel's paths touch a few of the D parameters, so sᵀs costs
+            # Σ_p nnz(s_p)² instead of pixels × D² (dense)
+            r, gJ = gamma @ mu_v - y[:, c], (gamma @ J_v).tocsr()
             if coeffs.delta is None:
-                s = 2.0 * gJ * r[:, None]
+                s = sp.diags(2.0 * r) @ gJ
             else:
                 w = float(coeffs.split)
-                d, dJ = coeffs.delta[c] @ mu_v, (coeffs.delta[c] @ J_v).toarray()
-                s = ((gJ + 2 * (1 - w) * dJ) * (r - 2 * w * d)[:, None]
-                     + (gJ - 2 * w * dJ) * (r + 2 * (1 - w) * d)[:, None])
+                d, dJ = coeffs.delta[c] @ mu_v, (coeffs.delta[c] @ J_v).tocsr()
+                s = (sp.diags(r - 2 * w * d) @ (gJ + 2 * (1 - w) * dJ)
+                     + sp.diags(r + 2 * (1 - w) * d) @ (gJ - 2 * w * dJ))
             if w_pix is not None:            # the weighted cost's term: w_p times the unweighted one
-                s = s * np.asarray(w_pix, dtype=np.float64)[:, None]
-            outer[c] += s.T @ s
-            total[c] += s.sum(axis=0)
+                s = sp.diags(np.asarray(w_pix, dtype=np.float64)) @ s
+            outer[c] += (s.T @ s).toarray()
+            total[c] += np.asarray(s.sum(axis=0)).ravel()
     return outer - np.einsum("ci,cj->cij", total, total) / max(n, 1)
 
 
