@@ -52,7 +52,6 @@ def test_flattened_by_hand():
     the two before (median 0.1) has flattened; one still dropping 0.2 -> 0.1 has not; with one
     iterate it is unknown (NaN before, not flat)."""
     def curve(worst):
-        n = len(worst)
         return error_curve(_results("m", [(float(i), i, [[0.5 + w, 0.5], [0.2, 0.2]]) for i, w in enumerate(worst)],
                                     refs=((0.5, 0.5), (0.2, 0.2))))
     flat = curve([0.5] * 16 + [0.1, 0.1, 0.095, 0.095])
