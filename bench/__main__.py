@@ -39,6 +39,9 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--out", default=None, help="markdown file to (re)write (default BENCHMARKS.md; "
                                                "with --quick the run folder's)")
     p.add_argument("--runs", default=None, help="folder of the run folders (default bench/runs/<timestamp>)")
+    p.add_argument("--resume", action="store_true",
+                   help="the comparison reuses the runs of this --runs folder that finished (an interrupted "
+                        "benchmark goes on where it stopped)")
     p.add_argument("--render-only", action="store_true",
                    help="measure nothing: rewrite the markdown from the stored sections")
     args = p.parse_args(argv)
@@ -63,8 +66,8 @@ def comparison_report(rows: list[dict], out: Path):
         return f"(not written: {exc!r})"
 
 
-def measure(name: str, sizes, root: Path):
-    """Run one section; its JSON-able data."""
+def measure(name: str, sizes, root: Path, resume: bool = False):
+    """Run one section; its JSON-able data (``resume``: the comparison reuses finished runs)."""
     if name == "ratio":
         return render_ratio.run(sizes, root / "cache" / "ratio", log)
     if name == "megapixel":
@@ -72,8 +75,8 @@ def measure(name: str, sizes, root: Path):
     if name == "memory":
         return memory.run(sizes, root / "memory", log)
     if name == "compare":
-        rows = compare.run(sizes, root, log)
-        lr = compare.lr_sweep(sizes, root, log)
+        rows = compare.run(sizes, root, log, resume=resume)
+        lr = compare.lr_sweep(sizes, root, log, resume=resume)
         return {"rows": rows, "lr": lr, "report": _rel(comparison_report(rows, root / "comparison"))}
     if name == "paper":
         return paper.run(sizes, root, log)
@@ -99,7 +102,7 @@ def main(argv=None) -> int:
     log(f"bench ({sizes.name}) into {root}")
     for name in [] if args.render_only else args.sections.split(","):
         t0 = time.perf_counter()
-        data = measure(name, sizes, root)
+        data = measure(name, sizes, root, resume=args.resume)
         record = {"section": name, "sizes": sizes.name, "date": machine["date"], "git": machine["git"],
                   "wall_s": time.perf_counter() - t0, "data": data}
         (store / f"{name}.json").write_text(json.dumps(_relative(_light(record)), indent=1, default=str))

@@ -7,7 +7,10 @@ from pathlib import Path
 import numpy as np
 
 from framework.config import BUNDLED_SCENES, compose
+from framework.images import read_exr, write_exr
 from framework.scene import load_scene
+from framework.scene.write import write_colmap
+from scenes.cameras import resized
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -73,3 +76,30 @@ def observable_keys(results: dict) -> set:
     """The ``(segment, kernel)`` pairs a run reports as observable."""
     return {(p["segment"], p["kernel"]) for p in results["parameters"]
             if p.get("observable", True) and p.get("error") is not None}
+
+
+def downsample_scene(src: Path, dest: Path, image: int) -> None:
+    """The cameras of scene folder ``dest`` (a copy of ``src``) made ``image`` pixels wide, and its
+    photographs (``images/<stem>.exr``, where present) box-averaged to match; a scene without
+    photographs renders its observations at the new size."""
+    cams = load_scene(src).cameras
+    shutil.rmtree(dest / "sparse")
+    write_colmap(dest / "sparse", [resized(c, image) for c in cams])
+    for c in cams:
+        path = dest / "images" / f"{Path(c.name).stem}.exr"
+        if not path.is_file():
+            continue
+        k = c.width // image
+        if k * image != c.width or c.height % k:
+            raise ValueError(f"{c.name}: {c.width}x{c.height} does not box-downsample to {image} wide")
+        img = read_exr(path)
+        h, w, ch = img.shape
+        write_exr(path, img.reshape(h // k, k, w // k, k, ch).mean((1, 3)))
+
+
+def resized_copy(src: Path, dest: Path, image: int) -> Path:
+    """``src`` copied to ``dest`` (replaced) with :func:`downsample_scene` at ``image`` pixels wide."""
+    shutil.rmtree(dest, ignore_errors=True)
+    shutil.copytree(src, dest, ignore=shutil.ignore_patterns("preview.png"))
+    downsample_scene(src, dest, image)
+    return dest

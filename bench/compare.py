@@ -6,12 +6,15 @@ are not part of its time) and computes everything else afresh.
 """
 from __future__ import annotations
 
+import json
 import re
+import shutil
 import time
 from pathlib import Path
 
-from bench.common import compose, seed_cache, views_override
+from bench.common import compose, resized_copy, seed_cache, views_override
 from bench.render_ratio import build_problem
+from framework.config import BUNDLED_SCENES
 from framework.experiment import run_experiment
 
 #: (label, method overrides, iterative-type: budget reduced on all views). The comparison is at the
@@ -41,29 +44,57 @@ def _extra(sizes, method_overrides: list[str]) -> list[str]:
 
 
 def run_one(sizes, root: Path, label: str, scene: str, n_views: int, overrides: list[str], budget: int,
-            log=print) -> dict:
-    """One in-process run into ``root/<scene>/<views>/<label>``; returns a row dict with its results."""
+            log=print, resume: bool = False) -> dict:
+    """One in-process run into ``root/<scene>/<views>/<label>``; returns a row dict with its results.
+
+    ``resume``: a run folder that already holds a results.json (a run an interrupted benchmark
+    finished) is read instead of run again; its ``wall_s`` is then the run's own total.
+    """
     vtag = "single" if n_views == 1 else "all"
     slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", label.replace("=", "-")).strip("_")
     run_dir, cache = root / scene / vtag / slug, root / "cache" / scene / vtag / slug
+    image = _image(sizes, n_views)
+    row = {"label": label, "scene": scene, "views": vtag, "budget": budget, "run_dir": str(run_dir),
+           "image": image}
+    if resume and (run_dir / "results.json").is_file():
+        res = json.loads((run_dir / "results.json").read_text())
+        log(f"[compare] {scene} {vtag} {label}: reused {run_dir}")
+        return {**row, "n_views": len(res["settings"]["views"]), "wall_s": res["timings_s"]["total"], "results": res}
+    shutil.rmtree(run_dir, ignore_errors=True)             # an interrupted run's partial folder
     seed_cache(root / "cache" / "observed" / scene / vtag, cache)
-    views = "views=default" if n_views == 1 else views_override(scene, sizes.all_views)
-    cfg = compose([*overrides, f"scene={scene}", views, f"render.spp={sizes.cmp_spp}",
+    cfg = compose([*overrides, *_scene(sizes, root, scene, n_views), f"render.spp={sizes.cmp_spp}",
                    f"observe.spp={sizes.cmp_observe_spp}", f"budget.renders={budget}", "report=false",
                    f"cache.dir={cache}", *_extra(sizes, overrides)])
     t = time.perf_counter()
     res = run_experiment(cfg, run_dir)
     wall = time.perf_counter() - t
     log(f"[compare] {scene} {vtag} {label}: {res['timings_s']['total']:.1f} s, {res['renders']} renders")
-    return {"label": label, "scene": scene, "views": vtag, "n_views": len(res["settings"]["views"]),
-            "budget": budget, "wall_s": wall, "run_dir": str(run_dir), "results": res}
+    return {**row, "n_views": len(res["settings"]["views"]), "wall_s": wall, "results": res}
+
+
+def _image(sizes, n_views: int) -> int | None:
+    """Image width of the runs on ``n_views`` views (None: the scene's own)."""
+    return None if n_views == 1 else sizes.cmp_all_image
+
+
+def _scene(sizes, root: Path, scene: str, n_views: int) -> list[str]:
+    """The scene and views overrides: all views on a copy of the scene at ``cmp_all_image``
+    pixels wide when that is set (written once under ``root/scenes``)."""
+    image = _image(sizes, n_views)
+    if n_views == 1:
+        return [f"scene={scene}", "views=default"]
+    if image is None:
+        return [f"scene={scene}", views_override(scene, sizes.all_views)]
+    folder = root / "scenes" / f"{scene}_{image}"
+    if not (folder / "scene.yaml").is_file():
+        resized_copy(BUNDLED_SCENES / scene, folder, image)
+    return [f"scene={scene}", f"scene.dir={folder}", views_override(scene, sizes.all_views, folder)]
 
 
 def warm_observations(sizes, root: Path, scene: str, n_views: int) -> float:
     """Render the observations of ``scene`` once into the shared observation cache; seconds spent."""
     vtag = "single" if n_views == 1 else "all"
-    views = "views=default" if n_views == 1 else views_override(scene, sizes.all_views)
-    cfg = compose([f"scene={scene}", views, f"observe.spp={sizes.cmp_observe_spp}",
+    cfg = compose([*_scene(sizes, root, scene, n_views), f"observe.spp={sizes.cmp_observe_spp}",
                    f"cache.dir={root / 'cache' / 'observed' / scene / vtag}"])
     t = time.perf_counter()
     build_problem(cfg)                         # renders the observations into the cache
@@ -74,10 +105,10 @@ def warm_observations(sizes, root: Path, scene: str, n_views: int) -> float:
 FAILED: list[tuple] = []
 
 
-def try_one(*args, log=print) -> dict | None:
+def try_one(*args, log=print, resume: bool = False) -> dict | None:
     """:func:`run_one`, or None (recorded in :data:`FAILED`) if the run raises."""
     try:
-        return run_one(*args, log=log)
+        return run_one(*args, log=log, resume=resume)
     except Exception as exc:  # one broken method must not lose the other measurements
         FAILED.append((args[3], "single" if args[4] == 1 else "all", args[2], repr(exc)[:300]))
         log(f"[compare] FAILED {FAILED[-1]}")
@@ -89,19 +120,21 @@ def try_one(*args, log=print) -> dict | None:
 LR_SWEEP = (0.05, 0.2)
 
 
-def lr_sweep(sizes, root: Path, log=print) -> list[dict]:
+def lr_sweep(sizes, root: Path, log=print, resume: bool = False) -> list[dict]:
     """The differentiable baseline at other learning rates, single view, the comparison's budget."""
     rows = [try_one(sizes, root, f"differentiable lr={lr}", "urban_canyon", 1,
-                    ["method=differentiable", f"method.lr={lr}", *PAPER_LIGHT], sizes.cmp_budget, log=log) for lr in LR_SWEEP]
+                    ["method=differentiable", f"method.lr={lr}", *PAPER_LIGHT], sizes.cmp_budget, log=log,
+                    resume=resume) for lr in LR_SWEEP]
     return [r for r in rows if r is not None]
 
 
-def run(sizes, root: Path, log=print) -> list[dict]:
+def run(sizes, root: Path, log=print, resume: bool = False) -> list[dict]:
     """All comparison runs on urban_canyon: single view then all views (failed runs left out)."""
     rows = []
     for n_views in (1, 0):
         warm_observations(sizes, root, "urban_canyon", n_views)
         for label, overrides, reduced in METHODS:
             budget = sizes.cmp_budget_all if (reduced and n_views != 1) else sizes.cmp_budget
-            rows.append(try_one(sizes, root, label, "urban_canyon", n_views, overrides, budget, log=log))
+            rows.append(try_one(sizes, root, label, "urban_canyon", n_views, overrides, budget, log=log,
+                                resume=resume))
     return [r for r in rows if r is not None]

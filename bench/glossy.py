@@ -48,15 +48,13 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from bench.common import compose
+from bench.common import compose, downsample_scene
 from framework.config import BUNDLED_SCENES
 from framework.experiment import run_experiment
-from framework.images import read_exr, write_exr
 from framework.kernels import canonical
 from framework.scene import load_scene
-from framework.scene.write import write_colmap, write_scene_yaml
+from framework.scene.write import write_scene_yaml
 from scenes import urban_canyon_glossy as ucg
-from scenes.cameras import resized
 
 SCENE = "urban_canyon_glossy"
 WINDOW_ALPHAS = (0.03, 0.05, 0.1, 0.2, 0.3, 0.5)
@@ -108,23 +106,8 @@ def write_variant(src: Path, dest: Path, kernels_of: dict[str, list[str]], image
     write_scene_yaml(dest / "scene.yaml", desc, f"{SCENE} variant written by bench/glossy.py: "
                      + ", ".join(f"{s} {k}" for s, k in kernels_of.items()))
     if image is not None:
-        _downsample(src, dest, image)
+        downsample_scene(src, dest, image)
     return dest
-
-
-def _downsample(src: Path, dest: Path, image: int) -> None:
-    """Cameras of ``dest`` ``image`` pixels wide and their photographs box-averaged to match."""
-    cams = load_scene(src).cameras
-    shutil.rmtree(dest / "sparse")
-    write_colmap(dest / "sparse", [resized(c, image) for c in cams])
-    for c in cams:
-        k = c.width // image
-        if k * image != c.width or c.height % k:
-            raise ValueError(f"{c.name}: {c.width}x{c.height} does not box-downsample to {image} wide")
-        path = dest / "images" / f"{Path(c.name).stem}.exr"
-        img = read_exr(path)
-        h, w, ch = img.shape
-        write_exr(path, img.reshape(h // k, k, w // k, k, ch).mean((1, 3)))
 
 
 # ----------------------------------------------------------------------------------------------

@@ -197,6 +197,9 @@ def section_compare(rows: list[dict], sizes, report_path) -> list[str]:
              f"budget.renders = {sizes.cmp_budget}"
              + (f" (iterative and differentiable on all views: {sizes.cmp_budget_all}, reduced to keep the "
                 "benchmark short)" if sizes.cmp_budget_all != sizes.cmp_budget else " on one view and on all")
+             + (f"; every run on all views at {sizes.cmp_all_image} pixels wide (the cameras scaled, the "
+                "observations rendered at that size), so that the baselines' budget fits in the "
+                "benchmark's time" if getattr(sizes, "cmp_all_image", None) else "")
              + ", in this process with "
              "`run_experiment`. Observations come from a shared observation cache (rendered once per "
              "view set, copied into each run's otherwise empty cache), so totals exclude them. Errors: "
@@ -208,7 +211,9 @@ def section_compare(rows: list[dict], sizes, report_path) -> list[str]:
             continue
         base = next(r for r in sub if r["label"] == "symbolic")
         keys = observable_keys(base["results"])
-        lines += [f"### {'Single view (default)' if vtag == 'single' else 'All views'}", ""]
+        image = sub[0].get("image")
+        lines += [f"### {'Single view (default)' if vtag == 'single' else 'All views'}"
+                  + (f" ({image} pixels wide)" if image else ""), ""]
         lines += table(["method", "views", "budget", "total (s)", "renders", "worst abs. error", "mean abs. error",
                         "time / symbolic"], [_cmp_row(r, base if r is not base else None, keys) for r in sub])
         lines += [""] + _speedup_verdicts(sub, keys) + [""] + _equal_error(sub, keys)
