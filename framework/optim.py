@@ -294,9 +294,9 @@ def minimize_sqp(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndar
     """Minimise ``f`` under the constraints of :func:`minimize` by sequential quadratic
     programming with a Hessian: the algorithm ``SQP`` of the symbolic solve.
 
-    Each iteration minimises the quadratic model ``gᵀd + ½ dᵀHd`` (``H = hessian(x)``, made
-    positive definite by flooring its eigenvalues at :data:`METRIC_FLOOR` times the largest when
-    it is not) over the feasible set, exactly (a dense dual active-set QP, Goldfarb and Idnani
+    Each iteration minimises the quadratic model ``gᵀd + ½ dᵀHd`` (``H = hessian(x)``; when it is
+    not positive definite, its negative eigenvalues mirrored and all floored at
+    :data:`METRIC_FLOOR` times the largest magnitude) over the feasible set, exactly (a dense dual active-set QP, Goldfarb and Idnani
     1983, from ``quadprog``), then backtracks along the step until the Armijo condition holds.
     The feasible set is convex, so every iterate is feasible. With the exact Hessian near the
     minimum the steps are Newton steps: a few iterations, each one O(n³) in the parameters, where
@@ -393,8 +393,8 @@ def _qp_step(H: np.ndarray, g: np.ndarray, C: np.ndarray, b: np.ndarray) -> np.n
     H = 0.5 * (H + H.T)
     try:
         return quadprog.solve_qp(H, -g, C, b, 0)[0]
-    except ValueError:                         # not positive definite: floor the eigenvalues
+    except ValueError:   # not positive definite: negative curvature mirrored, flat floored
         w, V = np.linalg.eigh(H)
-        top = max(float(w[-1]), 1.0 if w[-1] <= 0 else 0.0)
-        H = (V * np.maximum(w, METRIC_FLOOR * top)) @ V.T
+        top = max(float(np.abs(w).max()), np.finfo(float).tiny)
+        H = (V * np.maximum(np.abs(w), METRIC_FLOOR * top)) @ V.T
         return quadprog.solve_qp(0.5 * (H + H.T), -g, C, b, 0)[0]

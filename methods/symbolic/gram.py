@@ -216,6 +216,13 @@ def _psd_components(g: sp.csr_matrix, limit: int) -> tuple[sp.csr_matrix, list[i
     g = sp.csr_matrix(0.5 * (g + g.T))
     n_comp, labels = connected_components(g, directed=False)
     sizes = np.bincount(labels, minlength=n_comp)
+    single = np.flatnonzero(sizes[labels] == 1)                   # 1 x 1: max(g_ii, 0)
+    if not np.any((sizes > 1) & (sizes <= limit)):   # nothing to project: only the 1 x 1 ones
+        negative = single[g.diagonal()[single] < 0.0]
+        fix = sp.csr_matrix((-g.diagonal()[negative], (negative, negative)), shape=g.shape)
+        out = g + fix
+        out.eliminate_zeros()
+        return out, [int(n) for n in sizes[sizes > 1]]
     rows, cols, vals, skipped = [], [], [], []
     kept = np.zeros(g.shape[0], bool)                             # rows of unprojected components
     order = np.argsort(labels, kind="stable")                  # each component: a contiguous run
@@ -233,7 +240,6 @@ def _psd_components(g: sp.csr_matrix, limit: int) -> tuple[sp.csr_matrix, list[i
     coo = g.tocoo()
     on = kept[coo.row]
     rows.append(coo.row[on]), cols.append(coo.col[on]), vals.append(coo.data[on])
-    single = np.flatnonzero(sizes[labels] == 1)                   # 1 x 1: max(g_ii, 0)
     d = np.maximum(g.diagonal()[single], 0.0)
     rows.append(single), cols.append(single), vals.append(d)
     out = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=g.shape)

@@ -77,7 +77,7 @@ class ChannelCost:
     def __init__(self, system: GramSystem, basis: MonomialBasis, c: int, used: np.ndarray | None = None):
         self.basis = basis
         self.used = system.used_monomials() if used is None else np.asarray(used)
-        self.G = system.G[c][self.used][:, self.used].tocsr()
+        self.G = _principal(system.G[c], self.used)
         self.b = system.b[c][self.used]
         self.yy = float(system.yy[c])
 
@@ -114,6 +114,16 @@ class ChannelCost:
         gn = self.gauss_newton(x)
         H = gn + self._residual_curvature(x)
         return H if np.linalg.eigvalsh(H)[0] > 0.0 else gn
+
+
+def _principal(g: sp.spmatrix, idx: np.ndarray) -> sp.csr_matrix:
+    """``g[idx][:, idx]`` of a symmetric ``g`` (G is, by construction): rows taken twice with a
+    transpose between, as scipy's column fancy-indexing of CSR is several times slower."""
+    g = g.tocsr()
+    if len(idx) == g.shape[0] and np.array_equal(idx, np.arange(g.shape[0])):
+        return g
+    rows = g[idx]
+    return rows.T.tocsr()[idx]
 
 
 def channel_cost_grad(system: GramSystem, basis: MonomialBasis, c: int, x: np.ndarray):
@@ -242,8 +252,9 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
     t_start = time.perf_counter()
     blocks = parameter_blocks(system, basis, segs)
     used = system.used_monomials()
-    costs = [[_BlockCost(system, basis, c, used, block) for block in blocks] for c in range(C)]
-    trace = _Trace(x0, [ChannelCost(system, basis, c, used)(x0[:, c])[0] for c in range(C)])
+    whole = [ChannelCost(system, basis, c, used) for c in range(C)]
+    costs = [[_BlockCost(system, basis, c, used, block, whole[c]) for block in blocks] for c in range(C)]
+    trace = _Trace(x0, [whole[c](x0[:, c])[0] for c in range(C)])
     n_evals = guess_evals = 0
     for c in range(C):
         for b, block in enumerate(blocks):
@@ -267,23 +278,28 @@ def parameter_blocks(system: GramSystem, basis: MonomialBasis, segments_params: 
     parameters of one used monomial, of two monomials that G couples (any channel), and of one
     segment (their Σρ <= 1 constraint). The constant monomial couples to every monomial but holds
     no parameter (it only adds linear terms), so it links nothing. The cost is then a sum of one
-    term per block plus a constant, and each block can be minimised on its own, exactly."""
-    D, n = basis.n_params, basis.n_params + basis.size
+    term per block plus a constant, and each block can be minimised on its own, exactly.
+
+    The graph is built on the D parameters directly (a D x D adjacency): a monomial's parameters
+    are linked to each other, so two coupled monomials need only their first parameters linked.
+    """
+    D = basis.n_params
     monomials, params = basis.incidence
     keep = np.isin(monomials, system.used_monomials())
-    rows, cols = [monomials[keep] + D], [params[keep]]
+    first = np.full(basis.size, -1, dtype=np.int64)            # a parameter of each monomial
+    first[monomials[keep][::-1]] = params[keep][::-1]
+    adjacency = np.zeros(D * D, dtype=bool)
+    adjacency[first[monomials[keep]] * D + params[keep]] = True
     for g in system.G:
         coo = g.tocoo()
-        coupled = (basis.degrees[coo.row] > 0) & (basis.degrees[coo.col] > 0)
-        rows.append(coo.row[coupled] + D)
-        cols.append(coo.col[coupled] + D)
+        a, b = first[coo.row], first[coo.col]
+        on = (a >= 0) & (b >= 0)
+        adjacency[a[on] * D + b[on]] = True
     for ps in segments_params:
-        rows.append(np.full(len(ps) - 1, ps[0]))
-        cols.append(np.asarray(ps[1:], dtype=np.int64))
-    rows, cols = np.concatenate(rows), np.concatenate(cols)
-    graph = sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
+        adjacency[ps[0] * D + np.asarray(ps[1:], dtype=np.int64)] = True
+    graph = sp.csr_matrix(adjacency.reshape(D, D))
     _, labels = connected_components(graph, directed=False)
-    return [np.flatnonzero(labels[:D] == label) for label in np.unique(labels[:D])]
+    return [np.flatnonzero(labels == label) for label in np.unique(labels)]
 
 
 class _BlockCost:
@@ -291,12 +307,15 @@ class _BlockCost:
     in the block, plus the constant one. Its value is the block's term of the cost plus a
     constant (the constant monomial's terms and yy), so differences of values are exact."""
 
-    def __init__(self, system: GramSystem, basis: MonomialBasis, c: int, used: np.ndarray, block: np.ndarray):
+    def __init__(self, system: GramSystem, basis: MonomialBasis, c: int, used: np.ndarray, block: np.ndarray,
+                 whole: ChannelCost | None = None):
         inside = np.zeros(basis.n_params + 1, dtype=bool)
         inside[block] = True
         inside[-1] = True                          # digit 0 (empty) maps to the last entry
         in_block = inside[basis.digits - 1].all(axis=1)
-        self.cost = ChannelCost(system, basis, c, used[in_block[used]])
+        mine = used[in_block[used]]
+        # ``whole``: the channel's cost over ``used``, itself when the block holds every monomial
+        self.cost = whole if whole is not None and len(mine) == len(used) else ChannelCost(system, basis, c, mine)
         self.block = block
 
     def value(self, x: np.ndarray) -> float:
@@ -352,18 +371,20 @@ def _solve_block(cost: _BlockCost, trace: _Trace, c: int, f_ref: float, rng, seg
         return f, g[block]
 
     def metric_at(xb):
+        if algorithm == SQP:         # Newton steps: the exact Hessian (convexified in the QP)
+            return cost.cost.hessian(full(xb))[np.ix_(block, block)]
         return cost.cost.metric(full(xb))[np.ix_(block, block)] if precondition else None
 
     x0 = trace.current[block, c].copy()
     best, evals, from_guess = None, 0, 0
     precondition = precondition or algorithm == SQP     # SQP: the curvature of its first steps
-    metric = metric_at(x0)
+    metric = None if algorithm == SQP else metric_at(x0)    # SQP computes its own at x0
     for k in range(starts):
         start = x0 if k == 0 else _random_start(rng, len(block), block_segs)
         if precondition and k == 1:       # the random starts: curvature at the first minimum
             metric = metric_at(best.x)
-        if algorithm == SQP:           # Newton steps on the exact Hessian: no metric needed
-            run = minimize_sqp(cost_grad, lambda xb: cost.cost.metric(full(xb))[np.ix_(block, block)], start,
+        if algorithm == SQP:
+            run = minimize_sqp(cost_grad, metric_at, start,
                                lower=0.0, upper=1.0, inequality_groups=block_segs, max_iter=max_eval,
                                xtol=xtol_rel, ftol_rel=ftol_rel, start_hessian=metric)
         else:
