@@ -3,8 +3,11 @@
 ``scenes.street_block`` cuts the urban canyon's facades into K buildings per side, each with its
 own materials (same street, same 9 views): D = 2 x materials weights. Each K runs once in a fresh
 subprocess (peak RSS measured by :mod:`bench.child`) with a fresh cache, on all views, with
-``method=symbolic_paper`` (one pass: the growth of the pass, the system and the solve in D; the
-default method repeats both up to 4 times).
+``method=symbolic_paper`` (one pass: the growth of the pass, the system and the solve in D), and
+the K of ``mat_default_buildings`` also with the default ``method=symbolic`` (light beyond N_max,
+refinement passes): the accuracy a user gets. The targets of a 66-material street are checked on
+the smallest K with at least :data:`TARGET_MATERIALS` materials (the generator gives 62 at K = 8,
+70 at K = 9).
 """
 from __future__ import annotations
 
@@ -18,23 +21,33 @@ from bench.memory import run_child
 from scenes import street_block
 
 
-def measure(sizes, work: Path, buildings: int) -> dict:
-    """One symbolic run on ``street_block`` with ``buildings`` per side; a row dict."""
+TARGET_MATERIALS = 66
+TARGET_RSS_MIB = 2048.0
+DIFFUSE_TOL, SPECULAR_TOL = 0.03, 0.05
+
+
+def measure(sizes, work: Path, buildings: int, method: str = "symbolic_paper") -> dict:
+    """One ``method`` run on ``street_block`` with ``buildings`` per side; a row dict."""
     folder = work / "scenes" / f"street_k{buildings}_s{sizes.mat_image}"
     if not (folder / "scene.yaml").is_file():
         shutil.rmtree(folder, ignore_errors=True)
         street_block.build(folder, buildings=buildings, image=sizes.mat_image)
-    cache, run_dir = work / "cache" / f"k{buildings}", work / "runs" / f"k{buildings}"
+    tag = f"k{buildings}" if method == "symbolic_paper" else f"k{buildings}_{method}"
+    cache, run_dir = work / "cache" / tag, work / "runs" / tag
     for old in (cache, run_dir):
         shutil.rmtree(old, ignore_errors=True)
-    out = run_child(["method=symbolic_paper", f"scene.dir={folder}", "views=all", f"render.spp={sizes.mem_spp}",
+    out = run_child([f"method={method}", f"scene.dir={folder}", "views=all", f"render.spp={sizes.mem_spp}",
                      f"observe.spp={sizes.mem_observe_spp}", "report=false", f"cache.dir={cache}",
                      f"hydra.run.dir={run_dir}", *sizes.extra], timeout=sizes.mat_timeout_s)
     path = run_dir / "results.json"
     res = json.loads(path.read_text()) if path.is_file() else {}
-    errs = [abs(e) for p in res.get("parameters", []) if p.get("error") is not None
-            and not p.get("ill_determined", False) for e in p["error"]]
-    return {"buildings": buildings, "materials": len(res.get("segments", [])) or None,
+    determined = [p for p in res.get("parameters", []) if p.get("error") is not None
+                  and not p.get("ill_determined", False)]
+    errs = [abs(e) for p in determined for e in p["error"] if e is not None]
+    over = [f"{p['segment']}/{p['kernel']} {max(abs(e) for e in p['error'] if e is not None):.3f}" for p in determined
+            if max(abs(e) for e in p["error"] if e is not None) > (DIFFUSE_TOL if p["kernel"] == "diffuse" else SPECULAR_TOL)]
+    return {"buildings": buildings, "method": method, "renders": res.get("renders"),
+            "determined": len(determined), "over_tolerance": over, "views": len(res.get("views") or []) or None, "materials": len(res.get("segments", [])) or None,
             "D": len(res.get("parameters", [])) or None, "rc": out["rc"], "wall_s": out["wall_s"],
             "maxrss_mib": out["maxrss_mib"], "monomials": res.get("n_monomials"), "gram_nnz": res.get("gram_nnz"),
             "pass_s": res.get("timings_s", {}).get("render"), "solve_s": res.get("timings_s", {}).get("solve"),
@@ -54,8 +67,32 @@ def growth_law(rows: list[dict], key: str) -> tuple[float, float] | None:
 
 def run(sizes, work: Path, log=print) -> list[dict]:
     rows = []
-    for k in sizes.mat_buildings:
-        rows.append(measure(sizes, work, k))
+    runs = [(k, "symbolic_paper") for k in sizes.mat_buildings] + [(k, "symbolic") for k in sizes.mat_default_buildings]
+    for k, method in runs:
+        rows.append(measure(sizes, work, k, method))
         r = rows[-1]
-        log(f"[materials] K={k}: rc {r['rc']}, D {r['D']}, {r['wall_s']:.1f} s, peak {r['maxrss_mib']:.0f} MiB")
+        log(f"[materials] K={k} {method}: rc {r['rc']}, D {r['D']}, {r['wall_s']:.1f} s, peak {r['maxrss_mib']:.0f} MiB")
     return rows
+
+
+def targets(rows: list[dict]) -> list[tuple[str, str, bool | None]]:
+    """``(run, target, met)`` for the 66-material targets, on each method's smallest K with at least
+    :data:`TARGET_MATERIALS` materials (pass time per view against that method's 10-material run,
+    K = 1); None where a run is missing."""
+    out = []
+    for method in ("symbolic_paper", "symbolic"):
+        mine = [r for r in rows if r.get("method", "symbolic_paper") == method and r["rc"] == 0 and r["materials"]]
+        big = min((r for r in mine if r["materials"] >= TARGET_MATERIALS), key=lambda r: r["materials"], default=None)
+        small = next((r for r in mine if r["buildings"] == 1), None)
+        if big is None:
+            continue
+        name = f"{method}, K = {big['buildings']} ({big['materials']} materials)"
+        per_view = (big["pass_s"] / small["pass_s"]) if small and small["pass_s"] else None
+        out += [(name, f"peak RSS {big['maxrss_mib']:.0f} MiB <= {TARGET_RSS_MIB:.0f}", big["maxrss_mib"] <= TARGET_RSS_MIB),
+                (name, f"solve {big['solve_s']:.1f} s <= pass {big['pass_s']:.1f} s", big["solve_s"] <= big["pass_s"]),
+                (name, "pass per view within 2x of the 10-material run: "
+                       + (f"{per_view:.2f}x" if per_view else "n/a"), None if per_view is None else per_view <= 2.0),
+                (name, f"every determined parameter ({big['determined']}) within {DIFFUSE_TOL} diffuse / {SPECULAR_TOL} "
+                       f"specular" + (f": over, {', '.join(big['over_tolerance'][:4])}" if big["over_tolerance"] else ""),
+                 not big["over_tolerance"])]
+    return out

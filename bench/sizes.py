@@ -41,6 +41,8 @@ class Sizes:
     mat_buildings : tuple of int
         Buildings per side of the ``street_block`` runs (section 5); ``mem_spp`` and
         ``mem_observe_spp`` are their spp, all views.
+    mat_default_buildings : tuple of int
+        Buildings per side of the runs with the default method (``method=symbolic``) beside.
     mat_image : int
         Their image size.
     mat_timeout_s : float
@@ -70,7 +72,8 @@ class Sizes:
     cmp_budget_all: int = 400
     cmp_all_image: int | None = 100
     all_views: int = 0
-    mat_buildings: tuple = (1, 2, 4, 8, 16)
+    mat_buildings: tuple = (1, 2, 4, 8, 9, 16)
+    mat_default_buildings: tuple = (1, 9)
     mat_image: int = 200
     mat_timeout_s: float = 900.0
     extra: tuple = field(default_factory=tuple)
@@ -84,7 +87,7 @@ DEFAULT = Sizes()
 QUICK = Sizes(name="quick", ratio_spps=(4,), ratio_reps=1, mem_views=(1, 2), mem_images=(32,),
               mem_dask_views=(2,), mem_dask_image=32,
               mem_spp=4, mem_observe_spp=8, cmp_spp=4, cmp_observe_spp=16, cmp_budget=20,
-              cmp_budget_all=14, cmp_all_image=40, all_views=2, mat_buildings=(1, 2), mat_image=32, mat_timeout_s=300.0,
+              cmp_budget_all=14, cmp_all_image=40, all_views=2, mat_buildings=(1, 2), mat_default_buildings=(1,), mat_image=32, mat_timeout_s=300.0,
               extra=("method.solver.starts=1",),
               mega_spp=2, defaults_extra=("render.spp=4", "observe.spp=16", "method.refine=1"),
               field_extra=("render.spp=4", "method.refine=0", "method.irls.iterations=2"))
