@@ -40,8 +40,8 @@ def parse(argv=None) -> argparse.Namespace:
                                                "with --quick the run folder's)")
     p.add_argument("--runs", default=None, help="folder of the run folders (default bench/runs/<timestamp>)")
     p.add_argument("--resume", action="store_true",
-                   help="the comparison reuses the runs of this --runs folder that finished (an interrupted "
-                        "benchmark goes on where it stopped)")
+                   help="the comparison and the materials sections reuse the runs of this --runs folder that "
+                        "finished (an interrupted benchmark goes on where it stopped)")
     p.add_argument("--render-only", action="store_true",
                    help="measure nothing: rewrite the markdown from the stored sections")
     args = p.parse_args(argv)
@@ -67,7 +67,8 @@ def comparison_report(rows: list[dict], out: Path):
 
 
 def measure(name: str, sizes, root: Path, resume: bool = False):
-    """Run one section; its JSON-able data (``resume``: the comparison reuses finished runs)."""
+    """Run one section; its JSON-able data (``resume``: the comparison and materials sections
+    reuse finished runs)."""
     if name == "ratio":
         return render_ratio.run(sizes, root / "cache" / "ratio", log)
     if name == "megapixel":
@@ -81,7 +82,7 @@ def measure(name: str, sizes, root: Path, resume: bool = False):
     if name == "paper":
         return paper.run(sizes, root, log)
     if name == "materials":
-        return materials.run(sizes, root / "materials", log)
+        return materials.run(sizes, root / "materials", log, resume=resume)
     if name == "defaults":
         return accuracy.run(sizes, root / "defaults", log)
     if name == "field":

@@ -60,7 +60,8 @@ def run_one(sizes, root: Path, label: str, scene: str, n_views: int, overrides: 
         res = json.loads((run_dir / "results.json").read_text())
         log(f"[compare] {scene} {vtag} {label}: reused {run_dir}")
         return {**row, "n_views": len(res["settings"]["views"]), "wall_s": res["timings_s"]["total"], "results": res}
-    shutil.rmtree(run_dir, ignore_errors=True)             # an interrupted run's partial folder
+    for old in (run_dir, cache):            # an interrupted run's partial folder and its passes
+        shutil.rmtree(old, ignore_errors=True)
     seed_cache(root / "cache" / "observed" / scene / vtag, cache)
     cfg = compose([*overrides, *_scene(sizes, root, scene, n_views), f"render.spp={sizes.cmp_spp}",
                    f"observe.spp={sizes.cmp_observe_spp}", f"budget.renders={budget}", "report=false",

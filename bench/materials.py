@@ -26,13 +26,24 @@ TARGET_RSS_MIB = 2048.0
 DIFFUSE_TOL, SPECULAR_TOL = 0.03, 0.05
 
 
-def measure(sizes, work: Path, buildings: int, method: str = "symbolic_paper") -> dict:
-    """One ``method`` run on ``street_block`` with ``buildings`` per side; a row dict."""
+def measure(sizes, work: Path, buildings: int, method: str = "symbolic_paper", resume: bool = False) -> dict:
+    """One ``method`` run on ``street_block`` with ``buildings`` per side; a row dict (also written
+    to ``row.json`` in its run folder; ``resume``: a run folder holding one is read instead)."""
+    tag = f"k{buildings}" if method == "symbolic_paper" else f"k{buildings}_{method}"
+    stored = work / "runs" / tag / "row.json"
+    if resume and stored.is_file():
+        return json.loads(stored.read_text())
+    row = _measure(sizes, work, buildings, method, tag)
+    stored.parent.mkdir(parents=True, exist_ok=True)
+    stored.write_text(json.dumps(row))
+    return row
+
+
+def _measure(sizes, work: Path, buildings: int, method: str, tag: str) -> dict:
     folder = work / "scenes" / f"street_k{buildings}_s{sizes.mat_image}"
     if not (folder / "scene.yaml").is_file():
         shutil.rmtree(folder, ignore_errors=True)
         street_block.build(folder, buildings=buildings, image=sizes.mat_image)
-    tag = f"k{buildings}" if method == "symbolic_paper" else f"k{buildings}_{method}"
     cache, run_dir = work / "cache" / tag, work / "runs" / tag
     for old in (cache, run_dir):
         shutil.rmtree(old, ignore_errors=True)
@@ -65,11 +76,11 @@ def growth_law(rows: list[dict], key: str) -> tuple[float, float] | None:
     return float(np.exp(log_a)), float(b)
 
 
-def run(sizes, work: Path, log=print) -> list[dict]:
+def run(sizes, work: Path, log=print, resume: bool = False) -> list[dict]:
     rows = []
     runs = [(k, "symbolic_paper") for k in sizes.mat_buildings] + [(k, "symbolic") for k in sizes.mat_default_buildings]
     for k, method in runs:
-        rows.append(measure(sizes, work, k, method))
+        rows.append(measure(sizes, work, k, method, resume=resume))
         r = rows[-1]
         log(f"[materials] K={k} {method}: rc {r['rc']}, D {r['D']}, {r['wall_s']:.1f} s, peak {r['maxrss_mib']:.0f} MiB")
     return rows

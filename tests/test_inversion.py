@@ -235,3 +235,14 @@ def test_tail_bounces_range():
     cfg = compose(["render.tail_bounces=-1"])
     with pytest.raises(ConfigError, match=r"render.tail_bounces=-1 is out of range: use an integer \[0, 16\]"):
         RunSettings.from_config(cfg)
+
+
+def test_refinement_move_ignores_weights_without_std():
+    """The refinement's stopping measure, by hand: a weight moving 0.02 with std 0.005 moves
+    0.02 / (0.005 + 2·0.005) = 4/3 units; a weight without a finite std (the data do not pin it)
+    wandering 0 -> 0.7 does not count, nor does one not estimated in both passes."""
+    from methods.symbolic import _moved
+    previous = np.array([[0.10, 0.0, np.nan]])
+    current = np.array([[0.12, 0.7, 0.3]])
+    assert _moved(previous, current, np.array([[0.005, np.nan, 0.01]]), 0.005) == pytest.approx(4 / 3)
+    assert _moved(previous, current, np.array([[np.nan, np.nan, 0.01]]), 0.005) == 0.0
