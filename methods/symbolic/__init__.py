@@ -332,7 +332,7 @@ class SymbolicMethod(Method):
                                x0=x0[kept], algorithm=str(solver.algorithm), starts=solver.starts if str(solver.starts) == "auto" else int(solver.starts),
                                max_eval=int(solver.max_eval), xtol_rel=float(solver.xtol_rel),
                                ftol_rel=float(solver.ftol_rel), precondition=bool(solver.precondition),
-                               seed=int(problem.seed))
+                               seed=int(problem.seed), executor=_block_executor(problem.settings.executor))
         t_unc = time.perf_counter()
         meat = None
         if method == "sandwich":
@@ -355,6 +355,14 @@ class SymbolicMethod(Method):
         t = time.perf_counter()
         images = relight_outputs(problem, params, estimate, opt)
         return images, time.perf_counter() - t
+
+
+def _block_executor(cfg):
+    """``executor=dask``: a function starting the executor the solve puts independent parameter
+    blocks on (only when there are several); serial: None (the blocks in turn, in process)."""
+    if cfg is None or str(cfg.get("name", "serial")) == "serial":
+        return None
+    return lambda: make_executor(cfg)
 
 
 def _lambertian_prior(problem) -> MethodResult:

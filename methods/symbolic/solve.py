@@ -189,7 +189,7 @@ def _random_start(rng, D, segments_params) -> np.ndarray:
 def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_params: list[list[int]],
                      x0: np.ndarray, algorithm: str = "SQP", starts: int | str = "auto",
                      max_eval: int = 2000, xtol_rel: float = 1e-8, ftol_rel: float = 1e-12,
-                     precondition: bool = True, seed: int = 0) -> SolveResult:
+                     precondition: bool = True, seed: int = 0, executor=None) -> SolveResult:
     """Minimise the cost of every channel over ρ with nlopt, one independent parameter block at a
     time (:func:`parameter_blocks`: the cost is a sum of one term per block plus a constant, so
     the blocks' minimisers together are the joint minimiser).
@@ -226,6 +226,13 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
         spans orders of magnitude, which BFGS otherwise learns one evaluation at a time).
     seed : int
         Seed of the random starts.
+    executor : callable, optional
+        A function returning an executor (:func:`framework.executor.make_executor`, a context
+        manager), called only when there are several blocks: every (channel, block) is then
+        solved as its own task on it (Dask workers with ``executor=dask``), each with its random
+        starts seeded by ``(seed, channel, block)``; the estimates are the blocks' minimisers as
+        in the default in-process loop (which seeds one stream for all blocks in turn). The
+        iterates then hold one entry per finished block.
 
     Returns
     -------
@@ -256,13 +263,16 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
     costs = [[_BlockCost(system, basis, c, used, block, whole[c]) for block in blocks] for c in range(C)]
     trace = _Trace(x0, [whole[c](x0[:, c])[0] for c in range(C)])
     n_evals = guess_evals = 0
-    for c in range(C):
+    options = dict(algorithm=algorithm, max_eval=int(max_eval), xtol_rel=float(xtol_rel), ftol_rel=float(ftol_rel),
+                   precondition=precondition)
+    if executor is not None and len(blocks) > 1:
+        with executor() as pool:
+            n_evals, guess_evals = _solve_blocks_on(pool, costs, blocks, trace, segs, starts, seed, options)
+    for c in range(C) if executor is None or len(blocks) == 1 else ():
         for b, block in enumerate(blocks):
             f_ref = costs[c][b].value(trace.current[:, c])
-            best, evals, from_guess = _solve_block(costs[c][b], trace, c, f_ref, rng, segs, starts=_starts(starts, block),
-                                                   algorithm=algorithm, max_eval=int(max_eval),
-                                                   xtol_rel=float(xtol_rel), ftol_rel=float(ftol_rel),
-                                                   precondition=precondition)
+            best, evals, from_guess = _solve_block(costs[c][b], trace, c, f_ref, rng, segs,
+                                                   starts=_starts(starts, block), **options)
             n_evals, guess_evals = n_evals + evals, guess_evals + from_guess
             trace.settle(c, block, np.clip(best.x, 0.0, 1.0), best.f - f_ref)
     estimate, best_cost = trace.current, trace.channel_costs
@@ -271,6 +281,32 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
     return SolveResult(estimate=estimate, cost=np.array(best_cost), cost_history=history, eval_times_s=times,
                        n_evals=n_evals, guess_evals=guess_evals, solve_s=time.perf_counter() - t_start,
                        iterates=iterates, blocks=[b.tolist() for b in blocks])
+
+
+def _solve_blocks_on(executor, costs, blocks, trace: _Trace, segs, starts, seed: int, options: dict) -> tuple[int, int]:
+    """Every (channel, block) of :func:`solve_polynomial` as a task of ``executor``; the results
+    settled into ``trace`` as they arrive. Returns the evaluations, all and from the guess."""
+    keys = [(c, b) for c in range(len(costs)) for b in range(len(blocks))]
+    tasks = [{"cost": costs[c][b], "x": trace.current[:, c].copy(), "segs": segs,
+              "starts": _starts(starts, blocks[b]), "seed": (int(seed), c, b), "options": options} for c, b in keys]
+    n_evals = guess_evals = 0
+    for (c, b), out in zip(keys, executor.imap(_block_task, tasks)):
+        trace.record(c, blocks[b], out["x"], out["f"], out["f_ref"], improved=True)
+        trace.settle(c, blocks[b], out["x"], out["f"] - out["f_ref"])
+        n_evals, guess_evals = n_evals + out["evals"], guess_evals + out["from_guess"]
+    return n_evals, guess_evals
+
+
+def _block_task(task: dict) -> dict:
+    """One channel's block, solved where the task runs (a Dask worker): :func:`_solve_block` on a
+    one-channel trace of its own. Plain data in and out."""
+    cost = task["cost"]
+    trace = _Trace(task["x"][:, None], [0.0])
+    f_ref = cost.value(task["x"])
+    best, evals, from_guess = _solve_block(cost, trace, 0, f_ref, np.random.default_rng(task["seed"]), task["segs"],
+                                           starts=task["starts"], **task["options"])
+    return {"x": np.clip(best.x, 0.0, 1.0), "f": float(best.f), "f_ref": float(f_ref), "evals": evals,
+            "from_guess": from_guess}
 
 
 def parameter_blocks(system: GramSystem, basis: MonomialBasis, segments_params: list[list[int]]) -> list[np.ndarray]:
