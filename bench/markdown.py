@@ -154,16 +154,17 @@ def _equal_error(rows: list[dict], keys: set) -> list[str]:
         reach = (f"{f(row['time_s'], 1)} s ({row['renders']} renders), {f(row['ratio'], 1)} x symbolic"
                  if row["time_s"] is not None else
                  f"not reached in {row['max_renders']} renders / {f(row['max_time_s'], 1)} s")
+        drop = row["drop_per_tenth"]
         floor = f"{f(row['floor'])} " + ("(flat)" if row["flattened"] else "(too few iterates to tell)"
-                                         if row["before_floor"] != row["before_floor"] else
-                                         f"(still falling: {f(row['before_floor'])} the tenth before)")
+                                         if drop != drop else f"(still falling {100 * drop:.0f} % per tenth)")
         out.append([row["method"], f(row["target"]), reach, floor])
     if not out:
         return []
     return (["At equal error (from each run's iterates, results.json `trace`): the time a baseline needs "
              "to reach the symbolic run's final worst |error|, and its floor: the median worst |error| over "
-             "the last 10 % of its iterates, *flat* when it is less than 10 % below the median over the "
-             "10 % before (the curve has levelled off within the budget).", ""]
+             "the last 10 % of its iterates, *flat* when a least-squares line through log(worst |error|) "
+             "over the last 30 % of them falls by less than 10 % per tenth of the iterates (the curve "
+             "has levelled off within the budget; otherwise the drop per tenth is given).", ""]
             + table(["method", "symbolic worst |error|", "time to reach it", "floor"], out) + [""])
 
 

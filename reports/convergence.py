@@ -15,9 +15,11 @@ import numpy as np
 
 #: the floor is the median worst error over this last fraction of a run's iterates
 FLOOR_FRACTION = 0.1
-#: a curve has flattened when its floor is less than this fraction below the median worst error
-#: of the same number of iterates just before (the last tenth of the budget gained < 10 %)
+#: a curve has flattened when the worst error falls by less than this fraction over a tenth of
+#: its iterates, on a least-squares line through log(worst error) over the last FLAT_WINDOW of them
+#: (a line, not two window medians: the noise of a noisy baseline's iterates cancels in the fit)
 FLAT_DROP = 0.1
+FLAT_WINDOW = 0.3
 
 
 @dataclass(frozen=True)
@@ -42,27 +44,30 @@ class ErrorCurve:
         return int(self.renders[hit[0]]) if hit.size else None
 
     @property
-    def _tail(self) -> int:
-        return max(1, int(np.ceil(FLOOR_FRACTION * len(self))))
-
-    @property
     def floor(self) -> float:
         """The median worst error over the last :data:`FLOOR_FRACTION` of the iterates."""
-        return float(np.median(self.worst[-self._tail:]))
+        tail = max(1, int(np.ceil(FLOOR_FRACTION * len(self))))
+        return float(np.median(self.worst[-tail:]))
 
     @property
-    def before_floor(self) -> float:
-        """The median worst error over the :data:`FLOOR_FRACTION` of the iterates before the
-        floor's (NaN if the run has too few iterates)."""
-        n = self._tail
-        return float(np.median(self.worst[-2 * n:-n])) if len(self) >= 2 * n else float("nan")
+    def drop_per_tenth(self) -> float:
+        """How much the worst error still falls over a tenth of the iterates: ``1 - exp(0.1 s)``
+        with ``s`` the slope of a least-squares line through ``log(worst)`` against the iterate's
+        position (0 to 1) over the last :data:`FLAT_WINDOW` of them; negative when it rises, NaN
+        with fewer than 5 iterates there."""
+        n = int(np.ceil(FLAT_WINDOW * len(self)))
+        if n < 5:
+            return float("nan")
+        position = np.arange(len(self) - n, len(self)) / len(self)
+        slope = np.polyfit(position, np.log(np.maximum(self.worst[-n:], 1e-300)), 1)[0]
+        return float(1.0 - np.exp(0.1 * slope))
 
     @property
     def flattened(self) -> bool:
-        """Whether the curve has levelled off: its floor is less than :data:`FLAT_DROP` below
-        :attr:`before_floor` (False when that is unknown)."""
-        before = self.before_floor
-        return bool(np.isfinite(before) and self.floor >= (1.0 - FLAT_DROP) * before)
+        """Whether the curve has levelled off: :attr:`drop_per_tenth` at most :data:`FLAT_DROP`
+        (False when unknown)."""
+        drop = self.drop_per_tenth
+        return bool(np.isfinite(drop) and drop <= FLAT_DROP)
 
 
 def _references(results: dict, only) -> np.ndarray:
@@ -128,7 +133,7 @@ def equal_error_rows(curves: dict[str, list[ErrorCurve]], baseline: str) -> list
                      "renders": int(np.median(renders)) if renders else None,
                      "ratio": float(np.median(reached)) / base_time if reached and base_time > 0 else None,
                      "floor": float(np.median([c.floor for c in runs])),
-                     "before_floor": float(np.median([c.before_floor for c in runs])),
+                     "drop_per_tenth": float(np.median([c.drop_per_tenth for c in runs])),
                      "flattened": all(c.flattened for c in runs),
                      "max_time_s": float(max(c.time_s[-1] for c in runs)),
                      "max_renders": int(max(c.renders[-1] for c in runs))})

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from reports.convergence import equal_error_rows, error_curve
+from reports.convergence import FLAT_DROP, equal_error_rows, error_curve
 
 
 def _results(method, trace, refs=((0.5, 0.5), (0.2, None))):
@@ -48,20 +48,22 @@ def test_equal_error_rows():
 
 
 def test_flattened_by_hand():
-    """20 iterates, tail = 2: a curve whose last two worst errors (median 0.095) are < 10 % below
-    the two before (median 0.1) has flattened; one still dropping 0.2 -> 0.1 has not; with one
-    iterate it is unknown (NaN before, not flat)."""
+    """20 iterates, the last 6 in the fit: a worst error falling by 0.9 per iterate falls by
+    1 - 0.9² = 0.19 over a tenth (2 iterates): not flat; one alternating 0.1, 0.12 (noise around
+    a level; the fitted line rises slightly, a negative drop) is flat, floor the median of the
+    last 2, 0.11; with 4 iterates (fewer than 5 in the fit) it is unknown."""
     def curve(worst):
         return error_curve(_results("m", [(float(i), i, [[0.5 + w, 0.5], [0.2, 0.2]]) for i, w in enumerate(worst)],
                                     refs=((0.5, 0.5), (0.2, 0.2))))
-    flat = curve([0.5] * 16 + [0.1, 0.1, 0.095, 0.095])
-    assert (flat.floor, flat.before_floor, flat.flattened) == (pytest.approx(0.095), pytest.approx(0.1), True)
-    falling = curve([0.5] * 16 + [0.2, 0.2, 0.1, 0.1])
-    assert (falling.floor, falling.before_floor, falling.flattened) == (pytest.approx(0.1), pytest.approx(0.2), False)
-    one = curve([0.1])
-    assert np.isnan(one.before_floor) and not one.flattened
-    rows = equal_error_rows({"symbolic": [one], "d": [flat]}, "symbolic")
-    assert rows[0]["flattened"] and rows[0]["before_floor"] == pytest.approx(0.1)
+    falling = curve(list(0.5 * 0.9 ** np.arange(20)))
+    assert falling.drop_per_tenth == pytest.approx(1 - 0.9 ** 2) and not falling.flattened
+    flat = curve([0.5] * 14 + [0.1, 0.12] * 3)
+    assert abs(flat.drop_per_tenth) < FLAT_DROP and flat.flattened
+    assert flat.floor == pytest.approx(0.11)
+    short = curve([0.3, 0.2, 0.1, 0.1])
+    assert np.isnan(short.drop_per_tenth) and not short.flattened
+    rows = equal_error_rows({"symbolic": [short], "d": [flat]}, "symbolic")
+    assert rows[0]["flattened"] and rows[0]["drop_per_tenth"] == pytest.approx(flat.drop_per_tenth)
 
 
 def test_variant_labels_separate_variants_not_seeds():
