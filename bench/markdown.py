@@ -121,7 +121,8 @@ def _cmp_row(row: dict, base: dict | None, keys: set) -> list:
     worst, mean = error_stats(res, keys)
     total = res["timings_s"]["total"]
     ratio = total / base["results"]["timings_s"]["total"] if base else None
-    return [row["label"], row["n_views"], row["budget"], f(total, 1), res["renders"], f(worst), f(mean),
+    label = row["label"] + (" (passes read from a cache: time not comparable)" if res.get("views_from_cache") else "")
+    return [label, row["n_views"], row["budget"], f(total, 1), res["renders"], f(worst), f(mean),
             f(ratio, 1) if ratio else "1"]
 
 
