@@ -56,10 +56,10 @@ def run_one(sizes, root: Path, label: str, scene: str, n_views: int, overrides: 
     image = _image(sizes, n_views)
     row = {"label": label, "scene": scene, "views": vtag, "budget": budget, "run_dir": str(run_dir),
            "image": image}
-    if resume and (run_dir / "results.json").is_file():
-        res = json.loads((run_dir / "results.json").read_text())
+    done = json.loads((run_dir / "results.json").read_text()) if resume and (run_dir / "results.json").is_file() else None
+    if done is not None and done["settings"].get("budget_renders") == budget:
         log(f"[compare] {scene} {vtag} {label}: reused {run_dir}")
-        return {**row, "n_views": len(res["settings"]["views"]), "wall_s": res["timings_s"]["total"], "results": res}
+        return {**row, "n_views": len(done["settings"]["views"]), "wall_s": done["timings_s"]["total"], "results": done}
     for old in (run_dir, cache):            # an interrupted run's partial folder and its passes
         shutil.rmtree(old, ignore_errors=True)
     seed_cache(root / "cache" / "observed" / scene / vtag, cache)
@@ -136,6 +136,8 @@ def run(sizes, root: Path, log=print, resume: bool = False) -> list[dict]:
         warm_observations(sizes, root, "urban_canyon", n_views)
         for label, overrides, reduced in METHODS:
             budget = sizes.cmp_budget_all if (reduced and n_views != 1) else sizes.cmp_budget
+            if label == "differentiable" and n_views != 1:
+                budget = sizes.cmp_budget_all_differentiable
             rows.append(try_one(sizes, root, label, "urban_canyon", n_views, overrides, budget, log=log,
                                 resume=resume))
     return [r for r in rows if r is not None]

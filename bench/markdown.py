@@ -197,8 +197,9 @@ def section_compare(rows: list[dict], sizes, report_path) -> list[str]:
     lines = ["## 3. Method comparison at equal spp", "",
              f"urban_canyon, render.spp = {sizes.cmp_spp}, observe.spp = {sizes.cmp_observe_spp}, "
              f"budget.renders = {sizes.cmp_budget}"
-             + (f" (iterative and differentiable on all views: {sizes.cmp_budget_all}, reduced to keep the "
-                "benchmark short)" if sizes.cmp_budget_all != sizes.cmp_budget else " on one view and on all")
+             + (f" on one view; on all views {sizes.cmp_budget_all} for the iterative baselines and "
+                f"{getattr(sizes, 'cmp_budget_all_differentiable', sizes.cmp_budget_all)} for the differentiable "
+                "one (each until its curve is flat, below)")
              + (f"; every run on all views at {sizes.cmp_all_image} pixels wide (the cameras scaled, the "
                 "observations rendered at that size), so that the baselines' budget fits in the "
                 "benchmark's time" if getattr(sizes, "cmp_all_image", None) else "")
