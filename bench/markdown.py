@@ -206,7 +206,9 @@ def section_compare(rows: list[dict], sizes, report_path) -> list[str]:
              + ", in this process with "
              "`run_experiment`. Observations come from a shared observation cache (rendered once per "
              "view set, copied into each run's otherwise empty cache), so totals exclude them. Errors: "
-             "over the parameters and channels the symbolic run on the same views reports observable.",
+             "over the parameters and channels the symbolic run on the same views reports observable. "
+             "Times are wall-clock seconds on a shared 2-core machine whose load changed during the section "
+             "(other sections or tests may run beside it): renders are the load-free measure of cost.",
              f"Comparison report: `{report_path}`.", ""]
     for vtag in ("single", "all"):
         sub = [r for r in rows if r["views"] == vtag]
