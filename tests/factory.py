@@ -174,14 +174,14 @@ def mean_difference(a, b) -> tuple[np.ndarray, np.ndarray]:
     return diff, se
 
 
-def run_street_cli(tmp_path, folder, *overrides) -> dict:
-    """``python -m framework.run method=symbolic`` on the scene ``folder`` (4 spp, observations
+def run_street_cli(tmp_path, folder, *overrides, method: str = "symbolic") -> dict:
+    """``python -m framework.run method=<method>`` on the scene ``folder`` (4 spp, observations
     at 16 spp, cached under ``tmp_path``): its results.json (asserts a zero exit status)."""
     import json
     import os
     import subprocess
     import sys
-    args = ["method=symbolic", f"scene.dir={folder}", "render.spp=4", "observe.spp=16", *overrides,
+    args = [f"method={method}", f"scene.dir={folder}", "render.spp=4", "observe.spp=16", *overrides,
             "report=false", f"hydra.run.dir={tmp_path / 'run'}", f"cache.dir={tmp_path / 'cache'}"]
     proc = subprocess.run([sys.executable, "-m", "framework.run", *args], capture_output=True, text=True,
                           timeout=300, env=dict(os.environ, HYDRA_FULL_ERROR="0"))
