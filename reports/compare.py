@@ -217,11 +217,20 @@ def _section_error_time(doc: Doc, scene: _Scene, files: Path, rel: str) -> None:
                     fmt_num(r["time_s"], digits=3) if r["time_s"] is not None
                     else f"not reached in {r['max_renders']} renders / {r['max_time_s']:.3g} s",
                     f"×{r['ratio']:.3g}" if r["ratio"] else "—",
-                    fmt_num(r["renders"], digits=0), fmt_num(r["floor"])] for r in rows],
+                    fmt_num(r["renders"], digits=0), fmt_num(r["floor"]) + _flatness(r)] for r in rows],
                   left=1, caption=f"Errors over the parameters every {BASELINE} run estimates. "
                   f"Target: the {BASELINE} method's final worst |error| "
                   f"{fmt_num(target)} (median over its runs); time: median over the runs that reach it; "
-                  f"floor: median worst |error| over the last 10 % of the iterates.")
+                  f"floor: median worst |error| over the last 10 % of the iterates, flat when a line through "
+                  f"log(worst |error|) over the last 30 % falls less than 10 % per tenth of them.")
+
+
+def _flatness(row: dict) -> str:
+    """`` (flat)``, `` (falling N % per tenth)`` or nothing (too few iterates) for a floor."""
+    drop = row.get("drop_per_tenth", float("nan"))
+    if row.get("flattened"):
+        return " (flat)"
+    return "" if drop != drop else f" (falling {100 * drop:.0f} % per tenth)"
 
 
 def _section_runs(doc: Doc, scene: _Scene, out: Path) -> None:
