@@ -267,7 +267,8 @@ def _target_summary(rows: list[dict]) -> list[str]:
             continue
         for (seg, kernel), errs in sorted(param_errors(r["results"]).items()):
             worst = max(abs(e) for e in errs)
-            out.append([r["scene"], r["label"], f"{seg}/{kernel}", f(worst), TARGET.get(kernel, "-"),
+            scene = r["scene"] + (f" ({r['image']} px wide)" if r.get("image") else "")
+            out.append([scene, r["label"], f"{seg}/{kernel}", f(worst), TARGET.get(kernel, "-"),
                         "yes" if worst <= TARGET.get(kernel, 0) else "no"])
     return table(["scene", "method", "parameter", "worst abs. error over channels", "target", "met"], out)
 
