@@ -282,7 +282,7 @@ def _project_simplex(v: np.ndarray) -> np.ndarray:
 
 
 #: :func:`minimize_sqp` recomputes the Hessian when a step is more than this times the previous one
-SQP_CONTRACTION = 0.25
+SQP_SHRINK = 0.25
 
 
 def minimize_sqp(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndarray | None]],
@@ -305,7 +305,7 @@ def minimize_sqp(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndar
     symbolic cost a sparse product over every monomial), so one serves several steps while it
     models the cost well; it is recomputed when a step needed backtracking, when the cost's
     decrease was off the model's by more than a factor 2, or when a step is more than
-    :data:`SQP_CONTRACTION` times the previous one (a stale Hessian converges only linearly).
+    :data:`SQP_SHRINK` times the previous one (a stale Hessian converges only linearly).
 
     Parameters
     ----------
@@ -373,7 +373,7 @@ def minimize_sqp(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndar
                 break
             predicted, step = -(slope + 0.5 * float(d @ H @ d)), float(np.max(np.abs(d)))
             if (alpha < 1.0 or not 0.5 * predicted <= f - fz <= 2.0 * predicted
-                    or step > SQP_CONTRACTION * last_step):
+                    or step > SQP_SHRINK * last_step):
                 H = None      # the model mispredicts, or steps shrink linearly: a new Hessian
             last_step = step
             drop, (x, f, g) = f - fz, (z, fz, gz)
