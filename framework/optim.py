@@ -296,8 +296,9 @@ def minimize_sqp(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndar
 
     Each iteration minimises the quadratic model ``gᵀd + ½ dᵀHd`` (``H = hessian(x)``; when it is
     not positive definite, its negative eigenvalues mirrored and all floored at
-    :data:`METRIC_FLOOR` times the largest magnitude) over the feasible set, exactly (a dense dual active-set QP, Goldfarb and Idnani
-    1983, from ``quadprog``), then backtracks along the step until the Armijo condition holds.
+    :data:`METRIC_FLOOR` times the largest magnitude) over the feasible set, exactly (a dense
+    dual active-set QP, Goldfarb and Idnani 1983, from ``quadprog``), then backtracks along the
+    step until the Armijo condition holds.
     The feasible set is convex, so every iterate is feasible. With the exact Hessian near the
     minimum the steps are Newton steps: a few iterations, each one O(n³) in the parameters, where
     nlopt's SLSQP (a BFGS estimate of the Hessian, one evaluation at a time) needs tens of
@@ -318,7 +319,7 @@ def minimize_sqp(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndar
     lower, upper, inequality_groups
         As in :func:`minimize`.
     max_iter : int
-        Most iterations (each one Hessian, one QP and at least one evaluation).
+        Most iterations (each one QP and at least one evaluation; a Hessian when needed).
     xtol : float
         Stop when the QP step is at most this in every coordinate (``XTOL_REACHED``).
     ftol_rel : float
