@@ -268,13 +268,14 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
     if executor is not None and len(blocks) > 1:
         with executor() as pool:
             n_evals, guess_evals = _solve_blocks_on(pool, costs, blocks, trace, segs, starts, seed, options)
-    for c in range(C) if executor is None or len(blocks) == 1 else ():
-        for b, block in enumerate(blocks):
-            f_ref = costs[c][b].value(trace.current[:, c])
-            best, evals, from_guess = _solve_block(costs[c][b], trace, c, f_ref, rng, segs,
-                                                   starts=_starts(starts, block), **options)
-            n_evals, guess_evals = n_evals + evals, guess_evals + from_guess
-            trace.settle(c, block, np.clip(best.x, 0.0, 1.0), best.f - f_ref)
+    else:
+        for c in range(C):
+            for b, block in enumerate(blocks):
+                f_ref = costs[c][b].value(trace.current[:, c])
+                best, evals, from_guess = _solve_block(costs[c][b], trace, c, f_ref, rng, segs,
+                                                       starts=_starts(starts, block), **options)
+                n_evals, guess_evals = n_evals + evals, guess_evals + from_guess
+                trace.settle(c, block, np.clip(best.x, 0.0, 1.0), best.f - f_ref)
     estimate, best_cost = trace.current, trace.channel_costs
     history, iterates = trace.history, trace.iterates
     times = [at - t_start for at, _ in iterates]    # the same clock readings as the iterates
@@ -388,9 +389,9 @@ class _Trace:
 
 def _solve_block(cost: _BlockCost, trace: _Trace, c: int, f_ref: float, rng, segs, *, starts: int,
                  algorithm: str, max_eval: int, xtol_rel: float, ftol_rel: float, precondition: bool):
-    """Multi-start nlopt on one block of one channel (the other blocks held where they are, which
-    does not change this block's term; ``f_ref`` its value at the start). Returns the best run,
-    the evaluations, and those of the start from ``x0``."""
+    """Multi-start solve (SQP or nlopt) of one block of one channel (the other blocks held where
+    they are, which does not change this block's term; ``f_ref`` its value at the start).
+    Returns the best run, the evaluations, and those of the start from ``x0``."""
     block = cost.block
     local = {int(p): i for i, p in enumerate(block)}
     block_segs = [[local[p] for p in ps] for ps in segs if ps[0] in local]
@@ -406,21 +407,23 @@ def _solve_block(cost: _BlockCost, trace: _Trace, c: int, f_ref: float, rng, seg
         best_f = min(best_f, f)
         return f, g[block]
 
-    def metric_at(xb):
-        if algorithm == SQP:         # Newton steps: the exact Hessian (convexified in the QP)
-            return cost.cost.hessian(full(xb))[np.ix_(block, block)]
-        return cost.cost.metric(full(xb))[np.ix_(block, block)] if precondition else None
+    sqp = algorithm == SQP
+
+    def curvature_at(xb):
+        """SQP: the exact Hessian (its QP convexifies it); nlopt: the preconditioning metric."""
+        x = full(xb)
+        return (cost.cost.hessian(x) if sqp else cost.cost.metric(x))[np.ix_(block, block)]
 
     x0 = trace.current[block, c].copy()
     best, evals, from_guess = None, 0, 0
-    precondition = precondition or algorithm == SQP     # SQP: the curvature of its first steps
-    metric = None if algorithm == SQP else metric_at(x0)    # SQP computes its own at x0
+    # the first start's curvature: SQP computes its own at x0, nlopt gets the metric there
+    metric = curvature_at(x0) if precondition and not sqp else None
     for k in range(starts):
         start = x0 if k == 0 else _random_start(rng, len(block), block_segs)
-        if precondition and k == 1:       # the random starts: curvature at the first minimum
-            metric = metric_at(best.x)
+        if (sqp or precondition) and k == 1:     # the random starts: curvature at the first minimum
+            metric = curvature_at(best.x)
         if algorithm == SQP:
-            run = minimize_sqp(cost_grad, metric_at, start,
+            run = minimize_sqp(cost_grad, curvature_at, start,
                                lower=0.0, upper=1.0, inequality_groups=block_segs, max_iter=max_eval,
                                xtol=xtol_rel, ftol_rel=ftol_rel, start_hessian=metric)
         else:
