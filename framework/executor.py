@@ -53,17 +53,23 @@ class TreeSum:
         self._partial: list[tuple[int, object]] = []      # (number of values, their sum)
 
     def add(self, value) -> None:
+        """Add ``value``; it is consumed: a partial sum may be updated in place (``+=``), which
+        lets a large value (a Gram system) release its memory channel by channel as it is added."""
         count = 1
         while self._partial and self._partial[-1][0] == count:
             n, older = self._partial.pop()
-            value, count = older + value, count + n
+            older += value
+            value, count = older, count + n
         self._partial.append((count, value))
 
     def total(self, empty=None):
         """The sum of every value added (``empty`` when none was)."""
         out = None
         for _, value in reversed(self._partial):
-            out = value if out is None else value + out
+            if out is not None:
+                value += out
+            out = value
+        self._partial = []
         return empty if out is None else out
 
 

@@ -149,6 +149,18 @@ def run_differentiable(problem, **overrides):
     return run_method("differentiable", problem, **overrides)
 
 
+def view_systems(problem, params, x0, *, max_bounces: int, spp: int, seed: int = 0, prob_floor: float = 0.1,
+                 memory_mb: float = 512, tail_bounces: int = 0, cross_gram: bool = True) -> list:
+    """Each view's own ``(GramSystem, ViewCoefficients)`` as :func:`polynomial_pass` renders them
+    (same seeds and tiles): the pass itself keeps only their sum."""
+    from methods.symbolic.polynomial_pass import render_view_task, tile_pixels_for, view_task
+    tile = tile_pixels_for(memory_mb, spp, max_bounces, problem.n_channels, tail_bounces)
+    return [render_view_task(view_task(problem, params, x0, max_bounces, i, spp=spp, seed=seed, prob_floor=prob_floor,
+                                       tile_pixels=tile, cross_gram=cross_gram, tail_bounces=tail_bounces),
+                             variant=problem.settings.variant)
+            for i in range(len(problem.cameras))]
+
+
 def max_error(problem, result) -> float:
     """max |ρ - ρ_ref| over the parameters and channels of a method's result."""
     return float(np.max(np.abs(result.estimate - problem.scene.reference(problem.parameters))))

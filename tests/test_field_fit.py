@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from factory import run_method, run_symbolic, tiny_problem
+from factory import run_method, run_symbolic, tiny_problem, view_systems
 from framework.errors import ConfigError
 from framework.scene.model import Photometry
 from methods.symbolic.field import GAIN_MAX, robust_weights, weighted_system, with_gain
@@ -39,9 +39,11 @@ def test_unit_weights_rebuild_the_pass_system_and_the_plain_estimate(problem):
     method = SymbolicMethod(method_defaults("symbolic"))
     params = problem.parameters
     x0 = np.full((len(params), 3), 0.5)
-    passed = method._pass(problem, params, x0, seed=0)
-    for cam in problem.cameras:
-        system, coeffs = passed.view(cam.name)
+    settings = problem.settings
+    views = view_systems(problem, params, x0, max_bounces=settings.max_bounces, spp=settings.spp,
+                         prob_floor=float(method.cfg.prob_floor), memory_mb=float(method.cfg.memory_mb),
+                         tail_bounces=settings.tail_bounces)
+    for cam, (system, coeffs) in zip(problem.cameras, views):
         rebuilt = weighted_system(coeffs, problem.observed[cam.name].reshape(-1, 3), np.ones(cam.width * cam.height))
         np.testing.assert_array_equal(rebuilt.codes, system.codes)
         for c in range(3):

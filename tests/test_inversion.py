@@ -87,9 +87,10 @@ def test_lambertian_prior_on_small_urban_canyon(tmp_path, small_canyon):
 
 def test_observations_rendered_once_and_cache_rebuilt_when_corrupt(tmp_path):
     """A second run reuses the observed images and the polynomial pass; a corrupt cache entry
-    is detected (checksum) and rebuilt, never trusted."""
+    is detected (checksum) and rebuilt, never trusted. One pass (``method.refine=0``), so that
+    the corrupted entry is one of the pass the results report."""
     scene = make_tiny_scene(tmp_path / "tiny")
-    args = ["method=symbolic", f"scene.dir={scene}", "render.spp=8", "observe.spp=32"]
+    args = ["method=symbolic", f"scene.dir={scene}", "render.spp=8", "observe.spp=32", "method.refine=0"]
     first = _run(tmp_path, "1", args)
     assert first["timings_s"]["observe"] > 0 and first["views_from_cache"] == []
     second = _run(tmp_path, "2", args)

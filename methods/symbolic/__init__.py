@@ -288,7 +288,7 @@ class SymbolicMethod(Method):
         if field.active:
             return fit_field(result, params, x0, problem, field, self._solve, start=start)
         basis = MonomialBasis(len(params), problem.settings.max_bounces, result.system.codes)
-        views = lambda: ((result.view(cam.name)[1], problem.observed[cam.name], None) for cam in problem.cameras)
+        views = lambda: ((result.coefficients(cam.name), problem.observed[cam.name], None) for cam in problem.cameras)
         fit = self._solve(result.system, basis, params, x0, problem, views=views)
         estimate = np.nan_to_num(fit["estimate"])          # unobservable: monomials 0
         fit.update(n_monomials=basis.size, gram_nnz=result.system.nnz,

@@ -30,6 +30,7 @@ Robust weights (``method.robust``)
 """
 from __future__ import annotations
 
+import operator
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,7 +38,7 @@ import scipy.sparse as sp
 
 from framework.results import per_channel
 from methods.symbolic.basis import code_digits, encode_digits
-from methods.symbolic.gram import GramSystem
+from methods.symbolic.gram import weighted_system
 from methods.symbolic.polynomial_pass import predicted
 
 #: largest gain representable: h = g / GAIN_MAX lies in the solver's box [0, 1]
@@ -98,36 +99,6 @@ def with_gain(coeffs, *, n_params: int, max_degree: int, n_total: int, gain: int
                          shape=(len(order), len(order)))
     relabel = lambda mats: None if mats is None else [sp.csr_matrix(m @ move) for m in mats]
     return Coefficients(relabel(coeffs.gamma), relabel(coeffs.delta), float(coeffs.split), codes[order])
-
-
-def weighted_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSystem:
-    """The Gram system of one view from its coefficients, pixel ``p`` weighted by ``w_p``.
-
-    With the half-sample difference ``delta`` (``D = (A - B)/2``, ``A`` holding the fraction
-    ``split`` of the samples), ``A = Γ + 2(1 - split)D`` and ``B = Γ - 2·split·D`` are rebuilt and
-    the cross Gram ½(AᵀWB + BᵀWA) formed as in the pass (:meth:`GramSystem.accumulate_sparse`,
-    rows scaled by √w); without it, ΓᵀWΓ. With every weight 1 this is the pass's own system.
-
-    Parameters
-    ----------
-    coeffs : ViewCoefficients or Coefficients
-    y : numpy.ndarray
-        ``(n, C)`` observed pixels.
-    weights : numpy.ndarray or None
-        ``(n,)`` weights >= 0 (None: all 1).
-    """
-    C = len(coeffs.gamma)
-    y = np.asarray(y, dtype=np.float64).reshape(coeffs.gamma[0].shape[0], C)
-    root = None if weights is None else sp.diags(np.sqrt(np.asarray(weights, dtype=np.float64)))
-    scaled = lambda m: m if root is None else (root @ m).tocsr()
-    y = y if weights is None else y * np.sqrt(np.asarray(weights, dtype=np.float64))[:, None]
-    if coeffs.delta is None:
-        A, B = [scaled(g) for g in coeffs.gamma], None
-    else:
-        w = float(coeffs.split)
-        A = [scaled(g + 2 * (1 - w) * d) for g, d in zip(coeffs.gamma, coeffs.delta)]
-        B = [scaled(g - 2 * w * d) for g, d in zip(coeffs.gamma, coeffs.delta)]
-    return GramSystem.zeros(coeffs.codes, C).accumulate_sparse(A, y, B)
 
 
 def robust_weights(residual: np.ndarray, used: np.ndarray, *, loss: str, floor: np.ndarray | float = 0.0
@@ -318,7 +289,7 @@ def field_views(result, problem, params, x0: np.ndarray, options: FieldOptions
     mu0 = np.stack([base.evaluate(x0[:, c]) for c in range(C)])
     views, h0 = [], []
     for cam in problem.cameras:
-        coeffs = result.view(cam.name)[1]
+        coeffs = result.coefficients(cam.name)
         y = np.asarray(problem.observed[cam.name], np.float64).reshape(-1, C)
         w = options.weights.get(cam.name) if options.weights is not None else None
         gain = P + gained.index(cam.name) if cam.name in gained else None
@@ -356,7 +327,7 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
     degree = problem.settings.max_bounces + (1 if gains else 0)
     iterates, stopped, fit = [], "single solve", None
     for round_ in range(options.iterations):
-        system = reduce(lambda a, b: a + b, (weighted_system(v.coeffs, v.y, v.weights) for v in views))
+        system = reduce(operator.iadd, (weighted_system(v.coeffs, v.y, v.weights) for v in views))
         basis = MonomialBasis(len(every), degree, system.codes)
         used = [v.weights for v in views]
         fit = solve(system, basis, every, x, problem, groups=segment_groups(params),

@@ -168,23 +168,55 @@ class GramSystem:
         return np.flatnonzero(used)
 
     def reindexed(self, codes: np.ndarray) -> "GramSystem":
-        """This system over the sorted ``codes``, a superset of its own (new monomials: zero)."""
+        """This system over the sorted ``codes``, a superset of its own (new monomials: zero).
+        The matrices share their values with this system's (only the indices are new)."""
+        codes = np.asarray(codes, np.int64)
+        if np.array_equal(codes, self.codes):
+            return GramSystem(list(self.G), self.b.copy(), self.yy.copy(), self.n_pixels, codes)
         pos = np.searchsorted(codes, self.codes)
         N = len(codes)
-        G = [_permute(g, pos, N) for g in self.G]
+        G = [_spread(g, pos, N) for g in self.G]
         b = np.zeros((self.n_channels, N))
         b[:, pos] = self.b
-        return GramSystem(G, b, self.yy.copy(), self.n_pixels, np.asarray(codes, np.int64))
+        return GramSystem(G, b, self.yy.copy(), self.n_pixels, codes)
 
     def __add__(self, other: "GramSystem") -> "GramSystem":
         if not isinstance(other, GramSystem):
             return NotImplemented
+        total = self.reindexed(self.codes)          # new matrix list, values shared until added
+        total += other
+        return total
+
+    def __iadd__(self, other: "GramSystem") -> "GramSystem":
+        """Add ``other`` in place, one channel at a time: each channel's old matrix is released
+        as soon as its sum exists, so the peak is both systems plus one channel's sum (the
+        views' systems of a 70-material street are 100-600 MB each; a sum that built every
+        channel before releasing any needed twice the total)."""
+        if not isinstance(other, GramSystem):
+            return NotImplemented
         if other.n_channels != self.n_channels:
             raise ValueError(f"cannot add systems of {self.n_channels} and {other.n_channels} channels")
-        codes = np.union1d(self.codes, other.codes)
-        a, b = self.reindexed(codes), other.reindexed(codes)
-        return GramSystem([x + y for x, y in zip(a.G, b.G)], a.b + b.b, a.yy + b.yy,
-                          self.n_pixels + other.n_pixels, codes)
+        same = np.array_equal(self.codes, other.codes)
+        codes = self.codes if same else np.union1d(self.codes, other.codes)
+        N = len(codes)
+        mine = None if same else np.searchsorted(codes, self.codes)
+        theirs = None if same else np.searchsorted(codes, other.codes)
+        for c in range(self.n_channels):
+            a = self.G[c] if same else _spread(self.G[c], mine, N)
+            self.G[c] = None                      # release before the sum is built
+            self.G[c] = (a + (other.G[c] if same else _spread(other.G[c], theirs, N))).tocsr()
+            del a
+        if same:
+            self.b = self.b + other.b
+        else:
+            b = np.zeros((self.n_channels, N))
+            b[:, mine] = self.b
+            b[:, theirs] += other.b
+            self.b = b
+        self.yy = self.yy + other.yy
+        self.n_pixels += other.n_pixels
+        self.codes = np.asarray(codes, np.int64)
+        return self
 
     def cost(self, mu: np.ndarray) -> np.ndarray:
         """Per-channel sum of squared residuals ``μ_cᵀ G_c μ_c - 2 b_cᵀ μ_c + yy_c``.
@@ -204,21 +236,73 @@ class GramSystem:
         return quad - 2 * np.einsum("ci,ci->c", self.b, mu) + self.yy
 
 
-def _permute(g: sp.csr_matrix, pos: np.ndarray, n: int) -> sp.csr_matrix:
-    """``g`` with row and column ``i`` moved to ``pos[i]`` in an ``(n, n)`` matrix."""
-    coo = g.tocoo()
-    return sp.csr_matrix((coo.data, (pos[coo.row], pos[coo.col])), shape=(n, n))
+def weighted_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSystem:
+    """The Gram system of one view from its coefficients, pixel ``p`` weighted by ``w_p``.
+
+    With the half-sample difference ``delta`` (``D = (A - B)/2``, ``A`` holding the fraction
+    ``split`` of the samples), ``A = Γ + 2(1 - split)D`` and ``B = Γ - 2·split·D`` are rebuilt and
+    the cross Gram ½(AᵀWB + BᵀWA) formed as in the pass (:meth:`GramSystem.accumulate_sparse`,
+    rows scaled by √w); without it, ΓᵀWΓ. With ``weights`` None this is the pass's own system
+    (:func:`~methods.symbolic.polynomial_pass.polynomial_pass` builds it so).
+
+    Parameters
+    ----------
+    coeffs : ViewCoefficients or Coefficients
+    y : numpy.ndarray
+        ``(n, C)`` observed pixels.
+    weights : numpy.ndarray or None
+        ``(n,)`` weights >= 0 (None: all 1).
+    """
+    C = len(coeffs.gamma)
+    y = np.asarray(y, dtype=np.float64).reshape(coeffs.gamma[0].shape[0], C)
+    root = None if weights is None else sp.diags(np.sqrt(np.asarray(weights, dtype=np.float64)))
+    scaled = lambda m: m if root is None else (root @ m).tocsr()
+    y = y if weights is None else y * np.sqrt(np.asarray(weights, dtype=np.float64))[:, None]
+    if coeffs.delta is None:
+        A, B = [scaled(g) for g in coeffs.gamma], None
+    else:
+        w = float(coeffs.split)
+        A = [scaled(g + 2 * (1 - w) * d) for g, d in zip(coeffs.gamma, coeffs.delta)]
+        B = [scaled(g - 2 * w * d) for g, d in zip(coeffs.gamma, coeffs.delta)]
+    return GramSystem.zeros(coeffs.codes, C).accumulate_sparse(A, y, B)
+
+
+def principal(g: sp.spmatrix, idx: np.ndarray) -> sp.csr_matrix:
+    """``g[idx][:, idx]`` of a symmetric ``g`` (G is, by construction), ``g`` itself when ``idx``
+    is every row: rows taken twice with a transpose between, as scipy's column fancy-indexing of
+    CSR is several times slower and holds more temporaries."""
+    g = g.tocsr()
+    if len(idx) == g.shape[0] and np.array_equal(idx, np.arange(g.shape[0])):
+        return g
+    rows = g[idx]
+    return rows.T.tocsr()[idx]
+
+
+def _spread(g: sp.csr_matrix, pos: np.ndarray, n: int) -> sp.csr_matrix:
+    """``g`` with row and column ``i`` moved to ``pos[i]`` (increasing) in an ``(n, n)`` matrix.
+
+    Built in CSR directly, sharing ``g``'s values: an increasing ``pos`` keeps every row's
+    columns in order, so only the row pointers and column indices are new (a COO round trip
+    held 3-4 copies of a 200 MB matrix at once)."""
+    g = g.tocsr()
+    counts = np.zeros(n + 1, dtype=np.int64)
+    counts[np.asarray(pos) + 1] = np.diff(g.indptr)
+    index = np.int32 if max(n, g.nnz) < 2**31 else np.int64
+    return sp.csr_matrix((g.data, np.asarray(pos, index)[g.indices], np.cumsum(counts).astype(index)),
+                         shape=(n, n), copy=False)
 
 
 def _psd_components(g: sp.csr_matrix, limit: int) -> tuple[sp.csr_matrix, list[int]]:
     """``g`` with each connected component of at most ``limit`` monomials replaced by its PSD
     projection (dense eigh of the component), and the sizes of the larger ones."""
-    g = sp.csr_matrix(0.5 * (g + g.T))
+    g = g.tocsr()
     n_comp, labels = connected_components(g, directed=False)
     sizes = np.bincount(labels, minlength=n_comp)
     single = np.flatnonzero(sizes[labels] == 1)                   # 1 x 1: max(g_ii, 0)
     if not np.any((sizes > 1) & (sizes <= limit)):   # nothing to project: only the 1 x 1 ones
         negative = single[g.diagonal()[single] < 0.0]
+        if len(negative) == 0:                           # g itself: no copy of a large G
+            return g, [int(n) for n in sizes[sizes > 1]]
         fix = sp.csr_matrix((-g.diagonal()[negative], (negative, negative)), shape=g.shape)
         out = g + fix
         out.eliminate_zeros()
@@ -233,7 +317,8 @@ def _psd_components(g: sp.csr_matrix, limit: int) -> tuple[sp.csr_matrix, list[i
             skipped.append(len(idx))
             kept[idx] = True
             continue
-        w, V = np.linalg.eigh(g[idx][:, idx].toarray())
+        block = g[idx][:, idx].toarray()
+        w, V = np.linalg.eigh(0.5 * (block + block.T))
         block = (V * np.maximum(w, 0.0)) @ V.T
         r, c = np.nonzero(block)
         rows.append(idx[r]), cols.append(idx[c]), vals.append(block[r, c])

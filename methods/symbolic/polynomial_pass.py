@@ -1,20 +1,24 @@
 """One polynomial rendering pass over all views: Gram systems and sparse coefficients, cached.
 
-The pass renders every view once with :class:`PolynomialPathIntegrator`, tile by tile, and
-adds each tile's pixels to the Gram system (G, b, yy) of the cost (paper eq. 6, p = 2); memory
-is bounded by the tile (chosen from ``memory_mb``) and the non-zeros of the sparse G over the
-monomials that occur, never by pixels or views. Per-pixel
-coefficients are kept only as sparse matrices (2-6 % non-zero), to rebuild reconstructions, with
-the half difference of the two independent half-sample estimates beside them (same pattern): the
-per-pixel Monte Carlo noise the sandwich standard errors need (:class:`ViewCoefficients`).
+The pass renders every view once with :class:`PolynomialPathIntegrator`, tile by tile (the
+tile chosen from ``memory_mb``), keeping each pixel's coefficients as sparse matrices over the
+monomials that occur (2-6 % non-zero), with the half difference of the two independent
+half-sample estimates beside them (same pattern): the per-pixel Monte Carlo noise the sandwich
+standard errors need (:class:`ViewCoefficients`). From them each view's Gram system (G, b, yy)
+of the cost (paper eq. 6, p = 2) is formed (:func:`~methods.symbolic.gram.weighted_system`) and
+added to the sum over views, which is consumed as it goes: memory holds the sum, one view, and
+its sparse coefficients, never pixels × monomials densely.
 
-Render once, solve many: the result of each view is cached on disk, keyed by everything that
-affects it (scene content, view, spp, seed, N_max, parameters, guesses, selection floor, variant).
+Render once, solve many: the coefficients of each view are cached on disk, keyed by everything
+that affects them (scene content, view, spp, seed, N_max, parameters, guesses, selection floor,
+variant, observed pixels); a cached view's Gram system is rebuilt from them by the same function,
+so a cached run gives the same bits as the run that rendered.
 """
 from __future__ import annotations
 
 import logging
 import time
+from functools import reduce
 from dataclasses import dataclass, field
 
 import drjit as dr
@@ -29,7 +33,7 @@ from framework.render.checks import MiB, check_memory
 from framework.render.mitsuba_scene import MitsubaScene
 from methods.symbolic.basis import check_key_range
 from methods.symbolic.events import reindex_columns
-from methods.symbolic.gram import GramSystem
+from methods.symbolic.gram import GramSystem, weighted_system
 from methods.symbolic.integrator import integrator_class
 
 log = logging.getLogger(__name__)
@@ -56,10 +60,11 @@ class ViewCoefficients:
 
 @dataclass
 class PassResult:
-    """The pass over all views: their summed Gram system, and each view's own results.
+    """The pass over all views: their summed Gram system, and each view's coefficients.
 
-    ``views[name]`` is the view's ``(GramSystem, ViewCoefficients)``, or, when the run has a
-    cache, a function reloading them from it: memory then stays flat in the number of views.
+    ``views[name]`` is the view's :class:`ViewCoefficients`, or, when the run has a cache, a
+    function reloading them from it: memory then stays flat in the number of views. The views'
+    own Gram systems are consumed by the sum.
     """
 
     system: GramSystem                                   # summed over views as a tree, in view order
@@ -67,14 +72,14 @@ class PassResult:
     render_s: float = 0.0
     from_cache: list[str] = field(default_factory=list)  # views read from the cache
 
-    def view(self, name: str) -> tuple[GramSystem, ViewCoefficients]:
+    def coefficients(self, name: str) -> ViewCoefficients:
         entry = self.views[name]
         return entry() if callable(entry) else entry
 
     def image(self, view: str, mu: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         """The polynomial image of ``view`` at monomials ``mu`` (C, N) over ``system.codes``:
         (H, W, C) float32."""
-        pixels = predicted(self.view(view)[1], mu, self.system.codes)
+        pixels = predicted(self.coefficients(view), mu, self.system.codes)
         return pixels.reshape(*shape, len(mu)).astype(np.float32)
 
 
@@ -180,8 +185,9 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
         if hit is None:
             todo.append((i, cam, key))
             continue
-        total.add(_unpack(hit, C)[0])
+        total.add(weighted_system(_unpack(hit, C), _pixels(problem, cam), None))
         views[cam.name] = _loader(cache, key, C)
+        del hit
         cached.append(cam.name)
     t0 = time.perf_counter()
     if todo:
@@ -194,10 +200,11 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
         variant = problem.settings.variant
         results = executor.imap(render_view_task, tasks, variant=variant, threads=executor.threads_per_worker)
         for (i, cam, key), (system, coeffs) in zip(todo, results):
-            cache.store("polynomial_pass", key, _pack(system, coeffs))
-            total.add(system)
+            cache.store("polynomial_pass", key, _pack(coeffs))
+            total.add(system)                     # consumed: the sum may reuse its memory
             # with a cache, each view waits on disk: memory stays flat in the number of views
-            views[cam.name] = _loader(cache, key, C) if cache.dir is not None else (system, coeffs)
+            views[cam.name] = _loader(cache, key, C) if cache.dir is not None else coeffs
+            del system, coeffs
     render_s = time.perf_counter() - t0
     ordered = {c.name: views[c.name] for c in problem.cameras}
     return PassResult(total.total(GramSystem.zeros(np.zeros(1, np.int64), C)), ordered, render_s, cached)
@@ -257,18 +264,17 @@ def _scene_and_integrator(task: dict, variant: str):
 
 
 def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True):
-    """Tile by tile: accumulate the Gram system and keep sparse coefficients.
+    """Tile by tile: the view's sparse coefficients, then its Gram system from them.
 
     ``cross``: the samples of each pixel are split into two independent halves
     (:meth:`PolynomialPathIntegrator.coefficients_halves`, one render) whose cross product makes
-    G free of Monte Carlo noise (:meth:`GramSystem.accumulate_sparse`); the kept coefficients are
-    the mean of all samples, and beside them the halves' half difference (A - B)/2.
+    G free of Monte Carlo noise (:func:`~methods.symbolic.gram.weighted_system`); the kept
+    coefficients are the mean of all samples, and beside them the halves' half difference
+    (A - B)/2, from which the halves are rebuilt.
     """
     from tqdm import tqdm
     C = observed.shape[-1]
     n_pix = cam.width * cam.height
-    y = observed.reshape(n_pix, C)
-    system = GramSystem.zeros(np.zeros(1, np.int64), C)      # the constant monomial is always there
     parts = []
     halves = cross and spp >= 2
     tiles = range(0, n_pix, integrator.tile_pixels)
@@ -277,14 +283,14 @@ def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True):
         tile = dict(spp=spp, seed=seed, pixel_range=(start, stop))
         if halves:
             codes, a, b, gamma = integrator.coefficients_halves(ms.scene, i, **tile)
-            part = GramSystem.zeros(codes, C).accumulate_sparse(a, y[start:stop], b)
             parts.append((codes, gamma, [(a[c] - b[c]) * 0.5 for c in range(C)]))
         else:
             codes, gamma = integrator.coefficients_sparse(ms.scene, i, **tile)
-            part = GramSystem.zeros(codes, C).accumulate_sparse(gamma, y[start:stop])
             parts.append((codes, gamma))
-        system = system + part
-    return system, _view_coefficients(parts, system.codes, C, (spp // 2) / spp if halves else 0.5)
+    codes = reduce(np.union1d, [p[0] for p in parts], np.zeros(1, np.int64))   # constant monomial always there
+    coeffs = _view_coefficients(parts, codes, C, (spp // 2) / spp if halves else 0.5)
+    # the Gram system from the kept coefficients, as a cached view's is rebuilt: the same bits
+    return weighted_system(coeffs, observed.reshape(n_pix, C), None), coeffs
 
 
 def _view_coefficients(parts: list, codes: np.ndarray, C: int, split: float) -> ViewCoefficients:
@@ -302,7 +308,12 @@ def _key(problem, cam, parameters, guesses, spp, seed, prob_floor, max_bounces, 
             "guesses": np.round(np.asarray(guesses, float), 9).tolist(), "prob_floor": float(prob_floor),
             "observed": _digest(problem.observed[cam.name]),
             "variant": problem.settings.variant, "cross_gram": bool(cross_gram),
-            "tail_bounces": int(tail_bounces), "version": 4}
+            "tail_bounces": int(tail_bounces), "version": 5}
+
+
+def _pixels(problem, cam) -> np.ndarray:
+    """``(pixels, C)`` observed radiance of ``cam``."""
+    return np.asarray(problem.observed[cam.name]).reshape(cam.width * cam.height, -1)
 
 
 def _digest(a: np.ndarray) -> str:
@@ -310,10 +321,11 @@ def _digest(a: np.ndarray) -> str:
     return hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()[:16]
 
 
-def _pack(system: GramSystem, coeffs: ViewCoefficients) -> dict[str, np.ndarray]:
-    out = {"b": system.b, "yy": system.yy, "n_pixels": np.array(system.n_pixels), "codes": system.codes,
-           "split": np.array(coeffs.split)}
-    for prefix, mats in (("g", system.G), ("c", coeffs.gamma), ("d", coeffs.delta or [])):
+def _pack(coeffs: ViewCoefficients) -> dict[str, np.ndarray]:
+    """The cache entry of a view: its coefficients (its Gram system is rebuilt from them and the
+    observed pixels, :func:`~methods.symbolic.gram.weighted_system`: a third of the bytes)."""
+    out = {"codes": coeffs.codes, "split": np.array(coeffs.split)}
+    for prefix, mats in (("c", coeffs.gamma), ("d", coeffs.delta or [])):
         for c, m in enumerate(mats):
             out.update({f"{prefix}{c}_data": m.data, f"{prefix}{c}_indices": m.indices,
                         f"{prefix}{c}_indptr": m.indptr, f"{prefix}{c}_shape": np.array(m.shape)})
@@ -321,7 +333,7 @@ def _pack(system: GramSystem, coeffs: ViewCoefficients) -> dict[str, np.ndarray]
 
 
 def _loader(cache: Cache, key: dict, C: int):
-    """A function reloading a view's (Gram system, ViewCoefficients) from the cache."""
+    """A function reloading a view's :class:`ViewCoefficients` from the cache."""
     def load():
         hit = cache.load("polynomial_pass", key)
         if hit is None:
@@ -330,12 +342,11 @@ def _loader(cache: Cache, key: dict, C: int):
     return load
 
 
-def _unpack(arrays: dict, C: int) -> tuple[GramSystem, ViewCoefficients]:
+def _unpack(arrays: dict, C: int) -> ViewCoefficients:
     def mats(prefix):
         return [sp.csr_matrix((arrays[f"{prefix}{c}_data"], arrays[f"{prefix}{c}_indices"],
                                arrays[f"{prefix}{c}_indptr"]), shape=tuple(arrays[f"{prefix}{c}_shape"]))
                 for c in range(C)]
     codes = np.asarray(arrays["codes"], np.int64)
-    system = GramSystem(mats("g"), arrays["b"], arrays["yy"], int(arrays["n_pixels"]), codes)
     delta = mats("d") if "d0_data" in arrays else None
-    return system, ViewCoefficients(mats("c"), delta, float(arrays["split"]), codes)
+    return ViewCoefficients(mats("c"), delta, float(arrays["split"]), codes)

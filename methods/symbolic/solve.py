@@ -22,7 +22,7 @@ from framework.errors import ConfigError
 from framework.optim import check_algorithm, minimize, minimize_sqp, project_feasible
 from framework.render.checks import check_memory
 from methods.symbolic.basis import MonomialBasis
-from methods.symbolic.gram import GramSystem
+from methods.symbolic.gram import GramSystem, principal
 
 
 
@@ -77,7 +77,7 @@ class ChannelCost:
     def __init__(self, system: GramSystem, basis: MonomialBasis, c: int, used: np.ndarray | None = None):
         self.basis = basis
         self.used = system.used_monomials() if used is None else np.asarray(used)
-        self.G = _principal(system.G[c], self.used)
+        self.G = principal(system.G[c], self.used)
         self.b = system.b[c][self.used]
         self.yy = float(system.yy[c])
 
@@ -114,16 +114,6 @@ class ChannelCost:
         gn = self.gauss_newton(x)
         H = gn + self._residual_curvature(x)
         return H if np.linalg.eigvalsh(H)[0] > 0.0 else gn
-
-
-def _principal(g: sp.spmatrix, idx: np.ndarray) -> sp.csr_matrix:
-    """``g[idx][:, idx]`` of a symmetric ``g`` (G is, by construction): rows taken twice with a
-    transpose between, as scipy's column fancy-indexing of CSR is several times slower."""
-    g = g.tocsr()
-    if len(idx) == g.shape[0] and np.array_equal(idx, np.arange(g.shape[0])):
-        return g
-    rows = g[idx]
-    return rows.T.tocsr()[idx]
 
 
 def channel_cost_grad(system: GramSystem, basis: MonomialBasis, c: int, x: np.ndarray):
@@ -328,15 +318,31 @@ def parameter_blocks(system: GramSystem, basis: MonomialBasis, segments_params: 
     adjacency = np.zeros(D * D, dtype=bool)
     adjacency[first[monomials[keep]] * D + params[keep]] = True
     for g in system.G:
-        coo = g.tocoo()
-        a, b = first[coo.row], first[coo.col]
-        on = (a >= 0) & (b >= 0)
-        adjacency[a[on] * D + b[on]] = True
+        g = g.tocsr()
+        for lo, hi in _row_chunks(g.indptr, PAIRS_PER_CHUNK):    # bounded temporaries
+            rows = np.repeat(np.arange(lo, hi), np.diff(g.indptr[lo:hi + 1]))
+            a, b = first[rows], first[g.indices[g.indptr[lo]:g.indptr[hi]]]
+            on = (a >= 0) & (b >= 0)
+            adjacency[a[on] * D + b[on]] = True
     for ps in segments_params:
         adjacency[ps[0] * D + np.asarray(ps[1:], dtype=np.int64)] = True
     graph = sp.csr_matrix(adjacency.reshape(D, D))
     _, labels = connected_components(graph, directed=False)
     return [np.flatnonzero(labels == label) for label in np.unique(labels)]
+
+
+#: non-zeros of G looked at together by :func:`parameter_blocks` (its temporaries: 17 bytes each)
+PAIRS_PER_CHUNK = 1 << 22
+
+
+def _row_chunks(indptr: np.ndarray, per_chunk: int):
+    """``(lo, hi)`` row ranges of a CSR matrix holding about ``per_chunk`` non-zeros each."""
+    n = len(indptr) - 1
+    cuts = np.searchsorted(indptr, np.arange(0, indptr[-1], per_chunk), side="right") - 1
+    edges = np.unique(np.concatenate([np.clip(cuts, 0, n), [n]]))
+    if edges[0] != 0:
+        edges = np.concatenate([[0], edges])
+    return list(zip(edges[:-1], edges[1:]))
 
 
 class _BlockCost:

@@ -62,7 +62,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from methods.symbolic.basis import MonomialBasis
-from methods.symbolic.gram import GramSystem
+from methods.symbolic.gram import GramSystem, principal
 from methods.symbolic.solve import hessian
 
 #: relative tolerance of the observability test on diag(G)
@@ -167,7 +167,7 @@ def restrict_system(system: GramSystem, basis: MonomialBasis, keep: np.ndarray
     # a monotone renumbering keeps the codes sorted (ordered by degree, then largest parameter)
     codes = (renumber[basis.digits[idx]] * (len(kept) + 1) ** np.arange(basis.max_degree)).sum(axis=1)
     sub = MonomialBasis(len(kept), basis.max_degree, codes)
-    G = [g[idx][:, idx] for g in system.G]
+    G = [principal(g, idx) for g in system.G]
     return GramSystem(G, system.b[:, idx].copy(), system.yy.copy(), system.n_pixels, sub.codes), sub, idx
 
 
