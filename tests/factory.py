@@ -151,7 +151,7 @@ def run_differentiable(problem, **overrides):
 
 def view_systems(problem, params, x0, *, max_bounces: int, spp: int, seed: int = 0, prob_floor: float = 0.1,
                  memory_mb: float = 512, tail_bounces: int = 0, cross_gram: bool = True) -> list:
-    """Each view's own ``(GramSystem, ViewCoefficients)`` as :func:`polynomial_pass` renders them
+    """Each view's own ``(GramSystem, TiledCoefficients)`` as :func:`polynomial_pass` renders them
     (same seeds and tiles): the pass itself keeps only their sum."""
     from methods.symbolic.polynomial_pass import render_view_task, tile_pixels_for, view_task
     tile = tile_pixels_for(memory_mb, spp, max_bounces, problem.n_channels, tail_bounces)

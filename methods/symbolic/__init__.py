@@ -264,7 +264,7 @@ class SymbolicMethod(Method):
         sub = dataclasses.replace(problem, parameters=params)
         x0, _ = initial_guess(self.cfg, sub, prior=_lambertian_prior)
         result = self._pass(sub, params, x0, seed=seed)
-        basis = MonomialBasis(len(params), problem.settings.max_bounces, result.system.codes)
+        basis = MonomialBasis(len(params), problem.settings.max_bounces, result.codes)
         return _images(result, basis, rho[[index[(p.segment, p.kernel)] for p in params]], problem.cameras)
 
     def _pass(self, problem, params, x0, *, seed: int):
@@ -286,12 +286,15 @@ class SymbolicMethod(Method):
         ``pixel_weights``; ``start``: the robust weights the previous pass ended with.
         """
         if field.active:
+            result.take_system()    # released: the field fit forms its own weighted systems
             return fit_field(result, params, x0, problem, field, self._solve, start=start)
-        basis = MonomialBasis(len(params), problem.settings.max_bounces, result.system.codes)
+        basis = MonomialBasis(len(params), problem.settings.max_bounces, result.codes)
         views = lambda: ((result.coefficients(cam.name), problem.observed[cam.name], None) for cam in problem.cameras)
-        fit = self._solve(result.system, basis, params, x0, problem, views=views)
+        nnz = result.system.nnz
+        # handed over, not held here: the solve releases it once restricted
+        fit = self._solve(result.take_system(), basis, params, x0, problem, views=views)
         estimate = np.nan_to_num(fit["estimate"])          # unobservable: monomials 0
-        fit.update(n_monomials=basis.size, gram_nnz=result.system.nnz,
+        fit.update(n_monomials=basis.size, gram_nnz=nnz,
                    images=lambda: _images(result, basis, estimate, problem.cameras))
         return fit
 
@@ -319,6 +322,7 @@ class SymbolicMethod(Method):
                     "std_method": method, "stages_s": {}, "psd_skipped": ()}
         check_solve_memory(system, basis)
         sub_system, sub_basis, columns = restrict_system(system, basis, observable)
+        del system                     # the caller hands it over (PassResult.take_system)
         t_psd = time.perf_counter()
         if self.cfg.get("psd", True):
             sub_system = sub_system.psd()

@@ -39,7 +39,7 @@ import scipy.sparse as sp
 from framework.results import per_channel
 from methods.symbolic.basis import code_digits, encode_digits
 from methods.symbolic.gram import weighted_system
-from methods.symbolic.polynomial_pass import predicted
+from methods.symbolic.polynomial_pass import TiledCoefficients, ViewCoefficients, predicted
 
 #: largest gain representable: h = g / GAIN_MAX lies in the solver's box [0, 1]
 GAIN_MAX = 4.0
@@ -51,26 +51,15 @@ HUBER_K = 1.345
 ROBUST_LOSSES = ("none", "cauchy", "huber")
 
 
-@dataclass(frozen=True)
-class Coefficients:
-    """A view's coefficients after :func:`with_gain`: what
-    :class:`~methods.symbolic.polynomial_pass.ViewCoefficients` holds (``gamma``, ``delta``,
-    ``split``, ``codes``), over the parameters ``(ρ, h)``."""
-
-    gamma: list
-    delta: list | None
-    split: float
-    codes: np.ndarray
-
-
-def with_gain(coeffs, *, n_params: int, max_degree: int, n_total: int, gain: int | None) -> Coefficients:
+def with_gain(coeffs, *, n_params: int, max_degree: int, n_total: int, gain: int | None):
     """A view's coefficients in the basis of ``n_total`` parameters and degree ``max_degree + 1``.
 
     Parameters
     ----------
-    coeffs : ViewCoefficients
+    coeffs : ViewCoefficients or TiledCoefficients
         Over ``n_params`` parameters of degree at most ``max_degree`` (multiset codes, base
-        ``n_params + 1``, :mod:`methods.symbolic.basis`).
+        ``n_params + 1``, :mod:`methods.symbolic.basis`). Tiled ones are relabelled block by
+        block and held in memory (the field fit reweights them every round).
     n_params, max_degree : int
         The pass's ``D`` and ``N_max``.
     n_total : int
@@ -81,9 +70,13 @@ def with_gain(coeffs, *, n_params: int, max_degree: int, n_total: int, gain: int
 
     Returns
     -------
-    Coefficients
-        Columns sorted by their new codes.
+    ViewCoefficients or TiledCoefficients
+        As ``coeffs``, columns sorted by their new codes.
     """
+    if isinstance(coeffs, TiledCoefficients):
+        blocks = [with_gain(b, n_params=n_params, max_degree=max_degree, n_total=n_total, gain=gain)
+                  for _, b in coeffs.blocks()]
+        return TiledCoefficients(coeffs.starts, blocks, coeffs.n_rows)
     digits = code_digits(np.asarray(coeffs.codes, np.int64), n_params, max_degree)
     degree = (digits > 0).sum(axis=1)
     wide = np.zeros((len(digits), max_degree + 1), dtype=np.int64)
@@ -98,7 +91,7 @@ def with_gain(coeffs, *, n_params: int, max_degree: int, n_total: int, gain: int
     move = sp.csr_matrix((np.full(len(order), scale), (order, np.arange(len(order)))),
                          shape=(len(order), len(order)))
     relabel = lambda mats: None if mats is None else [sp.csr_matrix(m @ move) for m in mats]
-    return Coefficients(relabel(coeffs.gamma), relabel(coeffs.delta), float(coeffs.split), codes[order])
+    return ViewCoefficients(relabel(coeffs.gamma), relabel(coeffs.delta), float(coeffs.split), codes[order])
 
 
 def robust_weights(residual: np.ndarray, used: np.ndarray, *, loss: str, floor: np.ndarray | float = 0.0
@@ -285,7 +278,7 @@ def field_views(result, problem, params, x0: np.ndarray, options: FieldOptions
     P, N, C = len(params), problem.settings.max_bounces, problem.n_channels
     gained = [c.name for c in problem.cameras if options.reference is not None and c.name != options.reference]
     gains = [Parameter(P + j, -1 - j, f"exposure:{name}", "gain") for j, name in enumerate(gained)]
-    base = MonomialBasis(P, N, result.system.codes)
+    base = MonomialBasis(P, N, result.codes)
     mu0 = np.stack([base.evaluate(x0[:, c]) for c in range(C)])
     views, h0 = [], []
     for cam in problem.cameras:
@@ -294,7 +287,7 @@ def field_views(result, problem, params, x0: np.ndarray, options: FieldOptions
         w = options.weights.get(cam.name) if options.weights is not None else None
         gain = P + gained.index(cam.name) if cam.name in gained else None
         if gain is not None:
-            h0.append(gain_guess(coeffs, y, w, mu0, result.system.codes) / GAIN_MAX)
+            h0.append(gain_guess(coeffs, y, w, mu0, result.codes) / GAIN_MAX)
         if gained:
             coeffs = with_gain(coeffs, n_params=P, max_degree=N, n_total=P + len(gained), gain=gain)
         views.append(_View(cam.name, (cam.height, cam.width), coeffs, y, w, gain))

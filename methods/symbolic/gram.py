@@ -241,23 +241,38 @@ def weighted_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSy
 
     With the half-sample difference ``delta`` (``D = (A - B)/2``, ``A`` holding the fraction
     ``split`` of the samples), ``A = Γ + 2(1 - split)D`` and ``B = Γ - 2·split·D`` are rebuilt and
-    the cross Gram ½(AᵀWB + BᵀWA) formed as in the pass (:meth:`GramSystem.accumulate_sparse`,
-    rows scaled by √w); without it, ΓᵀWΓ. With ``weights`` None this is the pass's own system
-    (:func:`~methods.symbolic.polynomial_pass.polynomial_pass` builds it so).
+    the cross Gram ½(AᵀWB + BᵀWA) formed (:meth:`GramSystem.accumulate_sparse`, rows scaled by
+    √w); without it, ΓᵀWΓ. With ``weights`` None this is the pass's own system
+    (:func:`~methods.symbolic.polynomial_pass.polynomial_pass` builds it so). One row block of
+    the coefficients at a time (their ``blocks()``: a tiled view's are loaded one by one).
 
     Parameters
     ----------
-    coeffs : ViewCoefficients or Coefficients
+    coeffs : ViewCoefficients or TiledCoefficients
     y : numpy.ndarray
         ``(n, C)`` observed pixels.
     weights : numpy.ndarray or None
         ``(n,)`` weights >= 0 (None: all 1).
     """
+    y = np.asarray(y, dtype=np.float64).reshape(coeffs.n_rows, -1)
+    w = None if weights is None else np.asarray(weights, dtype=np.float64).reshape(coeffs.n_rows)
+    total = None
+    for start, block in coeffs.blocks():
+        rows = slice(start, start + block.n_rows)
+        part = _block_system(block, y[rows], None if w is None else w[rows])
+        if total is None:
+            total = part
+        else:
+            total += part
+    return total
+
+
+def _block_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSystem:
+    """:func:`weighted_system` of one block (a :class:`ViewCoefficients`)."""
     C = len(coeffs.gamma)
-    y = np.asarray(y, dtype=np.float64).reshape(coeffs.gamma[0].shape[0], C)
-    root = None if weights is None else sp.diags(np.sqrt(np.asarray(weights, dtype=np.float64)))
+    root = None if weights is None else sp.diags(np.sqrt(weights))
     scaled = lambda m: m if root is None else (root @ m).tocsr()
-    y = y if weights is None else y * np.sqrt(np.asarray(weights, dtype=np.float64))[:, None]
+    y = y if weights is None else y * np.sqrt(weights)[:, None]
     if coeffs.delta is None:
         A, B = [scaled(g) for g in coeffs.gamma], None
     else:

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import logging
 import time
-from functools import reduce
 from dataclasses import dataclass, field
 
 import drjit as dr
@@ -32,7 +31,6 @@ from framework.observe import inversion_seed
 from framework.render.checks import MiB, check_memory
 from framework.render.mitsuba_scene import MitsubaScene
 from methods.symbolic.basis import check_key_range
-from methods.symbolic.events import reindex_columns
 from methods.symbolic.gram import GramSystem, weighted_system
 from methods.symbolic.integrator import integrator_class
 
@@ -57,37 +55,82 @@ class ViewCoefficients:
     split: float = 0.5
     codes: np.ndarray | None = None
 
+    @property
+    def n_rows(self) -> int:
+        return self.gamma[0].shape[0]
+
+    def blocks(self):
+        """``(first row, ViewCoefficients)`` of each row block: itself, from row 0."""
+        yield 0, self
+
+
+class TiledCoefficients:
+    """A view's coefficients as row blocks (the pass's tiles), each a :class:`ViewCoefficients`
+    over the monomials of its own pixels; a block is held, or a function loading it (from the
+    cache): iterating :meth:`blocks` then holds one block at a time, so a megapixel view's
+    coefficients never need to fit in memory at once.
+
+    Consumers (:func:`predicted`, :func:`~methods.symbolic.gram.weighted_system`,
+    :func:`~methods.symbolic.uncertainty.score_meat`) iterate :meth:`blocks` of either class.
+    """
+
+    def __init__(self, starts, blocks: list, n_rows: int):
+        self.starts = [int(s) for s in starts]
+        self._blocks = list(blocks)
+        self.n_rows = int(n_rows)
+
+    def blocks(self):
+        for start, block in zip(self.starts, self._blocks):
+            yield start, (block() if callable(block) else block)
+
 
 @dataclass
 class PassResult:
     """The pass over all views: their summed Gram system, and each view's coefficients.
 
-    ``views[name]`` is the view's :class:`ViewCoefficients`, or, when the run has a cache, a
-    function reloading them from it: memory then stays flat in the number of views. The views'
-    own Gram systems are consumed by the sum.
+    ``views[name]`` is the view's :class:`TiledCoefficients`; with a cache its blocks wait on
+    disk: memory then stays flat in the number of views and in their size. The views' own Gram
+    systems are consumed by the sum.
     """
 
-    system: GramSystem                                   # summed over views as a tree, in view order
+    system: GramSystem | None                            # summed over views as a tree, in view order
     views: dict[str, object]
     render_s: float = 0.0
     from_cache: list[str] = field(default_factory=list)  # views read from the cache
+    codes: np.ndarray | None = None                      # the monomials of the pass (the system's)
 
-    def coefficients(self, name: str) -> ViewCoefficients:
-        entry = self.views[name]
-        return entry() if callable(entry) else entry
+    def __post_init__(self):
+        if self.codes is None:
+            self.codes = self.system.codes
+
+    def coefficients(self, name: str) -> TiledCoefficients:
+        return self.views[name]
+
+    def take_system(self) -> GramSystem:
+        """The summed Gram system, handed over: this result keeps its ``codes`` only, so the
+        solve can release the system's memory (hundreds of MB on a long street) as it restricts
+        and projects it, and a refinement pass does not render with it still held."""
+        system, self.system = self.system, None
+        if system is None:
+            raise RuntimeError("the pass's Gram system was already taken")
+        return system
 
     def image(self, view: str, mu: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-        """The polynomial image of ``view`` at monomials ``mu`` (C, N) over ``system.codes``:
+        """The polynomial image of ``view`` at monomials ``mu`` (C, N) over ``codes``:
         (H, W, C) float32."""
-        pixels = predicted(self.coefficients(view), mu, self.system.codes)
+        pixels = predicted(self.coefficients(view), mu, self.codes)
         return pixels.reshape(*shape, len(mu)).astype(np.float32)
 
 
 def predicted(coeffs, mu: np.ndarray, codes: np.ndarray) -> np.ndarray:
-    """``(n, C)`` pixel values of a view's coefficients (``gamma`` over ``coeffs.codes``) at
-    monomials ``mu`` (C, N) over the sorted ``codes``, a superset of the view's."""
-    at = np.searchsorted(codes, coeffs.codes)
-    return np.stack([coeffs.gamma[c] @ mu[c][at] for c in range(len(coeffs.gamma))], axis=1)
+    """``(n, C)`` pixel values of a view's coefficients (:class:`ViewCoefficients` or
+    :class:`TiledCoefficients`, ``gamma`` over each block's ``codes``) at monomials ``mu``
+    (C, N) over the sorted ``codes``, a superset of the view's."""
+    out = []
+    for _, block in coeffs.blocks():
+        at = np.searchsorted(codes, block.codes)
+        out.append(np.stack([block.gamma[c] @ mu[c][at] for c in range(len(block.gamma))], axis=1))
+    return np.concatenate(out)
 
 
 def event_bytes_per_pixel(spp: int, max_bounces: int, n_channels: int, tail_bounces: int = 0) -> int:
@@ -181,13 +224,12 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
     for i, cam in enumerate(problem.cameras):
         key = _key(problem, cam, parameters, guesses, spp, seed, prob_floor, max_bounces, view=i, cross_gram=cross_gram,
                    tail_bounces=tail_bounces)
-        hit = cache.load("polynomial_pass", key)
+        hit = _cached_view(cache, key, _pixels(problem, cam), C)
         if hit is None:
             todo.append((i, cam, key))
             continue
-        total.add(weighted_system(_unpack(hit, C), _pixels(problem, cam), None))
-        views[cam.name] = _loader(cache, key, C)
-        del hit
+        system, views[cam.name] = hit
+        total.add(system)
         cached.append(cam.name)
     t0 = time.perf_counter()
     if todo:
@@ -195,15 +237,18 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
                           pixels=max(cam.width * cam.height for _, cam, _ in todo))
         tile = tile_pixels_for(memory_mb, spp, max_bounces, C, tail_bounces)
         tasks = [view_task(problem, parameters, guesses, max_bounces, i, spp=spp, seed=seed, prob_floor=prob_floor,
-                           tile_pixels=tile, cross_gram=cross_gram, tail_bounces=tail_bounces)
-                 for i, _, _ in todo]
+                           tile_pixels=tile, cross_gram=cross_gram, tail_bounces=tail_bounces,
+                           cache_dir=cache.dir, key=key)
+                 for i, _, key in todo]
         variant = problem.settings.variant
         results = executor.imap(render_view_task, tasks, variant=variant, threads=executor.threads_per_worker)
         for (i, cam, key), (system, coeffs) in zip(todo, results):
-            cache.store("polynomial_pass", key, _pack(coeffs))
             total.add(system)                     # consumed: the sum may reuse its memory
-            # with a cache, each view waits on disk: memory stays flat in the number of views
-            views[cam.name] = _loader(cache, key, C) if cache.dir is not None else coeffs
+            if cache.dir is not None:             # the tiles are stored (by the worker); then the index
+                cache.store("polynomial_pass", key, {"starts": np.asarray(coeffs.starts, np.int64),
+                                                     "n_rows": np.array(coeffs.n_rows)})
+                coeffs = _stored(cache, key, coeffs.starts, coeffs.n_rows, C)
+            views[cam.name] = coeffs
             del system, coeffs
     render_s = time.perf_counter() - t0
     ordered = {c.name: views[c.name] for c in problem.cameras}
@@ -211,26 +256,31 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
 
 
 def view_task(problem, parameters, guesses, max_bounces: int, i: int, *, spp: int, seed: int, prob_floor: float,
-              tile_pixels: int, cross_gram: bool = True, tail_bounces: int = 0) -> dict:
-    """Everything a worker needs to render view ``i``: plain picklable data (numpy Scene model)."""
+              tile_pixels: int, cross_gram: bool = True, tail_bounces: int = 0, cache_dir=None,
+              key: dict | None = None) -> dict:
+    """Everything a worker needs to render view ``i``: plain picklable data (numpy Scene model).
+    With ``cache_dir`` the worker stores each tile's coefficients there under ``key`` (the view's
+    cache key) as it goes, and keeps none of them."""
     cam = problem.cameras[i]
     return {"scene": problem.scene, "cameras": list(problem.cameras), "view": int(i),
             "parameters": list(parameters), "guesses": np.asarray(guesses, float),
             "n_params": len(parameters), "max_bounces": int(max_bounces), "spp": int(spp),
             "seed": inversion_seed(seed, i), "prob_floor": float(prob_floor), "tile_pixels": int(tile_pixels),
             "observed": np.asarray(problem.observed[cam.name]), "cross_gram": bool(cross_gram),
-            "tail_bounces": int(tail_bounces)}
+            "tail_bounces": int(tail_bounces), "cache_dir": None if cache_dir is None else str(cache_dir),
+            "key": key}
 
 
 _WORKER_STATE: dict = {}    # per process: the last (MitsubaScene, integrator), reused across views
 
 
 def render_view_task(task: dict, *, variant: str, threads: int | None = None
-                     ) -> tuple[GramSystem, ViewCoefficients]:
+                     ) -> tuple[GramSystem, TiledCoefficients]:
     """Render one view of a :func:`view_task` in this process (driver or Dask worker).
 
     Selects ``variant``, caps Dr.Jit at ``threads`` threads, builds (or reuses) the Mitsuba
-    scene and the polynomial integrator, and returns the view's Gram system and coefficients.
+    scene and the polynomial integrator, and returns the view's Gram system and coefficients
+    (their blocks None when the task's cache holds them).
     """
     init_worker(variant, threads)
     ms, integrator = _scene_and_integrator(task, variant)
@@ -240,8 +290,12 @@ def render_view_task(task: dict, *, variant: str, threads: int | None = None
         # of events): without this the cache grew over the first views (measured +75 MiB at 16).
         dr.flush_malloc_cache()
     _WORKER_STATE["last_view"] = cam.name
+    store = None
+    if task.get("cache_dir") is not None:
+        cache, key = Cache(task["cache_dir"]), task["key"]
+        store = lambda k, block: cache.store("polynomial_tile", _tile_key(key, k), _pack(block))
     return _render_view(integrator, ms, task["view"], cam, task["observed"], task["spp"], task["seed"],
-                        cross=task.get("cross_gram", True))
+                        cross=task.get("cross_gram", True), store=store)
 
 
 def _scene_and_integrator(task: dict, variant: str):
@@ -263,41 +317,73 @@ def _scene_and_integrator(task: dict, variant: str):
     return _WORKER_STATE["value"]
 
 
-def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True):
-    """Tile by tile: the view's sparse coefficients, then its Gram system from them.
+def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True, store=None
+                 ) -> tuple[GramSystem, TiledCoefficients]:
+    """Tile by tile: each tile's sparse coefficients, and the view's Gram system from them.
 
     ``cross``: the samples of each pixel are split into two independent halves
     (:meth:`PolynomialPathIntegrator.coefficients_halves`, one render) whose cross product makes
     G free of Monte Carlo noise (:func:`~methods.symbolic.gram.weighted_system`); the kept
     coefficients are the mean of all samples, and beside them the halves' half difference
-    (A - B)/2, from which the halves are rebuilt.
+    (A - B)/2, from which the halves are rebuilt. ``store(k, block)``: called with each tile's
+    :class:`ViewCoefficients`, which is then not kept (its block in the result is None).
     """
     from tqdm import tqdm
     C = observed.shape[-1]
     n_pix = cam.width * cam.height
-    parts = []
+    y = observed.reshape(n_pix, C)
     halves = cross and spp >= 2
-    tiles = range(0, n_pix, integrator.tile_pixels)
-    for start in tqdm(tiles, desc=f"polynomial pass {cam.name}", unit="tile", leave=False):
+    split = (spp // 2) / spp if halves else 0.5
+    starts = list(range(0, n_pix, integrator.tile_pixels))
+    system, blocks = _empty_system(C), []
+    for k, start in enumerate(tqdm(starts, desc=f"polynomial pass {cam.name}", unit="tile", leave=False)):
         stop = min(n_pix, start + integrator.tile_pixels)
         tile = dict(spp=spp, seed=seed, pixel_range=(start, stop))
         if halves:
             codes, a, b, gamma = integrator.coefficients_halves(ms.scene, i, **tile)
-            parts.append((codes, gamma, [(a[c] - b[c]) * 0.5 for c in range(C)]))
+            block = ViewCoefficients(gamma, [(a[c] - b[c]) * 0.5 for c in range(C)], split, codes)
+            del a, b
         else:
             codes, gamma = integrator.coefficients_sparse(ms.scene, i, **tile)
-            parts.append((codes, gamma))
-    codes = reduce(np.union1d, [p[0] for p in parts], np.zeros(1, np.int64))   # constant monomial always there
-    coeffs = _view_coefficients(parts, codes, C, (spp // 2) / spp if halves else 0.5)
-    # the Gram system from the kept coefficients, as a cached view's is rebuilt: the same bits
-    return weighted_system(coeffs, observed.reshape(n_pix, C), None), coeffs
+            block = ViewCoefficients(gamma, None, split, codes)
+        # the Gram system from the kept coefficients, as a cached view's is rebuilt: the same bits
+        system += weighted_system(block, y[start:stop], None)
+        if store is not None:
+            store(k, block)
+            block = None
+        blocks.append(block)
+    return system, TiledCoefficients(starts, blocks, n_pix)
 
 
-def _view_coefficients(parts: list, codes: np.ndarray, C: int, split: float) -> ViewCoefficients:
-    """The tiles' ``(codes, Γ[, D])`` over the view's ``codes``, stacked by rows."""
-    moved = [reindex_columns(p[1:], np.searchsorted(codes, p[0]), len(codes)) for p in parts]
-    stack = lambda k: [sp.vstack([m[k][c] for m in moved], format="csr") for c in range(C)]
-    return ViewCoefficients(stack(0), stack(1) if len(parts[0]) > 2 else None, split, codes)
+def _empty_system(C: int) -> GramSystem:
+    """No pixel yet, over the constant monomial (code 0), which every system holds."""
+    return GramSystem.zeros(np.zeros(1, np.int64), C)
+
+
+def _cached_view(cache: Cache, key: dict, y: np.ndarray, C: int):
+    """``(GramSystem, TiledCoefficients)`` of a view whose pass the cache holds, its Gram system
+    rebuilt tile by tile from the stored coefficients; None when the index or a tile is missing
+    or corrupt (the view is then rendered again)."""
+    index = cache.load("polynomial_pass", key)
+    if index is None or "starts" not in index:
+        return None
+    starts, n_rows = [int(s) for s in index["starts"]], int(index["n_rows"])
+    system = _empty_system(C)
+    for k, (start, stop) in enumerate(zip(starts, starts[1:] + [n_rows])):
+        hit = cache.load("polynomial_tile", _tile_key(key, k))
+        if hit is None:
+            return None
+        system += weighted_system(_unpack(hit, C), y[start:stop], None)
+    return system, _stored(cache, key, starts, n_rows, C)
+
+
+def _stored(cache: Cache, key: dict, starts: list, n_rows: int, C: int) -> TiledCoefficients:
+    """The view's coefficients as blocks loaded from the cache when iterated."""
+    return TiledCoefficients(starts, [_loader(cache, _tile_key(key, k), C) for k in range(len(starts))], n_rows)
+
+
+def _tile_key(key: dict, k: int) -> dict:
+    return {**key, "tile": int(k)}
 
 
 def _key(problem, cam, parameters, guesses, spp, seed, prob_floor, max_bounces, *, view: int, cross_gram: bool,
@@ -308,7 +394,7 @@ def _key(problem, cam, parameters, guesses, spp, seed, prob_floor, max_bounces, 
             "guesses": np.round(np.asarray(guesses, float), 9).tolist(), "prob_floor": float(prob_floor),
             "observed": _digest(problem.observed[cam.name]),
             "variant": problem.settings.variant, "cross_gram": bool(cross_gram),
-            "tail_bounces": int(tail_bounces), "version": 5}
+            "tail_bounces": int(tail_bounces), "version": 6}
 
 
 def _pixels(problem, cam) -> np.ndarray:
@@ -322,7 +408,7 @@ def _digest(a: np.ndarray) -> str:
 
 
 def _pack(coeffs: ViewCoefficients) -> dict[str, np.ndarray]:
-    """The cache entry of a view: its coefficients (its Gram system is rebuilt from them and the
+    """The cache entry of a tile: its coefficients (its Gram system is rebuilt from them and the
     observed pixels, :func:`~methods.symbolic.gram.weighted_system`: a third of the bytes)."""
     out = {"codes": coeffs.codes, "split": np.array(coeffs.split)}
     for prefix, mats in (("c", coeffs.gamma), ("d", coeffs.delta or [])):
@@ -333,11 +419,12 @@ def _pack(coeffs: ViewCoefficients) -> dict[str, np.ndarray]:
 
 
 def _loader(cache: Cache, key: dict, C: int):
-    """A function reloading a view's :class:`ViewCoefficients` from the cache."""
+    """A function reloading a tile's :class:`ViewCoefficients` from the cache."""
     def load():
-        hit = cache.load("polynomial_pass", key)
+        hit = cache.load("polynomial_tile", key)
         if hit is None:
-            raise RuntimeError(f"cache entry of {key['view']} vanished from {cache.dir} during the run")
+            raise RuntimeError(f"cache entry of {key['view']} (tile {key['tile']}) vanished from {cache.dir} "
+                               "during the run")
         return _unpack(hit, C)
     return load
 

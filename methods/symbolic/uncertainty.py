@@ -190,11 +190,12 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
         ``(D, C)`` estimate.
     views : iterable
         ``(coefficients, y[, weights])`` per view (``weights``: ``(n,)`` pixel weights of the
-        cost, or None for all 1): an object with ``gamma``, ``delta`` (lists of ``C``
-        sparse matrices, ``delta`` possibly None), ``split`` and ``codes`` (the monomial codes of
-        the matrices' columns, a subset of ``codes``;
-        :class:`~methods.symbolic.polynomial_pass.ViewCoefficients`), and the ``(n, C)``
-        observed pixels.
+        cost, or None for all 1): the coefficients as row blocks (``n_rows`` and ``blocks()``
+        giving ``(first row, block)``, a block with ``gamma``, ``delta`` (lists of ``C`` sparse
+        matrices, ``delta`` possibly None), ``split`` and ``codes`` (the monomial codes of the
+        matrices' columns, a subset of ``codes``):
+        :class:`~methods.symbolic.polynomial_pass.TiledCoefficients` or ``ViewCoefficients``),
+        and the ``(n, C)`` observed pixels.
     columns : numpy.ndarray
         Index in ``codes`` of each monomial of ``basis`` (:func:`restrict_system`); the other
         columns are weighted 0.
@@ -214,29 +215,38 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
         Jc = basis.jacobian_sparse(rho[:, c]).tocoo()
         J.append(sp.csr_matrix((Jc.data, (columns[Jc.row], Jc.col)), shape=(len(codes), D)))
     outer, total, n = np.zeros((C, D, D)), np.zeros((C, D)), 0
-    for coeffs, y, *weights in views:
-        y = np.asarray(y, dtype=np.float64).reshape(coeffs.gamma[0].shape[0], C)
-        w_pix = weights[0] if weights and weights[0] is not None else None
-        n += len(y)
-        at = np.searchsorted(codes, coeffs.codes)                # the view's columns in ``codes``
-        for c in range(C):
-            mu_v, J_v = mu[c, at], J[c][at]
-            gamma = coeffs.gamma[c]
-            # sparse scores: a pixel's paths touch a few of the D parameters, so sᵀs costs
-            # Σ_p nnz(s_p)² instead of pixels × D² (dense)
-            r, gJ = gamma @ mu_v - y[:, c], (gamma @ J_v).tocsr()
-            if coeffs.delta is None:
-                s = sp.diags(2.0 * r) @ gJ
-            else:
-                w = float(coeffs.split)
-                d, dJ = coeffs.delta[c] @ mu_v, (coeffs.delta[c] @ J_v).tocsr()
-                s = (sp.diags(r - 2 * w * d) @ (gJ + 2 * (1 - w) * dJ)
-                     + sp.diags(r + 2 * (1 - w) * d) @ (gJ - 2 * w * dJ))
-            if w_pix is not None:            # the weighted cost's term: w_p times the unweighted one
-                s = sp.diags(np.asarray(w_pix, dtype=np.float64)) @ s
-            outer[c] += (s.T @ s).toarray()
-            total[c] += np.asarray(s.sum(axis=0)).ravel()
+    for view, y_view, *weights in views:
+        y_view = np.asarray(y_view, dtype=np.float64).reshape(view.n_rows, C)
+        w_view = weights[0] if weights and weights[0] is not None else None
+        n += len(y_view)
+        for start, coeffs in view.blocks():          # a tiled view: one block in memory at a time
+            rows = slice(start, start + coeffs.n_rows)
+            y, w_pix = y_view[rows], None if w_view is None else np.asarray(w_view).reshape(-1)[rows]
+            _add_scores(outer, total, coeffs, y, w_pix, mu, J, codes)
     return outer - np.einsum("ci,cj->cij", total, total) / max(n, 1)
+
+
+def _add_scores(outer, total, coeffs, y, w_pix, mu, J, codes) -> None:
+    """One block's pixels added to :func:`score_meat`'s ``outer`` (Σ s sᵀ) and ``total`` (Σ s)."""
+    C = len(coeffs.gamma)
+    at = np.searchsorted(codes, coeffs.codes)                # the block's columns in ``codes``
+    for c in range(C):
+        mu_v, J_v = mu[c, at], J[c][at]
+        gamma = coeffs.gamma[c]
+        # sparse scores: a pixel's paths touch a few of the D parameters, so sᵀs costs
+        # Σ_p nnz(s_p)² instead of pixels × D² (dense)
+        r, gJ = gamma @ mu_v - y[:, c], (gamma @ J_v).tocsr()
+        if coeffs.delta is None:
+            s = sp.diags(2.0 * r) @ gJ
+        else:
+            w = float(coeffs.split)
+            d, dJ = coeffs.delta[c] @ mu_v, (coeffs.delta[c] @ J_v).tocsr()
+            s = (sp.diags(r - 2 * w * d) @ (gJ + 2 * (1 - w) * dJ)
+                 + sp.diags(r + 2 * (1 - w) * d) @ (gJ - 2 * w * dJ))
+        if w_pix is not None:            # the weighted cost's term: w_p times the unweighted one
+            s = sp.diags(np.asarray(w_pix, dtype=np.float64)) @ s
+        outer[c] += (s.T @ s).toarray()
+        total[c] += np.asarray(s.sum(axis=0)).ravel()
 
 
 def parameter_uncertainty(system: GramSystem, basis: MonomialBasis, rho: np.ndarray, *,
