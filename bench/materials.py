@@ -88,8 +88,8 @@ def run(sizes, work: Path, log=print, resume: bool = False) -> list[dict]:
 
 def targets(rows: list[dict]) -> list[tuple[str, str, bool | None]]:
     """``(run, target, met)`` for the 66-material targets, on each method's smallest K with at least
-    :data:`TARGET_MATERIALS` materials (pass time per view against that method's 10-material run,
-    K = 1); None where a run is missing."""
+    :data:`TARGET_MATERIALS` materials (pass time per view and pass against that method's
+    10-material run, K = 1); None where a run is missing."""
     out = []
     for method in ("symbolic_paper", "symbolic"):
         mine = [r for r in rows if r.get("method", "symbolic_paper") == method and r["rc"] == 0 and r["materials"]]
@@ -98,10 +98,12 @@ def targets(rows: list[dict]) -> list[tuple[str, str, bool | None]]:
         if big is None:
             continue
         name = f"{method}, K = {big['buildings']} ({big['materials']} materials)"
-        per_view = (big["pass_s"] / small["pass_s"]) if small and small["pass_s"] else None
+        # per view and pass: the default may stop refining after different numbers of passes
+        per_pass = lambda r: r["pass_s"] / max(int(r.get("renders") or 1), 1)
+        per_view = (per_pass(big) / per_pass(small)) if small and small["pass_s"] else None
         out += [(name, f"peak RSS {big['maxrss_mib']:.0f} MiB <= {TARGET_RSS_MIB:.0f}", big["maxrss_mib"] <= TARGET_RSS_MIB),
                 (name, f"solve {big['solve_s']:.1f} s <= pass {big['pass_s']:.1f} s", big["solve_s"] <= big["pass_s"]),
-                (name, "pass per view within 2x of the 10-material run: "
+                (name, "pass per view and pass within 2x of the 10-material run: "
                        + (f"{per_view:.2f}x" if per_view else "n/a"), None if per_view is None else per_view <= 2.0),
                 (name, f"every determined parameter ({big['determined']}) within {DIFFUSE_TOL} diffuse / {SPECULAR_TOL} "
                        f"specular" + (f": over, {', '.join(big['over_tolerance'][:4])}" if big["over_tolerance"] else ""),

@@ -4,7 +4,9 @@ The default street view of urban_canyon (same pose, 65 degree horizontal field o
 1920x1080 pixels, 64 spp: the polynomial pass of ``method=symbolic_paper`` (tiles of
 ``method.memory_mb``) against Mitsuba ``path`` at max_depth N_max + 1, timed as section 1 does
 (:func:`bench.render_ratio.measure_spp`, one warm-up, median of ``reps``), in a fresh
-subprocess whose peak RSS is reported: memory stays bounded by the tiles, not the image.
+subprocess whose peak RSS is reported. The pass stores each tile's coefficients in the cache as
+it renders them, as a run with a cache does, and the solve reads them back one tile at a time:
+memory stays bounded by the tiles, not the image.
 
 ``python -m bench.megapixel <work folder> <spp> <reps>`` is that subprocess; it prints one line
 ``MEGAPIXEL {json}``.
@@ -49,7 +51,7 @@ def child(work: Path, spp: int, reps: int) -> dict:
     cfg = compose(["method=symbolic_paper", f"scene.dir={folder}", f"views=[{VIEW}]", "observe.spp=16",
                    f"cache.dir={work / 'cache'}"])
     problem, method = build_problem(cfg)
-    row = measure_spp(problem, method, spp, reps)
+    row = measure_spp(problem, method, spp, reps, cache_dir=work / "cache")   # tiles on disk, as a run stores them
     row.update(size=f"{WIDTH}x{HEIGHT}", memory_mb=float(method.cfg.memory_mb),
                maxrss_mib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
     return row

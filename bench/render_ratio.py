@@ -39,14 +39,18 @@ def _timed(fn, reps: int) -> tuple[float, object]:
     return statistics.median(times), out
 
 
-def _pass_fn(problem, method, spp: int):
-    """A no-argument function running the method's polynomial pass of view 0 at ``spp``."""
+def _pass_fn(problem, method, spp: int, cache_dir=None):
+    """A no-argument function running the method's polynomial pass of view 0 at ``spp``; with
+    ``cache_dir`` its tiles are stored there as they are rendered (as a run with a cache does),
+    so that its coefficients are never all in memory."""
     params = problem.parameters
     x0, _ = initial_guess(method.cfg, problem)
     N, T = problem.settings.max_bounces, problem.settings.tail_bounces
     tile = tile_pixels_for(float(method.cfg.memory_mb), spp, N, problem.n_channels, T)
+    key = {"bench": "pass", "scene": problem.scene.content_hash, "view": problem.cameras[0].name, "spp": spp,
+           "tile_pixels": tile, "tail_bounces": T}
     task = view_task(problem, params, x0, N, 0, spp=spp, seed=int(problem.seed), prob_floor=float(
-        method.cfg.prob_floor), tile_pixels=tile, tail_bounces=T)
+        method.cfg.prob_floor), tile_pixels=tile, tail_bounces=T, cache_dir=cache_dir, key=key)
     variant = problem.settings.variant
     return (lambda: render_view_task(task, variant=variant)), x0
 
@@ -60,9 +64,10 @@ def _render_fn(problem, spp: int, rho):
     return lambda: ms.render(0, spp=spp, seed=2)
 
 
-def measure_spp(problem, method, spp: int, reps: int) -> dict:
-    """Pass, render and solve times at one spp; returns a row dict."""
-    pass_fn, x0 = _pass_fn(problem, method, spp)
+def measure_spp(problem, method, spp: int, reps: int, cache_dir=None) -> dict:
+    """Pass, render and solve times at one spp; returns a row dict. ``cache_dir``: the pass
+    stores its tiles there (:func:`_pass_fn`)."""
+    pass_fn, x0 = _pass_fn(problem, method, spp, cache_dir)
     t_pass, (system, coefficients) = _timed(pass_fn, reps)
     basis = MonomialBasis(len(problem.parameters), problem.settings.max_bounces, system.codes)
     t_render, _ = _timed(_render_fn(problem, spp, x0), reps)

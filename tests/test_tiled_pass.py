@@ -1,0 +1,91 @@
+"""The polynomial pass in tiles (methods/symbolic/polynomial_pass.py): a view's coefficients kept
+as row blocks, on disk when the run has a cache, and every consumer reading them block by block."""
+import numpy as np
+import pytest
+
+from factory import tiny_problem
+from framework.cache import Cache
+from methods.symbolic.basis import MonomialBasis
+from methods.symbolic.polynomial_pass import TiledCoefficients, polynomial_pass, predicted
+from methods.symbolic.uncertainty import score_meat
+
+#: 16 spp, N_max 3, 2 tail bounces, RGB: 4.5 KiB of event buffers a pixel, so 0.3 MiB gives tiles
+#: of 68 pixels (4 tiles on the 16 x 16 views)
+TINY_MEMORY_MB = 0.3
+
+
+@pytest.fixture(scope="module")
+def problem(tmp_path_factory):
+    return tiny_problem(tmp_path_factory.mktemp("tiles"), n_views=2, spp=16)
+
+
+def _pass(problem, cache):
+    x0 = np.full((len(problem.parameters), 3), 0.5)
+    return polynomial_pass(problem, problem.parameters, x0, 3, spp=16, seed=0, prob_floor=0.1,
+                           memory_mb=TINY_MEMORY_MB, cache=cache, tail_bounces=2)
+
+
+def _everything(problem, passed):
+    """The pass's system, images and sandwich meat at a fixed ρ: what the solve and the report use."""
+    system = passed.take_system()
+    basis = MonomialBasis(len(problem.parameters), 3, passed.codes)
+    rho = np.random.default_rng(1).uniform(0.1, 0.4, (len(problem.parameters), 3))
+    mu = np.stack([basis.evaluate(rho[:, c]) for c in range(3)])
+    images = [predicted(passed.coefficients(c.name), mu, passed.codes) for c in problem.cameras]
+    views = [(passed.coefficients(c.name), problem.observed[c.name], None) for c in problem.cameras]
+    meat = score_meat(basis, rho, views, np.arange(basis.size), passed.codes)
+    return system, images, meat
+
+
+def _assert_same(a, b):
+    (sa, ia, ma), (sb, ib, mb) = a, b
+    np.testing.assert_array_equal(sa.codes, sb.codes)
+    for ga, gb in zip(sa.G, sb.G):
+        assert (ga != gb).nnz == 0
+    np.testing.assert_array_equal(sa.b, sb.b)
+    for x, y in zip(ia, ib):
+        np.testing.assert_array_equal(x, y)
+    np.testing.assert_array_equal(ma, mb)
+
+
+def test_tiles_cover_the_view_in_order(problem):
+    """Four tiles of 68, 68, 68 and 52 pixels; their rows add up to the view's pixels."""
+    passed = _pass(problem, Cache(None))
+    coeffs = passed.coefficients(problem.cameras[0].name)
+    assert isinstance(coeffs, TiledCoefficients)
+    blocks = list(coeffs.blocks())
+    assert [s for s, _ in blocks] == [0, 68, 136, 204]
+    assert [b.n_rows for _, b in blocks] == [68, 68, 68, 52]
+    assert coeffs.n_rows == 256
+
+
+def test_stored_tiles_give_the_same_bits(problem, tmp_path):
+    """With a cache the worker stores each tile and the pass keeps none in memory; the system,
+    the images and the sandwich meat equal the in-memory pass's bit for bit, and so do a second
+    run's, which reads every view from the cache (its Gram systems rebuilt from the tiles)."""
+    memory = _everything(problem, _pass(problem, Cache(None)))
+    first = _pass(problem, Cache(tmp_path))
+    assert first.from_cache == []
+    assert all(callable(b) for name in first.views for b in first.coefficients(name)._blocks)
+    _assert_same(memory, _everything(problem, first))
+    second = _pass(problem, Cache(tmp_path))
+    assert second.from_cache == [c.name for c in problem.cameras]
+    _assert_same(memory, _everything(problem, second))
+
+
+def test_a_missing_tile_renders_the_view_again(problem, tmp_path):
+    """A view whose index is cached but one of whose tiles is gone is rendered again (same bits)."""
+    memory = _everything(problem, _pass(problem, Cache(tmp_path)))
+    tiles = sorted((tmp_path / "polynomial_tile").glob("*.npz"))
+    assert len(tiles) == 8                          # 2 views x 4 tiles
+    tiles[3].unlink()
+    again = _pass(problem, Cache(tmp_path))
+    assert len(again.from_cache) == 1
+    _assert_same(memory, _everything(problem, again))
+
+
+def test_the_system_is_taken_once(problem):
+    passed = _pass(problem, Cache(None))
+    passed.take_system()
+    with pytest.raises(RuntimeError, match="already taken"):
+        passed.take_system()
