@@ -16,6 +16,7 @@ import time
 import numpy as np
 
 from framework.cache import Cache
+from framework.memory import release_freed_memory
 from framework.render.checks import check_memory, check_views, film_bytes
 from framework.render.mitsuba_scene import MitsubaScene
 from framework.scene import Camera, Scene
@@ -90,6 +91,11 @@ def render_references(scene: Scene, cameras: list[Camera], *, spp: int, max_dept
         if noise > 0:
             img = np.maximum(img + rng.normal(0.0, noise * img.mean(), img.shape), 0.0)
         images.append(img.astype(np.float32))
+    del ms
+    # the renders' buffers stay in Dr.Jit's cache for reuse: hand them back before the method runs
+    import drjit as dr
+    dr.flush_malloc_cache()
+    release_freed_memory()
     return images
 
 

@@ -14,6 +14,7 @@ import numpy as np
 from framework.cache import Cache
 from framework.config import method_defaults
 from framework.executor import make_executor
+from framework.memory import release_freed_memory
 from framework.registry import Method, MethodResult, register
 from framework.relight import relight_outputs
 from methods._common import Trace, check_choice, check_number, initial_guess, segment_groups
@@ -338,6 +339,7 @@ class SymbolicMethod(Method):
                                ftol_rel=float(solver.ftol_rel), precondition=bool(solver.precondition),
                                seed=int(problem.seed), executor=_block_executor(problem.settings.executor))
         t_unc = time.perf_counter()
+        release_freed_memory()       # the restriction's and the solve's temporaries
         meat = None
         if method == "sandwich":
             meat = score_meat(sub_basis, sol.estimate, views(), columns, basis.codes)

@@ -27,6 +27,7 @@ import scipy.sparse as sp
 from framework.cache import Cache
 from framework.errors import ConfigError
 from framework.executor import SerialExecutor, TreeSum, init_worker
+from framework.memory import release_freed_memory
 from framework.observe import inversion_seed
 from framework.render.checks import MiB, check_memory
 from framework.render.mitsuba_scene import MitsubaScene
@@ -231,6 +232,8 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
         system, views[cam.name] = hit
         total.add(system)
         cached.append(cam.name)
+        del system, hit
+        release_freed_memory()
     t0 = time.perf_counter()
     if todo:
         check_pass_memory(memory_mb, spp, max_bounces, C, tail_bounces, tasks_here=executor.tasks_here,
@@ -250,6 +253,7 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
                 coeffs = _stored(cache, key, coeffs.starts, coeffs.n_rows, C)
             views[cam.name] = coeffs
             del system, coeffs
+            release_freed_memory()                # the view's buffers and Gram products
     render_s = time.perf_counter() - t0
     ordered = {c.name: views[c.name] for c in problem.cameras}
     return PassResult(total.total(GramSystem.zeros(np.zeros(1, np.int64), C)), ordered, render_s, cached)
