@@ -136,8 +136,9 @@ def hessian(system: GramSystem, basis: MonomialBasis, rho: np.ndarray) -> np.nda
 def check_solve_memory(system: GramSystem, basis: MonomialBasis) -> None:
     """Raise :class:`ConfigError` before the solve allocates more than this machine has.
 
-    Per channel the solve holds G (restricted, PSD-projected and sliced to the used monomials:
-    about four copies of 16 bytes a non-zero), the monomial vectors and sparse Jacobian
+    Per channel the solve holds G (the pass's, handed over, and its restriction to the observable
+    parameters, both while restricting; with the sparse products' temporaries budgeted at four
+    copies of 16 bytes a non-zero), the monomial vectors and sparse Jacobian
     (``size × N_max``) and dense ``D × D`` Hessians (a few per channel); the sandwich standard
     errors add per view ``pixels × D`` scores.
     """
