@@ -35,6 +35,31 @@ def test_tiles_equal_all_at_once():
     np.testing.assert_allclose(_dense(full)[1], Xd[:, :, 1].T @ Xd[:, :, 1], rtol=1e-12, atol=1e-12)
 
 
+def test_sums_over_different_monomials_in_place_and_not():
+    """Systems over different codes: ``a + b`` leaves both as they were, ``a += b`` gives the same
+    bits in ``a`` (its matrices replaced channel by channel), and both equal the dense sum of the
+    two systems spread over the union of the codes."""
+    X, y = _data(2)
+    a = GramSystem.zeros(np.arange(0, 20, 2), 3).accumulate(X[:150, ::2], y[:150])
+    b = GramSystem.zeros(np.arange(0, 20, 3), 3).accumulate(X[150:, ::3], y[150:])
+    a_before, b_before = _dense(a).copy(), _dense(b).copy()
+    summed = a + b
+    np.testing.assert_array_equal(_dense(a), a_before)
+    np.testing.assert_array_equal(_dense(b), b_before)
+    codes = np.union1d(a.codes, b.codes)
+    expected = np.zeros((3, len(codes), len(codes)))
+    for s in (a, b):
+        at = np.searchsorted(codes, s.codes)
+        expected[:, at[:, None], at[None, :]] += _dense(s)
+    np.testing.assert_array_equal(summed.codes, codes)
+    np.testing.assert_allclose(_dense(summed), expected, rtol=1e-15, atol=0)
+    a += b
+    np.testing.assert_array_equal(a.codes, codes)
+    np.testing.assert_array_equal(_dense(a), _dense(summed))
+    np.testing.assert_array_equal(a.b, summed.b)
+    assert a.n_pixels == 300
+
+
 def test_cost_equals_direct_sum_of_squares():
     """cost(μ) = Σ_i (γ_i·μ - y_i)² computed directly per channel, to 1e-9 relative."""
     X, y = _data(1, N_e=10)

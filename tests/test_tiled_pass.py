@@ -5,6 +5,7 @@ import pytest
 
 from factory import tiny_problem
 from framework.cache import Cache
+from framework.executor import SerialExecutor
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.polynomial_pass import TiledCoefficients, polynomial_pass, predicted
 from methods.symbolic.uncertainty import score_meat
@@ -19,10 +20,10 @@ def problem(tmp_path_factory):
     return tiny_problem(tmp_path_factory.mktemp("tiles"), n_views=2, spp=16)
 
 
-def _pass(problem, cache):
+def _pass(problem, cache, executor=None):
     x0 = np.full((len(problem.parameters), 3), 0.5)
     return polynomial_pass(problem, problem.parameters, x0, 3, spp=16, seed=0, prob_floor=0.1,
-                           memory_mb=TINY_MEMORY_MB, cache=cache, tail_bounces=2)
+                           memory_mb=TINY_MEMORY_MB, cache=cache, tail_bounces=2, executor=executor)
 
 
 def _everything(problem, passed):
@@ -71,6 +72,19 @@ def test_stored_tiles_give_the_same_bits(problem, tmp_path):
     second = _pass(problem, Cache(tmp_path))
     assert second.from_cache == [c.name for c in problem.cameras]
     _assert_same(memory, _everything(problem, second))
+
+
+def test_workers_elsewhere_send_their_tiles_to_be_stored_here(problem, tmp_path):
+    """Workers of a remote scheduler (``tasks_here`` 0: they cannot reach the cache folder) return
+    their tiles, which the driver stores: same files and bits as workers on this machine."""
+    class Elsewhere(SerialExecutor):
+        tasks_here = 0
+
+    memory = _everything(problem, _pass(problem, Cache(None)))
+    remote = _pass(problem, Cache(tmp_path), Elsewhere())
+    assert len(list((tmp_path / "polynomial_tile").glob("*.npz"))) == 8
+    _assert_same(memory, _everything(problem, remote))
+    _assert_same(memory, _everything(problem, _pass(problem, Cache(tmp_path))))
 
 
 def test_a_missing_tile_renders_the_view_again(problem, tmp_path):

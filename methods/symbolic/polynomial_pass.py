@@ -206,7 +206,9 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
     tail_bounces : int
         Reflections traced beyond N_max at the guesses (:class:`PolynomialPathIntegrator`).
     cache : Cache
-        Per-view results are read from and written to it by this (driver) process.
+        Each view's tiles of coefficients are written to it as they are rendered (by the worker
+        when it runs on this machine, else by this process), then the view's index by this
+        process; cached views are read back here.
     executor : framework.executor.SerialExecutor or DaskExecutor, optional
         Where views are rendered (default: this process); their results arrive one at a time,
         are cached at once and summed as a tree (:class:`framework.executor.TreeSum`) in the same
@@ -239,15 +241,21 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
         check_pass_memory(memory_mb, spp, max_bounces, C, tail_bounces, tasks_here=executor.tasks_here,
                           pixels=max(cam.width * cam.height for _, cam, _ in todo))
         tile = tile_pixels_for(memory_mb, spp, max_bounces, C, tail_bounces)
+        # workers on this machine store their tiles in the cache folder themselves; those of a
+        # remote scheduler cannot reach it and send them back (tasks_here 0)
+        worker_cache = cache.dir if executor.tasks_here else None
         tasks = [view_task(problem, parameters, guesses, max_bounces, i, spp=spp, seed=seed, prob_floor=prob_floor,
                            tile_pixels=tile, cross_gram=cross_gram, tail_bounces=tail_bounces,
-                           cache_dir=cache.dir, key=key)
+                           cache_dir=worker_cache, key=key)
                  for i, _, key in todo]
         variant = problem.settings.variant
         results = executor.imap(render_view_task, tasks, variant=variant, threads=executor.threads_per_worker)
         for (i, cam, key), (system, coeffs) in zip(todo, results):
             total.add(system)                     # consumed: the sum may reuse its memory
             if cache.dir is not None:             # the tiles are stored (by the worker); then the index
+                if worker_cache is None:
+                    for k, (_, block) in enumerate(coeffs.blocks()):
+                        cache.store("polynomial_tile", _tile_key(key, k), _pack(block))
                 cache.store("polynomial_pass", key, {"starts": np.asarray(coeffs.starts, np.int64),
                                                      "n_rows": np.array(coeffs.n_rows)})
                 coeffs = _stored(cache, key, coeffs.starts, coeffs.n_rows, C)
