@@ -7,7 +7,8 @@ from factory import tiny_problem
 from framework.cache import Cache
 from framework.executor import SerialExecutor
 from methods.symbolic.basis import MonomialBasis
-from methods.symbolic.polynomial_pass import TiledCoefficients, polynomial_pass, predicted
+from methods.symbolic.polynomial_pass import (TileLoader, TiledCoefficients, polynomial_pass, predicted, render_view_task,
+                                              tile_pixels_for, view_task)
 from methods.symbolic.uncertainty import score_meat
 
 #: 16 spp, N_max 3, 2 tail bounces, RGB: 4.5 KiB of event buffers a pixel, so 0.3 MiB gives tiles
@@ -85,6 +86,24 @@ def test_workers_elsewhere_send_their_tiles_to_be_stored_here(problem, tmp_path)
     assert len(list((tmp_path / "polynomial_tile").glob("*.npz"))) == 8
     _assert_same(memory, _everything(problem, remote))
     _assert_same(memory, _everything(problem, _pass(problem, Cache(tmp_path))))
+
+
+def test_a_task_storing_its_tiles_returns_their_loaders(problem, tmp_path):
+    """``render_view_task`` with a cache folder (what the bench's megapixel pass and a Dask worker
+    on this machine run) returns loaders reading each stored tile back: the same blocks."""
+    x0 = np.full((len(problem.parameters), 3), 0.5)
+    tile = tile_pixels_for(TINY_MEMORY_MB, 16, 3, 3, 2)
+    task = lambda **kw: view_task(problem, problem.parameters, x0, 3, 0, spp=16, seed=0, prob_floor=0.1,
+                                  tile_pixels=tile, tail_bounces=2, **kw)
+    variant = problem.settings.variant
+    _, held = render_view_task(task(), variant=variant)
+    _, stored = render_view_task(task(cache_dir=tmp_path, key={"view": "v", "test": 1}), variant=variant)
+    assert all(isinstance(b, TileLoader) for b in stored._blocks)
+    for (s0, a), (s1, b) in zip(held.blocks(), stored.blocks()):
+        assert s0 == s1
+        np.testing.assert_array_equal(a.codes, b.codes)
+        for x, y in zip(a.gamma + a.delta, b.gamma + b.delta):
+            assert (x != y).nnz == 0
 
 
 def test_a_missing_tile_renders_the_view_again(problem, tmp_path):

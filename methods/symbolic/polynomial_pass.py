@@ -90,7 +90,7 @@ class PassResult:
     """The pass over all views: their summed Gram system, and each view's coefficients.
 
     ``views[name]`` is the view's :class:`TiledCoefficients`; with a cache its blocks wait on
-    disk: memory then stays flat in the number of views and in their size. The views' own Gram
+    disk (:class:`TileLoader`): memory then stays flat in the number of views and in their size. The views' own Gram
     systems are consumed by the sum.
     """
 
@@ -254,11 +254,11 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
             total.add(system)                     # consumed: the sum may reuse its memory
             if cache.dir is not None:             # the tiles are stored (by the worker); then the index
                 if worker_cache is None:
-                    for k, (_, block) in enumerate(coeffs.blocks()):
-                        cache.store("polynomial_tile", _tile_key(key, k), _pack(block))
+                    coeffs = TiledCoefficients(coeffs.starts, [_store_tile(cache, key, k, block, C)
+                                                               for k, (_, block) in enumerate(coeffs.blocks())],
+                                               coeffs.n_rows)
                 cache.store("polynomial_pass", key, {"starts": np.asarray(coeffs.starts, np.int64),
                                                      "n_rows": np.array(coeffs.n_rows)})
-                coeffs = _stored(cache, key, coeffs.starts, coeffs.n_rows, C)
             views[cam.name] = coeffs
             del system, coeffs
             release_freed_memory()                # the view's buffers and Gram products
@@ -299,8 +299,8 @@ def render_view_task(task: dict, *, variant: str, threads: int | None = None
     cam = task["cameras"][task["view"]]
     store = None
     if task.get("cache_dir") is not None:
-        cache, key = Cache(task["cache_dir"]), task["key"]
-        store = lambda k, block: cache.store("polynomial_tile", _tile_key(key, k), _pack(block))
+        cache, key, C = Cache(task["cache_dir"]), task["key"], task["observed"].shape[-1]
+        store = lambda k, block: _store_tile(cache, key, k, block, C)
     try:
         return _render_view(integrator, ms, task["view"], cam, task["observed"], task["spp"], task["seed"],
                             cross=task.get("cross_gram", True), store=store)
@@ -339,7 +339,8 @@ def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True, store=
     G free of Monte Carlo noise (:func:`~methods.symbolic.gram.weighted_system`); the kept
     coefficients are the mean of all samples, and beside them the halves' half difference
     (A - B)/2, from which the halves are rebuilt. ``store(k, block)``: called with each tile's
-    :class:`ViewCoefficients`, which is then not kept (its block in the result is None).
+    :class:`ViewCoefficients`, which is then not kept: the result holds what it returns (a
+    :class:`TileLoader`) instead.
     """
     from tqdm import tqdm
     C = observed.shape[-1]
@@ -362,8 +363,7 @@ def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True, store=
         # the Gram system from the kept coefficients, as a cached view's is rebuilt: the same bits
         system += weighted_system(block, y[start:stop], None)
         if store is not None:
-            store(k, block)
-            block = None
+            block = store(k, block)
         blocks.append(block)
     return system, TiledCoefficients(starts, blocks, n_pix)
 
@@ -392,7 +392,14 @@ def _cached_view(cache: Cache, key: dict, y: np.ndarray, C: int):
 
 def _stored(cache: Cache, key: dict, starts: list, n_rows: int, C: int) -> TiledCoefficients:
     """The view's coefficients as blocks loaded from the cache when iterated."""
-    return TiledCoefficients(starts, [_loader(cache, _tile_key(key, k), C) for k in range(len(starts))], n_rows)
+    return TiledCoefficients(starts, [TileLoader(cache.dir, _tile_key(key, k), C) for k in range(len(starts))],
+                             n_rows)
+
+
+def _store_tile(cache: Cache, key: dict, k: int, block: ViewCoefficients, C: int) -> "TileLoader":
+    """Store tile ``k`` of the view ``key``; the loader that reads it back."""
+    cache.store("polynomial_tile", _tile_key(key, k), _pack(block))
+    return TileLoader(cache.dir, _tile_key(key, k), C)
 
 
 def _tile_key(key: dict, k: int) -> dict:
@@ -431,15 +438,20 @@ def _pack(coeffs: ViewCoefficients) -> dict[str, np.ndarray]:
     return out
 
 
-def _loader(cache: Cache, key: dict, C: int):
-    """A function reloading a tile's :class:`ViewCoefficients` from the cache."""
-    def load():
-        hit = cache.load("polynomial_tile", key)
+class TileLoader:
+    """Reads a tile's :class:`ViewCoefficients` back from the cache folder when called; plain
+    data, so a Dask worker that stored the tile can return it in place of the tile."""
+
+    def __init__(self, cache_dir, key: dict, C: int):
+        self.cache_dir, self.key, self.C = cache_dir, key, int(C)
+
+    def __call__(self) -> ViewCoefficients:
+        cache = Cache(self.cache_dir)
+        hit = cache.load("polynomial_tile", self.key)
         if hit is None:
-            raise RuntimeError(f"cache entry of {key['view']} (tile {key['tile']}) vanished from {cache.dir} "
-                               "during the run")
-        return _unpack(hit, C)
-    return load
+            raise RuntimeError(f"cache entry of {self.key['view']} (tile {self.key['tile']}) vanished from "
+                               f"{cache.dir} during the run")
+        return _unpack(hit, self.C)
 
 
 def _unpack(arrays: dict, C: int) -> ViewCoefficients:
