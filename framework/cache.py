@@ -28,18 +28,24 @@ def _checksum(arrays: dict[str, np.ndarray]) -> str:
     for name in sorted(arrays):
         a = np.ascontiguousarray(arrays[name])
         h.update(name.encode() + str(a.dtype).encode() + str(a.shape).encode())
-        h.update(a.tobytes())
+        h.update(a.reshape(-1).view(np.uint8) if a.size else b"")     # the bytes, not a copy of them
     return h.hexdigest()
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically (temporary file in the same folder, then rename)."""
+    atomic_write(path, lambda f: f.write(data))
+
+
+def atomic_write(path: Path, write) -> None:
+    """Call ``write(f)`` on a temporary file in ``path``'s folder, then rename it to ``path``: an
+    interrupted write never leaves a partial ``path``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as f:
-            f.write(data)
+            write(f)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -93,7 +99,5 @@ class Cache:
         path = self.path(kind, key)
         if path is None:
             return
-        import io
-        buf = io.BytesIO()
-        np.savez(buf, __checksum__=np.array(_checksum(arrays)), **arrays)
-        atomic_write_bytes(path, buf.getvalue())
+        checksum = np.array(_checksum(arrays))
+        atomic_write(path, lambda f: np.savez(f, __checksum__=checksum, **arrays))

@@ -299,12 +299,13 @@ def render_view_task(task: dict, *, variant: str, threads: int | None = None
     cam = task["cameras"][task["view"]]
     store = None
     if task.get("cache_dir") is not None:
-        cache, key, C = Cache(task["cache_dir"]), task["key"], task["observed"].shape[-1]
-        store = lambda k, block: _store_tile(cache, key, k, block, C)
+        store = _TileWriter(Cache(task["cache_dir"]), task["key"], task["observed"].shape[-1])
     try:
         return _render_view(integrator, ms, task["view"], cam, task["observed"], task["spp"], task["seed"],
                             cross=task.get("cross_gram", True), store=store)
     finally:
+        if store is not None:
+            store.close()          # every tile on disk before the view is reported done
         # Dr.Jit keeps freed buffers for reuse: the sum of the Gram systems and the solve that
         # follow would sit on a view's tile buffers (measured: flushing here took a 70-material
         # street's peak from 2.3 to 2.0 GB), and their sizes change with the view anyway.
@@ -394,6 +395,34 @@ def _stored(cache: Cache, key: dict, starts: list, n_rows: int, C: int) -> Tiled
     """The view's coefficients as blocks loaded from the cache when iterated."""
     return TiledCoefficients(starts, [TileLoader(cache.dir, _tile_key(key, k), C) for k in range(len(starts))],
                              n_rows)
+
+
+class _TileWriter:
+    """``store(k, block)`` of :func:`_render_view` that writes each tile to the cache in a
+    background thread while the next tile renders (measured on the 1920x1080 view: the writes
+    were 7 of the pass's 70 s), one tile in flight at most; :meth:`close` waits for the last
+    and raises what a write raised."""
+
+    def __init__(self, cache: Cache, key: dict, C: int):
+        from concurrent.futures import ThreadPoolExecutor
+        self.cache, self.key, self.C = cache, key, int(C)
+        self._pool, self._pending = ThreadPoolExecutor(1, thread_name_prefix="tile-writer"), None
+
+    def __call__(self, k: int, block: ViewCoefficients) -> "TileLoader":
+        self._wait()
+        self._pending = self._pool.submit(self.cache.store, "polynomial_tile", _tile_key(self.key, k), _pack(block))
+        return TileLoader(self.cache.dir, _tile_key(self.key, k), self.C)
+
+    def _wait(self) -> None:
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            pending.result()
+
+    def close(self) -> None:
+        try:
+            self._wait()
+        finally:
+            self._pool.shutdown()
 
 
 def _store_tile(cache: Cache, key: dict, k: int, block: ViewCoefficients, C: int) -> "TileLoader":
