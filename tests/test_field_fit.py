@@ -9,6 +9,7 @@ from factory import run_method, run_symbolic, tiny_problem, view_systems
 from framework.errors import ConfigError
 from framework.scene.model import Photometry
 from methods.symbolic.field import GAIN_MAX, robust_weights, weighted_system, with_gain
+from methods.symbolic.polynomial_pass import ViewCoefficients
 
 GAINS = np.array([1.5, 0.8, 1.2])      # view_1's gains per channel; view_0 is the reference
 
@@ -67,12 +68,12 @@ def test_with_gain_multiplies_every_monomial_by_the_gain():
     keys = np.array([0, 1, 2, 1 + 3 * 1, 1 + 3 * 2])            # ordered keys -> multiset codes
     codes = np.unique(multiset_codes(keys, D, N))
     gamma = [sp.csr_matrix(np.arange(1.0, 1 + 2 * len(codes)).reshape(2, len(codes)))]
-    coeffs = type("V", (), {"gamma": gamma, "delta": None, "split": 0.5, "codes": codes})()
+    coeffs = ViewCoefficients(gamma, None, 0.5, codes)
     ext = with_gain(coeffs, n_params=D, max_degree=N, n_total=D + 1, gain=D)
     rho, h = np.array([0.3, 0.7]), 0.4
     before = gamma[0] @ MonomialBasis(D, N, codes).evaluate(rho)
     basis = MonomialBasis(D + 1, N + 1, ext.codes)              # adds the constant, absent here
-    after = ext.gamma[0] @ basis.evaluate(np.append(rho, h))[np.searchsorted(basis.codes, ext.codes)]
+    after = ext.a[0] @ basis.evaluate(np.append(rho, h))[np.searchsorted(basis.codes, ext.codes)]
     np.testing.assert_allclose(after, GAIN_MAX * h * before, rtol=1e-12)
 
 

@@ -102,7 +102,7 @@ def test_a_task_storing_its_tiles_returns_their_loaders(problem, tmp_path):
     for (s0, a), (s1, b) in zip(held.blocks(), stored.blocks()):
         assert s0 == s1
         np.testing.assert_array_equal(a.codes, b.codes)
-        for x, y in zip(a.gamma + a.delta, b.gamma + b.delta):
+        for x, y in zip(a.a + a.b, b.a + b.b):
             assert (x != y).nnz == 0
 
 

@@ -91,7 +91,7 @@ def with_gain(coeffs, *, n_params: int, max_degree: int, n_total: int, gain: int
     move = sp.csr_matrix((np.full(len(order), scale), (order, np.arange(len(order)))),
                          shape=(len(order), len(order)))
     relabel = lambda mats: None if mats is None else [sp.csr_matrix(m @ move) for m in mats]
-    return ViewCoefficients(relabel(coeffs.gamma), relabel(coeffs.delta), float(coeffs.split), codes[order])
+    return ViewCoefficients(relabel(coeffs.a), relabel(coeffs.b), float(coeffs.split), codes[order])
 
 
 def robust_weights(residual: np.ndarray, used: np.ndarray, *, loss: str, floor: np.ndarray | float = 0.0

@@ -239,10 +239,8 @@ class GramSystem:
 def weighted_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSystem:
     """The Gram system of one view from its coefficients, pixel ``p`` weighted by ``w_p``.
 
-    With the half-sample difference ``delta`` (``D = (A - B)/2``, ``A`` holding the fraction
-    ``split`` of the samples), ``A = Γ + 2(1 - split)D`` and ``B = Γ - 2·split·D`` are rebuilt and
-    the cross Gram ½(AᵀWB + BᵀWA) formed (:meth:`GramSystem.accumulate_sparse`, rows scaled by
-    √w); without it, ΓᵀWΓ. With ``weights`` None this is the pass's own system
+    With the two half-sample estimates ``a`` and ``b``, the cross Gram ½(AᵀWB + BᵀWA)
+    (:meth:`GramSystem.accumulate_sparse`, rows scaled by √w); without ``b``, ΓᵀWΓ. With ``weights`` None this is the pass's own system
     (:func:`~methods.symbolic.polynomial_pass.polynomial_pass` builds it so). One row block of
     the coefficients at a time (their ``blocks()``: a tiled view's are loaded one by one).
 
@@ -269,16 +267,12 @@ def weighted_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSy
 
 def _block_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSystem:
     """:func:`weighted_system` of one block (a :class:`ViewCoefficients`)."""
-    C = len(coeffs.gamma)
+    C = len(coeffs.a)
     root = None if weights is None else sp.diags(np.sqrt(weights))
     scaled = lambda m: m if root is None else (root @ m).tocsr()
     y = y if weights is None else y * np.sqrt(weights)[:, None]
-    if coeffs.delta is None:
-        A, B = [scaled(g) for g in coeffs.gamma], None
-    else:
-        w = float(coeffs.split)
-        A = [scaled(g + 2 * (1 - w) * d) for g, d in zip(coeffs.gamma, coeffs.delta)]
-        B = [scaled(g - 2 * w * d) for g, d in zip(coeffs.gamma, coeffs.delta)]
+    A = [scaled(m) for m in coeffs.a]
+    B = None if coeffs.b is None else [scaled(m) for m in coeffs.b]
     return GramSystem.zeros(coeffs.codes, C).accumulate_sparse(A, y, B)
 
 

@@ -45,20 +45,27 @@ class ViewCoefficients:
     """A view's per-pixel coefficients, one sparse ``(pixels, len(codes))`` float64 matrix per
     channel, over the monomial ``codes`` that occur in the view (its system's codes).
 
-    ``gamma``: Γ, the estimate from all samples (eq. 8). ``delta``: D = (A - B)/2, half the
-    difference of the two independent half-sample estimates (same sparsity as Γ), None when the
-    pass had no halves (``gram=plain`` or spp < 2). ``split``: the fraction of each pixel's
-    samples in A (1/2 at even spp), so ``A = Γ + 2(1 - split)D`` and ``B = Γ - 2 split D``.
+    ``a``, ``b``: the two independent estimates of the coefficients from the two halves of each
+    pixel's samples (each a full estimate; ``a`` holds the fraction ``split`` of the samples, 1/2
+    at even spp), kept as the pass made them: the cross Gram is ½(AᵀB + BᵀA) and the estimate
+    from all samples (eq. 8) is Γ = split·A + (1 - split)·B (:meth:`apply`). ``b`` is None when
+    the pass had no halves (``gram=plain`` or spp < 2): ``a`` is then Γ.
     """
 
-    gamma: list
-    delta: list | None = None
+    a: list
+    b: list | None = None
     split: float = 0.5
     codes: np.ndarray | None = None
 
     @property
     def n_rows(self) -> int:
-        return self.gamma[0].shape[0]
+        return self.a[0].shape[0]
+
+    def apply(self, c: int, x: np.ndarray) -> np.ndarray:
+        """``Γ_c x`` for channel ``c`` (x over this block's ``codes``), without forming Γ."""
+        if self.b is None:
+            return self.a[c] @ x
+        return self.split * (self.a[c] @ x) + (1.0 - self.split) * (self.b[c] @ x)
 
     def blocks(self):
         """``(first row, ViewCoefficients)`` of each row block: itself, from row 0."""
@@ -125,12 +132,12 @@ class PassResult:
 
 def predicted(coeffs, mu: np.ndarray, codes: np.ndarray) -> np.ndarray:
     """``(n, C)`` pixel values of a view's coefficients (:class:`ViewCoefficients` or
-    :class:`TiledCoefficients`, ``gamma`` over each block's ``codes``) at monomials ``mu``
+    :class:`TiledCoefficients`, Γ over each block's ``codes``) at monomials ``mu``
     (C, N) over the sorted ``codes``, a superset of the view's."""
     out = []
     for _, block in coeffs.blocks():
         at = np.searchsorted(codes, block.codes)
-        out.append(np.stack([block.gamma[c] @ mu[c][at] for c in range(len(block.gamma))], axis=1))
+        out.append(np.stack([block.apply(c, mu[c][at]) for c in range(len(block.a))], axis=1))
     return np.concatenate(out)
 
 
@@ -337,9 +344,8 @@ def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True, store=
 
     ``cross``: the samples of each pixel are split into two independent halves
     (:meth:`PolynomialPathIntegrator.coefficients_halves`, one render) whose cross product makes
-    G free of Monte Carlo noise (:func:`~methods.symbolic.gram.weighted_system`); the kept
-    coefficients are the mean of all samples, and beside them the halves' half difference
-    (A - B)/2, from which the halves are rebuilt. ``store(k, block)``: called with each tile's
+    G free of Monte Carlo noise (:func:`~methods.symbolic.gram.weighted_system`); both halves
+    are kept (:class:`ViewCoefficients`). ``store(k, block)``: called with each tile's
     :class:`ViewCoefficients`, which is then not kept: the result holds what it returns (a
     :class:`TileLoader`) instead.
     """
@@ -355,9 +361,8 @@ def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True, store=
         stop = min(n_pix, start + integrator.tile_pixels)
         tile = dict(spp=spp, seed=seed, pixel_range=(start, stop))
         if halves:
-            codes, a, b, gamma = integrator.coefficients_halves(ms.scene, i, **tile)
-            block = ViewCoefficients(gamma, [(a[c] - b[c]) * 0.5 for c in range(C)], split, codes)
-            del a, b
+            codes, a, b, _ = integrator.coefficients_halves(ms.scene, i, **tile)
+            block = ViewCoefficients(a, b, split, codes)
         else:
             codes, gamma = integrator.coefficients_sparse(ms.scene, i, **tile)
             block = ViewCoefficients(gamma, None, split, codes)
@@ -443,7 +448,7 @@ def _key(problem, cam, parameters, guesses, spp, seed, prob_floor, max_bounces, 
             "guesses": np.round(np.asarray(guesses, float), 9).tolist(), "prob_floor": float(prob_floor),
             "observed": _digest(problem.observed[cam.name]),
             "variant": problem.settings.variant, "cross_gram": bool(cross_gram),
-            "tail_bounces": int(tail_bounces), "version": 6}
+            "tail_bounces": int(tail_bounces), "version": 7}
 
 
 def _pixels(problem, cam) -> np.ndarray:
@@ -460,7 +465,7 @@ def _pack(coeffs: ViewCoefficients) -> dict[str, np.ndarray]:
     """The cache entry of a tile: its coefficients (its Gram system is rebuilt from them and the
     observed pixels, :func:`~methods.symbolic.gram.weighted_system`: a third of the bytes)."""
     out = {"codes": coeffs.codes, "split": np.array(coeffs.split)}
-    for prefix, mats in (("c", coeffs.gamma), ("d", coeffs.delta or [])):
+    for prefix, mats in (("a", coeffs.a), ("b", coeffs.b or [])):
         for c, m in enumerate(mats):
             out.update({f"{prefix}{c}_data": m.data, f"{prefix}{c}_indices": m.indices,
                         f"{prefix}{c}_indptr": m.indptr, f"{prefix}{c}_shape": np.array(m.shape)})
@@ -489,5 +494,5 @@ def _unpack(arrays: dict, C: int) -> ViewCoefficients:
                                arrays[f"{prefix}{c}_indptr"]), shape=tuple(arrays[f"{prefix}{c}_shape"]))
                 for c in range(C)]
     codes = np.asarray(arrays["codes"], np.int64)
-    delta = mats("d") if "d0_data" in arrays else None
-    return ViewCoefficients(mats("c"), delta, float(arrays["split"]), codes)
+    b = mats("b") if "b0_data" in arrays else None
+    return ViewCoefficients(mats("a"), b, float(arrays["split"]), codes)

@@ -18,8 +18,8 @@ Standard errors: sandwich (default, ``method.std=sandwich``)
     so ``ρ̂ - ρ ≈ -H_c⁻¹ g(ρ)`` and ``Cov_c ≈ H_c⁻¹ M_c H_c⁻¹`` with ``M_c = Cov(g)`` estimated
     by ``Σ_p (s_p - s̄)(s_p - s̄)ᵀ`` (:func:`score_meat`; Huber/White). With the cross Gram,
     ``s_p = Jᵀ[a_p(b_pᵀμ̂ - y_p) + b_p(a_pᵀμ̂ - y_p)]`` from the two independent half-sample
-    coefficient estimates ``a_p, b_p``, which the pass keeps as ``Γ = (a + b)/2`` and
-    ``D = (a - b)/2``: at even spp ``s_p = 2Jᵀ(γ_p r_p - d_p d_pᵀμ̂)`` with ``r_p = γ_pᵀμ̂ - y_p``.
+    coefficient estimates ``a_p, b_p``, which the pass keeps (with ``γ_p = (a_p + b_p)/2`` and
+    ``d_p = (a_p - b_p)/2`` at even spp: ``s_p = 2Jᵀ(γ_p r_p - d_p d_pᵀμ̂)``, ``r_p = γ_pᵀμ̂ - y_p``).
     ``M`` thus holds the image noise, the coefficients' Monte Carlo noise (to first order through
     ``r_p``, whose variance is ``σ²_img + Var_MC(γ_pᵀμ̂)``, and to second order through the
     products of the halves' noises, which dominate along the ill-posed directions where
@@ -177,9 +177,9 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
 
     ``s_p`` is pixel ``p``'s term of the gradient of the (cross-Gram) cost at ``rho``:
     ``s_p = Jᵀ[a_p (b_pᵀμ - y_p) + b_p (a_pᵀμ - y_p)]`` with the half-sample coefficients
-    ``a_p = γ_p + 2(1 - w) d_p`` and ``b_p = γ_p - 2w d_p`` (``d_p`` = (a_p - b_p)/2, ``w`` the
-    fraction of samples in ``a``); at even spp ``s_p = 2Jᵀ(γ_p r_p - d_p d_pᵀμ)``, ``r_p = γ_pᵀμ - y_p``.
-    Without halves (``delta`` None) ``s_p = 2Jᵀγ_p r_p``. ``s̄`` is their mean (0 at an interior
+    ``a_p``, ``b_p`` (at even spp, with ``γ_p = (a_p + b_p)/2``, ``d_p = (a_p - b_p)/2`` and
+    ``r_p = γ_pᵀμ - y_p``: ``s_p = 2Jᵀ(γ_p r_p - d_p d_pᵀμ)``). Without halves (``b`` None)
+    ``s_p = 2Jᵀa_p r_p``. ``s̄`` is their mean (0 at an interior
     minimum of the unprojected cost).
 
     Parameters
@@ -191,8 +191,8 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
     views : iterable
         ``(coefficients, y[, weights])`` per view (``weights``: ``(n,)`` pixel weights of the
         cost, or None for all 1): the coefficients as row blocks (``n_rows`` and ``blocks()``
-        giving ``(first row, block)``, a block with ``gamma``, ``delta`` (lists of ``C`` sparse
-        matrices, ``delta`` possibly None), ``split`` and ``codes`` (the monomial codes of the
+        giving ``(first row, block)``, a block with ``a``, ``b`` (lists of ``C`` sparse
+        matrices, ``b`` possibly None), ``split`` and ``codes`` (the monomial codes of the
         matrices' columns, a subset of ``codes``):
         :class:`~methods.symbolic.polynomial_pass.TiledCoefficients` or ``ViewCoefficients``),
         and the ``(n, C)`` observed pixels.
@@ -228,21 +228,20 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
 
 def _add_scores(outer, total, coeffs, y, w_pix, mu, J, codes) -> None:
     """One block's pixels added to :func:`score_meat`'s ``outer`` (Σ s sᵀ) and ``total`` (Σ s)."""
-    C = len(coeffs.gamma)
+    C = len(coeffs.a)
     at = np.searchsorted(codes, coeffs.codes)                # the block's columns in ``codes``
     for c in range(C):
         mu_v, J_v = mu[c, at], J[c][at]
-        gamma = coeffs.gamma[c]
         # sparse scores: a pixel's paths touch a few of the D parameters, so sᵀs costs
         # Σ_p nnz(s_p)² instead of pixels × D² (dense)
-        r, gJ = gamma @ mu_v - y[:, c], (gamma @ J_v).tocsr()
-        if coeffs.delta is None:
-            s = sp.diags(2.0 * r) @ gJ
+        A = coeffs.a[c]
+        ra, aJ = A @ mu_v - y[:, c], (A @ J_v).tocsr()
+        if coeffs.b is None:
+            s = sp.diags(2.0 * ra) @ aJ
         else:
-            w = float(coeffs.split)
-            d, dJ = coeffs.delta[c] @ mu_v, (coeffs.delta[c] @ J_v).tocsr()
-            s = (sp.diags(r - 2 * w * d) @ (gJ + 2 * (1 - w) * dJ)
-                 + sp.diags(r + 2 * (1 - w) * d) @ (gJ - 2 * w * dJ))
+            B = coeffs.b[c]
+            rb, bJ = B @ mu_v - y[:, c], (B @ J_v).tocsr()
+            s = sp.diags(rb) @ aJ + sp.diags(ra) @ bJ
         if w_pix is not None:            # the weighted cost's term: w_p times the unweighted one
             s = sp.diags(np.asarray(w_pix, dtype=np.float64)) @ s
         outer[c] += (s.T @ s).toarray()
