@@ -2,9 +2,10 @@
 
 The pass renders every view once with :class:`PolynomialPathIntegrator`, tile by tile (the
 tile chosen from ``memory_mb``), keeping each pixel's coefficients as sparse matrices over the
-monomials that occur (2-6 % non-zero), with the half difference of the two independent
-half-sample estimates beside them (same pattern): the per-pixel Monte Carlo noise the sandwich
-standard errors need (:class:`ViewCoefficients`). From them each view's Gram system (G, b, yy)
+monomials that occur (2-6 % non-zero), as the two independent estimates from the two halves of
+its samples: their cross product is the unbiased Gram matrix, their mean the coefficients, their
+difference the per-pixel Monte Carlo noise the sandwich standard errors need
+(:class:`ViewCoefficients`). From them each view's Gram system (G, b, yy)
 of the cost (paper eq. 6, p = 2) is formed (:func:`~methods.symbolic.gram.weighted_system`) and
 added to the sum over views, which is consumed as it goes: memory holds the sum, one view, and
 its sparse coefficients, never pixels × monomials densely.
