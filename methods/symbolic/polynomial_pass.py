@@ -300,7 +300,7 @@ def render_view_task(task: dict, *, variant: str, threads: int | None = None
 
     Selects ``variant``, caps Dr.Jit at ``threads`` threads, builds (or reuses) the Mitsuba
     scene and the polynomial integrator, and returns the view's Gram system and coefficients
-    (their blocks None when the task's cache holds them).
+    (their blocks :class:`TileLoader` s when the task stores them in its cache folder).
     """
     init_worker(variant, threads)
     ms, integrator = _scene_and_integrator(task, variant)
