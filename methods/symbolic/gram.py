@@ -240,9 +240,10 @@ def weighted_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSy
     """The Gram system of one view from its coefficients, pixel ``p`` weighted by ``w_p``.
 
     With the two half-sample estimates ``a`` and ``b``, the cross Gram ½(AᵀWB + BᵀWA)
-    (:meth:`GramSystem.accumulate_sparse`, rows scaled by √w); without ``b``, ΓᵀWΓ. With ``weights`` None this is the pass's own system
+    (:meth:`GramSystem.accumulate_sparse`, rows scaled by √w); without ``b``, ΓᵀWΓ. With
+    ``weights`` None this is the pass's own system
     (:func:`~methods.symbolic.polynomial_pass.polynomial_pass` builds it so). One row block of
-    the coefficients at a time (their ``blocks()``: a tiled view's are loaded one by one).
+    the coefficients at a time (:func:`row_blocks`: a tiled view's are loaded one by one).
 
     Parameters
     ----------
@@ -252,17 +253,25 @@ def weighted_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSy
     weights : numpy.ndarray or None
         ``(n,)`` weights >= 0 (None: all 1).
     """
-    y = np.asarray(y, dtype=np.float64).reshape(coeffs.n_rows, -1)
-    w = None if weights is None else np.asarray(weights, dtype=np.float64).reshape(coeffs.n_rows)
     total = None
-    for start, block in coeffs.blocks():
-        rows = slice(start, start + block.n_rows)
-        part = _block_system(block, y[rows], None if w is None else w[rows])
+    for block, y_rows, w_rows in row_blocks(coeffs, y, weights):
+        part = _block_system(block, y_rows, w_rows)
         if total is None:
             total = part
         else:
             total += part
     return total
+
+
+def row_blocks(coeffs, y: np.ndarray, weights: np.ndarray | None = None):
+    """``(block, y rows, weight rows or None)`` of each row block of a view's coefficients
+    (their ``blocks()``; a tiled view's blocks are loaded one at a time), with the block's rows
+    of the ``(n, C)`` observed pixels ``y`` and of the ``(n,)`` pixel ``weights``."""
+    y = np.asarray(y, dtype=np.float64).reshape(coeffs.n_rows, -1)
+    w = None if weights is None else np.asarray(weights, dtype=np.float64).reshape(coeffs.n_rows)
+    for start, block in coeffs.blocks():
+        rows = slice(start, start + block.n_rows)
+        yield block, y[rows], None if w is None else w[rows]
 
 
 def _block_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSystem:

@@ -62,7 +62,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from methods.symbolic.basis import MonomialBasis
-from methods.symbolic.gram import GramSystem, principal
+from methods.symbolic.gram import GramSystem, principal, row_blocks
 from methods.symbolic.solve import hessian
 
 #: relative tolerance of the observability test on diag(G)
@@ -216,12 +216,9 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
         J.append(sp.csr_matrix((Jc.data, (columns[Jc.row], Jc.col)), shape=(len(codes), D)))
     outer, total, n = np.zeros((C, D, D)), np.zeros((C, D)), 0
     for view, y_view, *weights in views:
-        y_view = np.asarray(y_view, dtype=np.float64).reshape(view.n_rows, C)
-        w_view = weights[0] if weights and weights[0] is not None else None
-        n += len(y_view)
-        for start, coeffs in view.blocks():          # a tiled view: one block in memory at a time
-            rows = slice(start, start + coeffs.n_rows)
-            y, w_pix = y_view[rows], None if w_view is None else np.asarray(w_view).reshape(-1)[rows]
+        n += view.n_rows
+        # a tiled view: one block in memory at a time
+        for coeffs, y, w_pix in row_blocks(view, y_view, weights[0] if weights else None):
             _add_scores(outer, total, coeffs, y, w_pix, mu, J, codes)
     return outer - np.einsum("ci,cj->cij", total, total) / max(n, 1)
 
@@ -243,7 +240,7 @@ def _add_scores(outer, total, coeffs, y, w_pix, mu, J, codes) -> None:
             rb, bJ = B @ mu_v - y[:, c], (B @ J_v).tocsr()
             s = sp.diags(rb) @ aJ + sp.diags(ra) @ bJ
         if w_pix is not None:            # the weighted cost's term: w_p times the unweighted one
-            s = sp.diags(np.asarray(w_pix, dtype=np.float64)) @ s
+            s = sp.diags(w_pix) @ s
         outer[c] += (s.T @ s).toarray()
         total[c] += np.asarray(s.sum(axis=0)).ravel()
 
