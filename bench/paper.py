@@ -25,7 +25,7 @@ TARGET = {"diffuse": 0.02, "specular": 0.03}   # multi-view target on |error|
 
 #: the paper's algorithm is the ``symbolic_paper`` preset (one truncated pass); the default
 #: ``symbolic`` (tail and refinement) is the last row
-RUNS = [("lambertian_prior", ["method=lambertian_prior", "method.tail_bounces=0", "method.refine=0"], 1),
+RUNS = [("lambertian_prior", ["method=lambertian_prior", "method.tail_bounces=0", "method.refine=0", "method.cost=joint"], 1),
         ("symbolic", ["method=symbolic_paper"], 1), ("symbolic", ["method=symbolic_paper"], 0),
         ("symbolic (default: tail 4, refine)", ["method=symbolic"], 0)]
 

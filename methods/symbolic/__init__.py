@@ -13,6 +13,7 @@ import numpy as np
 
 from framework.cache import Cache
 from framework.config import method_defaults
+from framework.errors import ConfigError
 from framework.executor import make_executor
 from framework.memory import release_freed_memory
 from framework.registry import Method, MethodResult, register
@@ -20,6 +21,7 @@ from framework.relight import relight_outputs
 from methods._common import Trace, check_choice, check_number, initial_guess, segment_groups
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.field import ROBUST_LOSSES, FieldOptions, fit_field
+from methods.symbolic.per_segment import fit_per_segment
 from methods.symbolic.polynomial_pass import polynomial_pass
 from methods.symbolic.solve import check_solve_memory, solve_polynomial
 from methods.symbolic.uncertainty import (
@@ -179,6 +181,11 @@ class SymbolicMethod(Method):
             check_number(self.cfg, "tail_bounces", 0, 16, integer=True)
         if "std" in self.cfg:
             check_choice(self.cfg, "std", ("sandwich", "residual"))
+        if "cost" in self.cfg:
+            check_choice(self.cfg, "cost", ("joint", "per_segment"))
+            if self.cfg.cost == "per_segment" and self.cfg.get("std", "sandwich") == "residual":
+                raise ConfigError("method.std=residual is the joint cost's formula: with method.cost=per_segment "
+                                  "use method.std=sandwich, or method.cost=joint")
         check_choice(solver, "algorithm", ("SQP", "LD_SLSQP", "LD_MMA", "LD_CCSAQ"), section=section)
         for key, choices in (("exposure", ("scene", "known")), ("weights", ("scene", "none")),
                              ("robust", ("auto",) + ROBUST_LOSSES)):
@@ -240,6 +247,9 @@ class SymbolicMethod(Method):
                   "ill_determined": ill_determined(fit["std"], fit["observable"]).tolist(),
                   "executor": str(settings.executor.get("name", "serial")),
                   "solve_stages_s": stages, "refine_moves": moves, "refine_stopped": stopped}
+        extras["cost"] = str(self.cfg.get("cost", "joint"))
+        if "per_segment" in fit:
+            extras["per_segment"] = fit["per_segment"]
         if field.active:
             extras["field"] = field.describe(fit)
         if fit.get("exposure") is not None:
@@ -294,7 +304,8 @@ class SymbolicMethod(Method):
         nnz = result.system.nnz
         # handed over, not held here: the solve releases it once restricted
         fit = self._solve(result.take_system(), basis, params, x0, problem, views=views)
-        estimate = np.nan_to_num(fit["estimate"])          # unobservable: monomials 0
+        # unobservable: monomials 0; held by the per-segment fit: its guess
+        estimate = fit.get("at", np.nan_to_num(fit["estimate"]))
         fit.update(n_monomials=basis.size, gram_nnz=nnz,
                    images=lambda: _images(result, basis, estimate, problem.cameras))
         return fit
@@ -315,6 +326,10 @@ class SymbolicMethod(Method):
         """
         method = str(self.cfg.get("std", "sandwich")) if views is not None else "residual"
         P, C = len(params), problem.n_channels
+        groups = segment_groups(params) if groups is None else groups
+        if self.cfg.get("cost", "joint") == "per_segment":
+            return fit_per_segment(system, basis, params, x0, problem, views=views, groups=groups,
+                                   xtol=float(self.cfg.solver.xtol_rel), psd=bool(self.cfg.get("psd", True)))
         observable = observable_parameters(system, basis)
         estimate, std = np.full((P, C), np.nan), np.full((P, C), np.nan)
         if not observable.any():
@@ -330,7 +345,6 @@ class SymbolicMethod(Method):
         t_psd = time.perf_counter() - t_psd
         kept = np.flatnonzero(observable)
         position = {int(j): k for k, j in enumerate(kept)}
-        groups = segment_groups(params) if groups is None else groups
         groups = [[position[j] for j in g if j in position] for g in groups]
         solver = self.cfg.solver
         sol = solve_polynomial(sub_system, sub_basis, segments_params=[g for g in groups if g],

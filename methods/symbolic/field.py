@@ -41,6 +41,8 @@ from methods.symbolic.basis import code_digits, encode_digits
 from methods.symbolic.gram import weighted_system
 from methods.symbolic.polynomial_pass import TiledCoefficients, ViewCoefficients, predicted
 
+#: ``segment_name`` of a view's gain parameter: this prefix, then the view's name
+GAIN_PREFIX = "exposure:"
 #: largest gain representable: h = g / GAIN_MAX lies in the solver's box [0, 1]
 GAIN_MAX = 4.0
 #: 1.4826 · MAD estimates a Gaussian's standard deviation
@@ -277,7 +279,7 @@ def field_views(result, problem, params, x0: np.ndarray, options: FieldOptions
     from methods.symbolic.basis import MonomialBasis
     P, N, C = len(params), problem.settings.max_bounces, problem.n_channels
     gained = [c.name for c in problem.cameras if options.reference is not None and c.name != options.reference]
-    gains = [Parameter(P + j, -1 - j, f"exposure:{name}", "gain") for j, name in enumerate(gained)]
+    gains = [Parameter(P + j, -1 - j, GAIN_PREFIX + name, "gain") for j, name in enumerate(gained)]
     base = MonomialBasis(P, N, result.codes)
     mu0 = np.stack([base.evaluate(x0[:, c]) for c in range(C)])
     views, h0 = [], []
@@ -347,14 +349,15 @@ def _field_outputs(fit, views, used, basis, system, gains, P, C, rounds, stopped
     est, std = fit["estimate"], fit["std"]
     exposure = None
     if gains:
-        names = {p.index: p.segment_name.removeprefix("exposure:") for p in gains}
+        names = {p.index: p.segment_name.removeprefix(GAIN_PREFIX) for p in gains}
         exposure = [{"view": v.name, "reference": v.gain is None,
                      "estimate": [1.0] * C if v.gain is None else per_channel(GAIN_MAX * est[v.gain]),
                      "std": None if v.gain is None else per_channel(GAIN_MAX * std[v.gain])}
                     for v in views if v.gain is None or v.gain in names]
-    mu = np.stack([basis.evaluate(np.nan_to_num(est[:, c])) for c in range(C)])
+    at = fit.get("at", np.nan_to_num(est))        # the per-segment fit holds unseen blocks at their guess
+    mu = np.stack([basis.evaluate(at[:, c]) for c in range(C)])
     out = dict(fit)
-    out.update(estimate=est[:P], std=std[:P], observable=fit["observable"][:P], exposure=exposure,
+    out.update(estimate=est[:P], at=at[:P], std=std[:P], observable=fit["observable"][:P], exposure=exposure,
                iterates=[(at, x[:P]) for at, x in iterates], irls_rounds=rounds, irls_stopped=stopped,
                n_monomials=basis.size, gram_nnz=system.nnz, robust_weights={v.name: v.robust_w for v in views},
                pixel_weights={v.name: (np.ones(len(v.y)) if w is None else w).reshape(v.shape).astype(np.float32)

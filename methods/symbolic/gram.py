@@ -10,6 +10,7 @@ on the pixel count. G lives over the monomials that occur only, as one sparse ma
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass
 
@@ -261,6 +262,43 @@ def weighted_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSy
         else:
             total += part
     return total
+
+
+def owned_systems(coeffs, y: np.ndarray, weights: np.ndarray | None, owned: np.ndarray) -> list[GramSystem]:
+    """One Gram system per column of ``owned``: :func:`weighted_system` of the pixels that
+    column owns, every system from the same single pass over the view's row blocks.
+
+    Parameters
+    ----------
+    coeffs : ViewCoefficients or TiledCoefficients
+    y : numpy.ndarray
+        ``(n, C)`` observed pixels.
+    weights : numpy.ndarray or None
+        ``(n,)`` pixel weights >= 0 (None: all 1).
+    owned : numpy.ndarray
+        ``(n, K)`` bool: pixel ``p`` enters system ``k`` when ``owned[p, k]``.
+
+    Returns
+    -------
+    list
+        ``K`` GramSystem, None where no pixel is owned.
+    """
+    owned = np.asarray(owned, bool).reshape(coeffs.n_rows, -1)
+    systems: list = [None] * owned.shape[1]
+    start = 0
+    for block, y_rows, w_rows in row_blocks(coeffs, y, weights):
+        rows = owned[start:start + block.n_rows]
+        start += block.n_rows
+        for k in np.flatnonzero(rows.any(axis=0)):
+            idx = np.flatnonzero(rows[:, k])          # the owned rows only: K systems cost one
+            part = _block_system(dataclasses.replace(block, a=[m[idx] for m in block.a],
+                                                     b=None if block.b is None else [m[idx] for m in block.b]),
+                                 y_rows[idx], None if w_rows is None else w_rows[idx])
+            if systems[k] is None:
+                systems[k] = part
+            else:
+                systems[k] += part
+    return systems
 
 
 def row_blocks(coeffs, y: np.ndarray, weights: np.ndarray | None = None):

@@ -171,8 +171,8 @@ def restrict_system(system: GramSystem, basis: MonomialBasis, keep: np.ndarray
     return GramSystem(G, system.b[:, idx].copy(), system.yy.copy(), system.n_pixels, sub.codes), sub, idx
 
 
-def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray, codes: np.ndarray
-               ) -> np.ndarray:
+def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray, codes: np.ndarray, *,
+               owned: list | None = None) -> np.ndarray:
     """``(C, D, D)`` sandwich meat ``M_c = Σ_p (s_p - s̄)(s_p - s̄)ᵀ`` over every pixel of every view.
 
     ``s_p`` is pixel ``p``'s term of the gradient of the (cross-Gram) cost at ``rho``:
@@ -201,6 +201,10 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
         columns are weighted 0.
     codes : numpy.ndarray
         Sorted codes of the system the views were summed into.
+    owned : list, optional
+        Per view a ``(n, D)`` sparse 0/1 matrix: each pixel's score kept on the parameters that
+        own the pixel only (the per-segment fit's estimating equations,
+        :mod:`methods.symbolic.per_segment`); None keeps every parameter (the joint cost).
 
     Returns
     -------
@@ -215,15 +219,18 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
         Jc = basis.jacobian_sparse(rho[:, c]).tocoo()
         J.append(sp.csr_matrix((Jc.data, (columns[Jc.row], Jc.col)), shape=(len(codes), D)))
     outer, total, n = np.zeros((C, D, D)), np.zeros((C, D)), 0
-    for view, y_view, *weights in views:
+    for v, (view, y_view, *weights) in enumerate(views):
         n += view.n_rows
+        start = 0
         # a tiled view: one block in memory at a time
         for coeffs, y, w_pix in row_blocks(view, y_view, weights[0] if weights else None):
-            _add_scores(outer, total, coeffs, y, w_pix, mu, J, codes)
+            own = None if owned is None else owned[v][start:start + coeffs.n_rows]
+            start += coeffs.n_rows
+            _add_scores(outer, total, coeffs, y, w_pix, mu, J, codes, own)
     return outer - np.einsum("ci,cj->cij", total, total) / max(n, 1)
 
 
-def _add_scores(outer, total, coeffs, y, w_pix, mu, J, codes) -> None:
+def _add_scores(outer, total, coeffs, y, w_pix, mu, J, codes, own=None) -> None:
     """One block's pixels added to :func:`score_meat`'s ``outer`` (Σ s sᵀ) and ``total`` (Σ s)."""
     C = len(coeffs.a)
     at = np.searchsorted(codes, coeffs.codes)                # the block's columns in ``codes``
@@ -241,6 +248,8 @@ def _add_scores(outer, total, coeffs, y, w_pix, mu, J, codes) -> None:
             s = sp.diags(rb) @ aJ + sp.diags(ra) @ bJ
         if w_pix is not None:            # the weighted cost's term: w_p times the unweighted one
             s = sp.diags(w_pix) @ s
+        if own is not None:              # estimating equations: a pixel scores its owners only
+            s = s.multiply(own).tocsr()
         outer[c] += (s.T @ s).toarray()
         total[c] += np.asarray(s.sum(axis=0)).ravel()
 
@@ -286,6 +295,41 @@ def parameter_uncertainty(system: GramSystem, basis: MonomialBasis, rho: np.ndar
         std[:, c] = np.where(null_load > null_tol, np.nan, s)
     corr = _correlation(cov, std)
     return Uncertainty(std=std, covariance=cov, correlation=corr, sigma2=sigma2, dropped=dropped)
+
+
+def estimating_uncertainty(bread: np.ndarray, meat: np.ndarray, sigma2: np.ndarray, *, rcond: float = RCOND,
+                           null_tol: float = NULL_TOL) -> Uncertainty:
+    """Standard errors of estimating equations ``U(ρ̂) = 0``: ``sqrt(diag(J_c⁺ M_c J_c⁺ᵀ))``.
+
+    Parameters
+    ----------
+    bread : numpy.ndarray
+        ``(C, D, D)`` Jacobian ``J_c = ∂U/∂ρ`` at the estimate (not symmetric in general).
+    meat : numpy.ndarray
+        ``(C, D, D)`` covariance of ``U`` (:func:`score_meat` with ``owned``).
+    sigma2 : numpy.ndarray
+        ``(C,)`` residual variance, reported as is.
+    rcond, null_tol : float
+        As in :func:`parameter_uncertainty`: singular values ``<= rcond · σ_max`` are dropped,
+        and a parameter loading more than ``null_tol`` on their right singular vectors gets a
+        NaN std.
+
+    Returns
+    -------
+    Uncertainty
+    """
+    C, D = bread.shape[0], bread.shape[1]
+    cov, std, dropped = np.empty((C, D, D)), np.empty((D, C)), np.zeros(C, dtype=int)
+    for c in range(C):
+        U, w, Vt = np.linalg.svd(bread[c])
+        good = w > rcond * w.max() if w.size and w.max() > 0 else np.zeros_like(w, dtype=bool)
+        Jinv = (Vt[good].T / w[good]) @ U[:, good].T
+        cov[c] = Jinv @ meat[c] @ Jinv.T
+        null_load = (Vt[~good] ** 2).sum(axis=0)
+        dropped[c] = int((~good).sum())
+        std[:, c] = np.where(null_load > null_tol, np.nan, np.sqrt(np.maximum(np.diag(cov[c]), 0.0)))
+    return Uncertainty(std=std, covariance=cov, correlation=_correlation(cov, std),
+                       sigma2=np.asarray(sigma2, dtype=float), dropped=dropped)
 
 
 def _pseudo_inverse(H: np.ndarray, rcond: float) -> tuple[np.ndarray, np.ndarray, int]:
