@@ -29,7 +29,7 @@ expectation is the squared misfit of the expected image, render noise removed.
 
 ``--quick``: the views and photographs box-downsampled 200 -> 40 pixels (cameras rescaled with
 :func:`scenes.cameras.resized`; a 5x5 box average of a box-filtered render is the render of the
-coarser pixel), the sizes' ``cmp_spp`` and ``extra`` overrides. ``python -m bench.glossy
+coarser pixel), the sizes' ``glossy_spp`` and ``extra`` overrides. ``python -m bench.glossy
 [--quick] [--out FILE]`` runs this section alone.
 """
 from __future__ import annotations
@@ -120,7 +120,7 @@ def _slug(text: str) -> str:
 def fit(sizes, folder: Path, run_dir: Path, overrides: list[str]) -> dict:
     """One symbolic run on ``folder`` (all views); its results dict."""
     cfg = compose(["method=symbolic", f"scene={SCENE}", f"scene.dir={folder}", "views=all",
-                   f"render.spp={sizes.cmp_spp}", "report=false", "cache.dir=null", *sizes.extra, *overrides])
+                   f"render.spp={sizes.glossy_spp}", "report=false", "cache.dir=null", *sizes.extra, *overrides])
     return run_experiment(cfg, run_dir)
 
 
@@ -167,10 +167,11 @@ def row(label: str, model: int, alpha: float, res: dict, n: int, residual: float
     pass_mse = res["image_rmse"] ** 2 if res.get("image_rmse") is not None else None
     k = len(params) * len(res["channels"])
     window = {canonical(p["kernel"]): p.get("estimate") for p in params if p["segment"] == "window"}
+    window_std = {canonical(p["kernel"]): p.get("std") for p in params if p["segment"] == "window"}
     return {"label": label, "model": model, "alpha": alpha, "P": len(params), "k": k, "n": n, "mse": residual,
             "pass_mse": pass_mse, "bic": bic(residual, n, k), "diffuse_worst": max(diffuse) if diffuse else None,
             "diffuse_median": statistics.median(diffuse) if diffuse else None,
-            "window": window, "wall_s": wall_s, "renders": res["renders"], "error": None}
+            "window": window, "window_std": window_std, "wall_s": wall_s, "renders": res["renders"], "error": None}
 
 
 def bic(mse: float | None, n: int | None, k: int) -> float | None:
@@ -218,7 +219,7 @@ def run(sizes, work: Path, log=print) -> dict:
         sweep = [run_case(sizes, variants / "sweep", work / "runs" / "sweep", label, m, a, image, ["method.refine=0"],
                           log)
                  for m, (label, _) in enumerate(MODELS) if m > 0 for a in WINDOW_ALPHAS]
-    out = {"models": models, "sweep": sweep, "image": image or ucg.IMAGE, "spp": sizes.cmp_spp,
+    out = {"models": models, "sweep": sweep, "image": image or ucg.IMAGE, "spp": sizes.glossy_spp,
            "validation_spp": validation_spp(sizes),
            "extra": list(sizes.extra), "wall_s": time.perf_counter() - t0}
     (work / "glossy.json").write_text(json.dumps(out, indent=2))
@@ -265,12 +266,14 @@ def markdown(out: dict) -> list[str]:
             body.append([r["label"], "failed", "", "", "", "", "", "", r["error"][:80]])
             continue
         w = r["window"]
-        spec, gl = w.get("specular"), w.get(canonical(ucg.glossy_name(ucg.WINDOW_ALPHA)))
+        s = r.get("window_std") or {}
+        kernels = ("diffuse", "specular", canonical(ucg.glossy_name(ucg.WINDOW_ALPHA)))
+        cells = [_mean(w.get(k)) + (f" ± {_mean(s.get(k))}" if w.get(k) and s.get(k) else "") for k in kernels]
         body.append([r["label"], r["P"], _f(r["diffuse_worst"]), _f(r["diffuse_median"]), _f(r["mse"], ".4e"),
-                     _f(r["pass_mse"], ".4e"), _f(r["bic"], ".0f"), f"{_mean(spec)} / {_mean(gl)}",
-                     _f(r["wall_s"], ".1f")])
+                     _f(r["pass_mse"], ".4e"), _f(r["bic"], ".0f"), " / ".join(cells), _f(r["wall_s"], ".1f")])
     lines += _table(["model (window, wall)", "P", "diffuse worst", "diffuse median", "residual", "pass residual",
-                     "criterion", "window ρ_s / ρ_g (mean of channels; truth 0 / 0.72)", "fit (s)"], body)
+                     "criterion", "window ρ_d / ρ_s / ρ_g ± std (mean of channels; truth 0.18 / 0 / 0.72)",
+                     "fit (s)"], body)
     best = preferred(models)
     if best:
         others = [r for r in _ok(models) if r is not best]

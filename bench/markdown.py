@@ -372,7 +372,9 @@ def section_defaults(rows: list[dict]) -> list[str]:
              "`python -m framework.run` with shipped options on urban_canyon (render.spp 64, observe.spp 512): "
              "`method=symbolic` traces 4 reflections beyond N_max and repeats the pass at the estimate until "
              "no weight moves more than 0.005 (at most 3 more passes); `method=symbolic_paper` is the paper's "
-             "single truncated pass. Targets: all views within 0.02 diffuse / 0.03 specular; Lambertian "
+             "single truncated pass; `method=lambertian_prior` fits each segment's albedo to the pixels that see "
+             "it (`cost: per_segment`), the rows with `method.cost=joint` fit the paper's one cost over every pixel "
+             "(eq. 6). Targets: all views within 0.02 diffuse / 0.03 specular; Lambertian "
              "default view: balcony, asphalt, awning within 0.01; default view: every |error| <= 3 std + 0.005.", ""]
     body = [[r["label"], r["target"], yes(r["met"]), r["detail"], r.get("renders"), r.get("stopped") or "",
              f(r["wall_s"], 1), f(r["maxrss_mib"], 0)] for r in rows]

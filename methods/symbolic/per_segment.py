@@ -212,8 +212,10 @@ def fit_per_segment(system, basis: MonomialBasis, params, x0: np.ndarray, proble
     owned = ownership(problem, params)
     # over the basis's monomials, as ChannelCost reads them
     systems = [None if s is None else s.reindexed(basis.codes) for s in block_systems(views(), owned, blocks)]
+    t_psd = time.perf_counter()
     if psd:
         systems = [None if s is None else s.psd() for s in systems]
+    t_psd = time.perf_counter() - t_psd
     free = np.zeros(D, bool)
     for block, s in zip(blocks, systems):
         if s is not None:
@@ -234,7 +236,7 @@ def fit_per_segment(system, basis: MonomialBasis, params, x0: np.ndarray, proble
     return {"estimate": estimate, "std": std, "observable": free, "solve": sol, "at": at,
             "iterates": [(t, np.where(free[:, None], x, np.nan)) for t, x in sol.iterates],
             "correlation": correlation_extra(params, free, unc), "sigma2": [float(v) for v in sigma2],
-            "std_method": "sandwich", "stages_s": {"blocks": sol.solve_s, "uncertainty": time.perf_counter() - t_unc},
+            "std_method": "sandwich", "stages_s": {"psd": t_psd, "nlopt": sol.solve_s, "uncertainty": time.perf_counter() - t_unc},
             "psd_skipped": tuple(n for s in systems if s is not None for n in s.psd_skipped),
             "per_segment": {"sweeps": sweeps, "converged": converged, "held_at_guess": held}}
 
