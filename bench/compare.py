@@ -20,11 +20,13 @@ from framework.experiment import run_experiment
 #: (label, method overrides, iterative-type: budget reduced on all views). The comparison is at the
 #: paper's light model: ``symbolic`` is the paper's single truncated pass (``method=symbolic_paper``),
 #: the baselines render max_depth N_max + 1 like it (``render.tail_bounces=0``); the default
-#: symbolic method (tail and refinement) is a row of its own.
+#: symbolic method (tail and refinement) is a row of its own; ``lambertian_prior`` is the paper's
+#: Table 1 fit (one truncated pass, the joint cost of eq. 6).
 PAPER_LIGHT = ["render.tail_bounces=0"]
 METHODS = [
     ("symbolic", ["method=symbolic_paper"], False),
-    ("lambertian_prior", ["method=lambertian_prior", "method.tail_bounces=0", "method.refine=0"], False),
+    ("lambertian_prior", ["method=lambertian_prior", "method.tail_bounces=0", "method.refine=0", "method.cost=joint"],
+     False),
     ("symbolic+init=lambertian_prior", ["method=symbolic_paper", "method.init=lambertian_prior"], False),
     ("iterative (noise fresh)", ["method=iterative", "method.noise=fresh", *PAPER_LIGHT], True),
     ("iterative (noise fixed)", ["method=iterative", "method.noise=fixed", *PAPER_LIGHT], True),
