@@ -94,6 +94,13 @@ class SymbolicMethod(Method):
         Cap on the robust rounds, and the largest move of a weight or gain below which they stop.
     memory_mb : float > 0, default 512
         Memory for the coefficient tiles of the pass; sets the tile size.
+    cost : ``joint`` | ``per_segment``, default ``joint`` (``lambertian_prior``: ``per_segment``)
+        ``joint``: one L2 cost over every pixel (eq. 6). ``per_segment``: each segment's weights
+        fitted to the pixels that see it, the others at their estimates, all together (the
+        estimating equations of :mod:`methods.symbolic.per_segment`): a segment the kernels
+        cannot reproduce keeps its misfit in its own weights instead of moving those of the
+        segments it lights; a segment no pixel sees is held at its guess. ``extras["cost"]``,
+        ``extras["per_segment"]``.
     std : ``sandwich`` | ``residual``, default ``sandwich``
         Standard errors (:mod:`methods.symbolic.uncertainty`). ``sandwich``: ``H⁺MH⁺`` with
         ``M`` the covariance of the cost's gradient from each pixel's own term (image noise and
