@@ -354,10 +354,10 @@ def _field_outputs(fit, views, used, basis, system, gains, P, C, rounds, stopped
                      "estimate": [1.0] * C if v.gain is None else per_channel(GAIN_MAX * est[v.gain]),
                      "std": None if v.gain is None else per_channel(GAIN_MAX * std[v.gain])}
                     for v in views if v.gain is None or v.gain in names]
-    at = fit.get("at", np.nan_to_num(est))        # the per-segment fit holds unseen blocks at their guess
-    mu = np.stack([basis.evaluate(at[:, c]) for c in range(C)])
+    rho = fit.get("at", np.nan_to_num(est))       # the per-segment fit holds unseen blocks at their guess
+    mu = np.stack([basis.evaluate(rho[:, c]) for c in range(C)])
     out = dict(fit)
-    out.update(estimate=est[:P], at=at[:P], std=std[:P], observable=fit["observable"][:P], exposure=exposure,
+    out.update(estimate=est[:P], at=rho[:P], std=std[:P], observable=fit["observable"][:P], exposure=exposure,
                iterates=[(at, x[:P]) for at, x in iterates], irls_rounds=rounds, irls_stopped=stopped,
                n_monomials=basis.size, gram_nnz=system.nnz, robust_weights={v.name: v.robust_w for v in views},
                pixel_weights={v.name: (np.ones(len(v.y)) if w is None else w).reshape(v.shape).astype(np.float32)

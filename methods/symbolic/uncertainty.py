@@ -40,6 +40,14 @@ Standard errors: residual only (``method.std=residual``, Gauss-Newton / Laplace 
     Carlo noise of the coefficients, which the estimate carries in full (RMS z 18 in
     tests/test_std_calibration.py), and is 0 where the cross Gram's cost at ``ρ̂`` is <= 0.
 
+Standard errors of the per-segment fit (``method.cost=per_segment``)
+    Its estimate solves estimating equations ``U(ρ̂) = 0`` that are no cost's gradient
+    (:mod:`methods.symbolic.per_segment`), so the bread is their Jacobian ``J``, not symmetric:
+    ``Cov_c = J_c⁺ M_c J_c⁺ᵀ`` (:func:`estimating_uncertainty`, pseudo-inverse by SVD), with
+    ``M_c`` from each pixel's score restricted to the parameters owning the pixel
+    (:func:`score_meat` with ``owned``). Measured on the tiny diffuse scene, seeds 0-7: RMS z
+    0.84, |z| < 2 for 96 % (tests/test_per_segment.py).
+
 Both formulas
     ``H_c`` is the exact Hessian of the (PSD-projected) cost at ``ρ̂``, symmetrised and
     inverted through its eigen-decomposition: eigenvalues ``<= rcond · λ_max`` (near-singular
