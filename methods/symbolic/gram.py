@@ -256,11 +256,15 @@ def weighted_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSy
     """
     total = None
     for block, y_rows, w_rows in row_blocks(coeffs, y, weights):
-        part = _block_system(block, y_rows, w_rows)
-        if total is None:
-            total = part
-        else:
-            total += part
+        total = summed(total, _block_system(block, y_rows, w_rows))
+    return total
+
+
+def summed(total: GramSystem | None, part: GramSystem) -> GramSystem:
+    """``total += part`` in place (:meth:`GramSystem.__iadd__`), or ``part`` when ``total`` is None."""
+    if total is None:
+        return part
+    total += part
     return total
 
 
@@ -270,11 +274,8 @@ def owned_systems(coeffs, y: np.ndarray, weights: np.ndarray | None, owned: np.n
 
     Parameters
     ----------
-    coeffs : ViewCoefficients or TiledCoefficients
-    y : numpy.ndarray
-        ``(n, C)`` observed pixels.
-    weights : numpy.ndarray or None
-        ``(n,)`` pixel weights >= 0 (None: all 1).
+    coeffs, y, weights
+        As for :func:`weighted_system`.
     owned : numpy.ndarray
         ``(n, K)`` bool: pixel ``p`` enters system ``k`` when ``owned[p, k]``.
 
@@ -291,13 +292,9 @@ def owned_systems(coeffs, y: np.ndarray, weights: np.ndarray | None, owned: np.n
         start += block.n_rows
         for k in np.flatnonzero(rows.any(axis=0)):
             idx = np.flatnonzero(rows[:, k])          # the owned rows only: K systems cost one
-            part = _block_system(dataclasses.replace(block, a=[m[idx] for m in block.a],
-                                                     b=None if block.b is None else [m[idx] for m in block.b]),
-                                 y_rows[idx], None if w_rows is None else w_rows[idx])
-            if systems[k] is None:
-                systems[k] = part
-            else:
-                systems[k] += part
+            rows_k = dataclasses.replace(block, a=[m[idx] for m in block.a],
+                                         b=None if block.b is None else [m[idx] for m in block.b])
+            systems[k] = summed(systems[k], _block_system(rows_k, y_rows[idx], None if w_rows is None else w_rows[idx]))
     return systems
 
 

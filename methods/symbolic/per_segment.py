@@ -47,7 +47,7 @@ from framework.optim import minimize_sqp, project_feasible
 from framework.render.checks import check_memory
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.field import GAIN_PREFIX
-from methods.symbolic.gram import owned_systems
+from methods.symbolic.gram import owned_systems, summed
 from methods.symbolic.solve import ChannelCost, SolveResult
 from methods.symbolic.uncertainty import (correlation_extra, estimating_uncertainty, observable_parameters,
                                           score_meat)
@@ -85,12 +85,8 @@ def block_systems(views, owned: list[sp.csr_matrix], blocks: list[list[int]]) ->
     for (coeffs, y, *weights), own in zip(views, owned):
         mask = np.stack([np.asarray(own[:, b[0]].todense()).ravel() > 0 for b in blocks], axis=1)
         for k, part in enumerate(owned_systems(coeffs, y, weights[0] if weights else None, mask)):
-            if part is None:
-                continue
-            if systems[k] is None:
-                systems[k] = part
-            else:
-                systems[k] += part
+            if part is not None:
+                systems[k] = summed(systems[k], part)
     return systems
 
 
