@@ -200,3 +200,19 @@ def test_per_segment_errors():
             cfg.update(bad)
         with pytest.raises(ConfigError, match=match):
             SymbolicMethod(cfg).check()
+
+
+def test_per_segment_memory_error(problem, monkeypatch):
+    """The block systems' bound beyond the machine's memory: one ConfigError before they are
+    formed, saying how to fix it."""
+    from framework.render import checks
+    from methods.symbolic import per_segment
+
+    def tiny_machine(need, what, fix):          # 1 KiB left once the pass has rendered
+        with monkeypatch.context() as m:
+            m.setattr(checks, "available_memory_bytes", lambda: 1024)
+            checks.check_memory(need, what, fix)
+
+    monkeypatch.setattr(per_segment, "check_memory", tiny_machine)
+    with pytest.raises(ConfigError, match="per-segment fit .* use method.cost=joint"):
+        run_symbolic(problem, cost="per_segment")
