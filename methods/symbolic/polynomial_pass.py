@@ -416,8 +416,8 @@ class _TileWriter:
 
     def __call__(self, k: int, block: ViewCoefficients) -> "TileLoader":
         self._wait()
-        self._pending = self._pool.submit(self.cache.store, "polynomial_tile", _tile_key(self.key, k), _pack(block))
-        return TileLoader(self.cache.dir, _tile_key(self.key, k), self.C)
+        self._pending = self._pool.submit(_store_tile, self.cache, self.key, k, block, self.C)
+        return _tile_loader(self.cache, self.key, k, self.C)
 
     def _wait(self) -> None:
         pending, self._pending = self._pending, None
@@ -434,6 +434,11 @@ class _TileWriter:
 def _store_tile(cache: Cache, key: dict, k: int, block: ViewCoefficients, C: int) -> "TileLoader":
     """Store tile ``k`` of the view ``key``; the loader that reads it back."""
     cache.store("polynomial_tile", _tile_key(key, k), _pack(block))
+    return _tile_loader(cache, key, k, C)
+
+
+def _tile_loader(cache: Cache, key: dict, k: int, C: int) -> "TileLoader":
+    """The loader of tile ``k`` of the view ``key`` (stored or being stored)."""
     return TileLoader(cache.dir, _tile_key(key, k), C)
 
 
