@@ -38,6 +38,7 @@ Standard errors
 """
 from __future__ import annotations
 
+import logging
 import time
 
 import numpy as np
@@ -51,6 +52,8 @@ from methods.symbolic.gram import owned_systems, summed
 from methods.symbolic.solve import ChannelCost, SolveResult
 from methods.symbolic.uncertainty import (correlation_extra, estimating_uncertainty, observable_parameters,
                                           score_meat)
+
+log = logging.getLogger(__name__)
 
 #: sweeps of the block Gauss-Seidel before it is reported not converged
 MAX_SWEEPS = 200
@@ -218,6 +221,9 @@ def fit_per_segment(system, basis: MonomialBasis, params, x0: np.ndarray, proble
             free[block] = observable_parameters(s, basis)[block]
     x0 = np.broadcast_to(np.asarray(x0, float).reshape(D, -1), (D, C))
     sol, sweeps, converged = solve_blocks(systems, basis, blocks, x0, free, groups, xtol=xtol)
+    if not converged:
+        log.warning("per-segment fit: a channel still moved more than %g after %d sweeps (results.json "
+                    "per_segment.converged false); method.cost=joint solves the joint cost exactly", xtol, MAX_SWEEPS)
     at = sol.estimate
     t_unc = time.perf_counter()
     meat = score_meat(basis, at, views(), np.arange(basis.size), basis.codes, owned=owned)
