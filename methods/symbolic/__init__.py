@@ -395,7 +395,7 @@ def _block_executor(cfg):
 def _lambertian_prior(problem) -> MethodResult:
     """``method.init=lambertian_prior``: the symbolic inversion of the diffuse weights with the
     ``lambertian_prior`` method's shipped options but one pass (a start needs no refinement;
-    that method is this class with diffuse kernels)."""
+    that method is this class with diffuse kernels) and the joint cost (:func:`prior_config`)."""
     return SymbolicMethod(prior_config()).run(problem)
 
 
