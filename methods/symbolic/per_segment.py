@@ -86,7 +86,7 @@ def block_systems(views, owned: list[sp.csr_matrix], blocks: list[list[int]]) ->
     view's blocks from one pass over its coefficients (:func:`~methods.symbolic.gram.owned_systems`)."""
     systems: list = [None] * len(blocks)
     for (coeffs, y, *weights), own in zip(views, owned):
-        mask = np.stack([np.asarray(own[:, b[0]].todense()).ravel() > 0 for b in blocks], axis=1)
+        mask = own[:, [b[0] for b in blocks]].toarray() > 0      # a block's kernels own the same pixels
         for k, part in enumerate(owned_systems(coeffs, y, weights[0] if weights else None, mask)):
             if part is not None:
                 systems[k] = summed(systems[k], part)
