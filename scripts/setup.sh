@@ -24,11 +24,15 @@ if [ ! -x .venv/bin/python ]; then
   echo "setup: creating .venv with $($py --version)"
   "$py" -m venv .venv
 fi
-stamp=.venv/.installed-$(sha1sum pyproject.toml | cut -c1-12)
+# Every package at the version requirements.lock pins, hash-checked (scripts/lock.sh refreshes the
+# lock); then the project itself, editable, with no dependency resolution and no build isolation,
+# so that nothing outside the lock is installed.
+stamp=.venv/.installed-$(cat pyproject.toml requirements.lock | sha1sum | cut -c1-12)
 if [ ! -f "$stamp" ]; then
-  echo "setup: pip install -e .[test] (pinned versions, a few minutes the first time)"
-  .venv/bin/python -m pip install -q --upgrade pip
-  .venv/bin/python -m pip install -q -e ".[test]"
+  echo "setup: installing requirements.lock into .venv (a few minutes the first time)"
+  .venv/bin/python -m pip install -q --require-hashes --no-deps -r requirements.lock
+  .venv/bin/python -m pip install -q --no-deps --no-build-isolation -e .
+  .venv/bin/python -m pip check
   rm -f .venv/.installed-*; touch "$stamp"
 fi
 

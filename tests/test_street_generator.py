@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
+import files
 from factory import run_street_cli
 from framework.scene import load_scene
 from scenes import BUNDLED_DIR
@@ -141,10 +142,10 @@ def test_one_building_is_urban_canyon(tmp_path):
     canyon = BUNDLED_DIR / "urban_canyon"
     for _, side in uc.SIDES:
         for element in (*sb.ELEMENTS, "roof"):
-            assert (folder / f"meshes/{side}00_{element}.ply").read_bytes() == \
-                (canyon / f"meshes/{element}_{side}.ply").read_bytes()
+            ours = folder / f"meshes/{side}00_{element}.ply"
+            assert files.file_difference(ours, canyon / f"meshes/{element}_{side}.ply") is None, ours
     for same in ("meshes/asphalt.ply", "sky.exr", *(f"sparse/{p.name}" for p in (canyon / "sparse").iterdir())):
-        assert (folder / same).read_bytes() == (canyon / same).read_bytes(), same
+        assert files.file_difference(folder / same, canyon / same) is None, same
     emitters = lambda f: yaml.safe_load((f / "scene.yaml").read_text())["emitters"]
     assert emitters(folder) == emitters(canyon)
 
