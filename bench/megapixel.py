@@ -52,7 +52,7 @@ def child(work: Path, spp: int, reps: int) -> dict:
                    f"cache.dir={work / 'cache'}"])
     problem, method = build_problem(cfg)
     row = measure_spp(problem, method, spp, reps, cache_dir=work / "cache")   # tiles on disk, as a run stores them
-    row.update(size=f"{WIDTH}x{HEIGHT}", memory_mb=float(method.cfg.memory_mb),
+    row.update(size=f"{WIDTH}x{HEIGHT}", memory_mb=method.options.memory_mb,
                maxrss_mib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
     return row
 

@@ -4,7 +4,7 @@ Both at the same spp on the same 200x200 view; ``path`` with ``max_depth = N_max
 the box filter (as the pass): the paper's pass (``method=symbolic_paper``, T = 0) at every spp,
 and the default pass (``method=symbolic``, T = 4) at one. The pass is timed as the method runs it
 (:func:`methods.symbolic.polynomial_pass.render_view_task`: coefficients, Gram accumulation,
-sparse coefficients), and the solve (:meth:`SymbolicMethod._solve`: nlopt and the uncertainty)
+sparse coefficients), and the solve (:func:`methods.symbolic.refinement.solve_system`: the solver and the uncertainty)
 on its Gram system; each the median of ``reps`` runs after a warm-up (the solve's stages and
 evaluation count: of the last run).
 """
@@ -18,9 +18,10 @@ from pathlib import Path
 from framework.config import compose
 from framework.experiment import prepare
 from framework.render.mitsuba_scene import MitsubaScene, max_depth_for
-from methods._common import initial_guess
+from methods._common import initial_guess, segment_groups
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.polynomial_pass import render_view_task, tile_pixels_for, view_task
+from methods.symbolic.refinement import solve_system
 
 
 def build_problem(cfg):
@@ -45,13 +46,13 @@ def _pass_fn(problem, method, spp: int, cache_dir=None):
     ``cache_dir`` its tiles are stored there as they are rendered (as a run with a cache does),
     so that its coefficients are never all in memory."""
     params = problem.parameters
-    x0, _ = initial_guess(method.cfg, problem)
+    x0, _ = initial_guess(method.options, problem)
     N, T = problem.settings.max_bounces, problem.settings.tail_bounces
-    tile = tile_pixels_for(float(method.cfg.memory_mb), spp, N, problem.n_channels, T)
+    tile = tile_pixels_for(method.options.memory_mb, spp, N, problem.n_channels, T)
     key = {"bench": "pass", "scene": problem.scene.content_hash, "view": problem.cameras[0].name, "spp": spp,
            "tile_pixels": tile, "tail_bounces": T}
-    task = view_task(problem, params, x0, N, 0, spp=spp, seed=int(problem.seed), prob_floor=float(
-        method.cfg.prob_floor), tile_pixels=tile, tail_bounces=T, cache_dir=cache_dir, key=key)
+    task = view_task(problem, params, x0, N, 0, spp=spp, seed=int(problem.seed), prob_floor=method.options.prob_floor,
+        tile_pixels=tile, tail_bounces=T, cache_dir=cache_dir, key=key)
     variant = problem.settings.variant
     calls = iter(range(1 << 30))
 
@@ -83,10 +84,11 @@ def measure_spp(problem, method, spp: int, reps: int, cache_dir=None) -> dict:
     # the default std (sandwich) reads the view's per-pixel coefficients: time it with them
     view0 = dataclasses.replace(problem, cameras=problem.cameras[:1])      # the pass covers view 0
     views = lambda: [(coefficients, view0.observed[view0.cameras[0].name], None)]
-    t_solve, fit = _timed(lambda: method._solve(system, basis, view0.parameters, x0, view0, views=views), reps)
+    t_solve, fit = _timed(lambda: solve_system(system, basis, view0.parameters, x0, view0, method.options,
+                                               views=views, groups=segment_groups(view0.parameters)), reps)
     return {"spp": spp, "pass_s": t_pass, "render_s": t_render, "ratio": t_pass / t_render,
             "solve_s": t_solve, "solve_share": t_solve / t_render, "solve_share_pass": t_solve / t_pass,
-            "solve_stages_s": fit["stages_s"], "solver_evaluations": fit["solve"].n_evals,
+            "solve_stages_s": fit.stages_s, "solver_evaluations": fit.solve.n_evals,
             "n_monomials": basis.size, "n_params": len(problem.parameters)}
 
 

@@ -6,6 +6,7 @@ only when everything else succeeded.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from pathlib import Path
@@ -16,7 +17,6 @@ from omegaconf import DictConfig, OmegaConf
 from framework.cache import Cache
 from framework.config import RunSettings, requested_views, scene_dir
 from framework.errors import ConfigError
-from framework.kernels import KERNELS, canonical
 from framework.observe import observed_images
 from framework.registry import Method, Problem, get_method
 from framework.render import backend
@@ -37,25 +37,6 @@ def select_cameras(scene, cfg: DictConfig) -> list:
     return list(scene.cameras) if names is None else [scene.camera(n) for n in names]
 
 
-def kernel_selection(method_cfg: DictConfig) -> tuple[str, ...] | None:
-    """The kernels ``method.kernels`` restricts a method to (None: all, or no such option).
-
-    Raises ConfigError for an unknown kernel name, an empty list, or a bare name.
-    """
-    kernels = method_cfg.get("kernels", "all")
-    if kernels == "all":
-        return None
-    if not OmegaConf.is_list(kernels):
-        raise ConfigError(f"method.kernels={kernels} is not a list: use all, or a list such as "
-                          f"method.kernels=[{kernels}]")
-    unknown = [str(k) for k in kernels if str(k) not in KERNELS]
-    if unknown or not kernels:
-        what = f"has unknown kernel(s) {', '.join(unknown)}" if unknown else "is empty"
-        raise ConfigError(f"method.kernels {what}: use all, or a list of the registered kernels "
-                          f"({', '.join(sorted(KERNELS))})")
-    return tuple(canonical(str(k)) for k in kernels)       # glossy(0.150) is glossy(0.15)
-
-
 def check_config(cfg: DictConfig) -> RunSettings:
     """Every check of a composed configuration that needs no scene, before anything is loaded
     or written; the command line runs it before Hydra creates the run folder.
@@ -64,9 +45,8 @@ def check_config(cfg: DictConfig) -> RunSettings:
     Writes nothing: whether the cache folder can be written is :meth:`Cache.check_writable`'s.
     """
     settings = RunSettings.from_config(cfg)
-    get_method(str(cfg.method.name))
+    get_method(str(cfg.method.name)).options_from(cfg.method)
     requested_views(cfg)
-    kernel_selection(cfg.method)
     cache, root = Cache(settings.cache_dir), scene_dir(cfg).resolve()
     if cache.dir is not None and cache.dir.is_relative_to(root):
         raise ConfigError(f"cache.dir={cache.dir} is inside the scene folder {root}, "
@@ -100,19 +80,18 @@ def prepare(cfg: DictConfig) -> tuple[Problem, Method, float]:
     """The problem and the method of a composed configuration, and the seconds spent rendering
     observations (0 when cached): the settings checked, the scene loaded, the variant set, the
     views selected, the observations read or rendered. ConfigError/SceneError on bad input."""
-    Cache(check_config(cfg).cache_dir).check_writable()     # before anything is loaded
-    method_cls = get_method(str(cfg.method.name))
+    settings = check_config(cfg)
+    Cache(settings.cache_dir).check_writable()     # before anything is loaded
+    method = get_method(str(cfg.method.name))(cfg.method)
     scene = load_scene(scene_dir(cfg))
-    variant = backend.set_variant(str(cfg.variant), channels=scene.channels)
-    settings = RunSettings.from_config(cfg, variant=variant)
+    settings = dataclasses.replace(settings, variant=backend.set_variant(str(cfg.variant), channels=scene.channels))
     cameras = select_cameras(scene, cfg)
     _check_samples(scene, cameras, settings)
-    _check_kernels_present(scene, kernel_selection(cfg.method))
+    _check_kernels_present(scene, getattr(method.options, "kernels", None))
     observed, t_observe = observed_images(scene, cameras, settings, cache=Cache(settings.cache_dir))
     weights = None if scene.weights is None else {c.name: scene.weights[c.name] for c in cameras}
     problem = Problem(scene=scene, cameras=cameras, observed=observed, parameters=scene.parameters(),
                       settings=settings, weights=weights)
-    method = method_cls(cfg.method)
     method.check_problem(problem)        # what the method cannot do with this scene: before any run folder
     return problem, method, t_observe
 

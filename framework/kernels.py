@@ -47,7 +47,8 @@ from typing import Callable
 
 import numpy as np
 
-from framework.errors import SceneError
+from framework.errors import ConfigError, SceneError
+from framework.options import Check
 
 
 def spectrum(value, channels: tuple[str, ...]) -> dict | float:
@@ -214,3 +215,23 @@ def get(name: str) -> Kernel:
         raise SceneError(f"unknown kernel '{name}': {f.name} needs its {f.what} α in ({f.low:g}, {f.high:g}] "
                          f"in parentheses, e.g. {f.name}({f.example})")
     raise SceneError(f"unknown kernel '{name}': use one of {known()}")
+
+
+def _selection(key: str, value) -> tuple[str, ...] | None:
+    """``method.kernels``: ``all`` (None) or a non-empty list of registered kernel names, returned
+    canonical (``glossy(0.150)`` is ``glossy(0.15)``)."""
+    from omegaconf import ListConfig
+    if value == "all":
+        return None
+    if not isinstance(value, (list, tuple, ListConfig)):
+        raise ConfigError(f"{key}={value} is not a list: use all, or a list such as {key}=[{value}]")
+    unknown = [str(k) for k in value if str(k) not in KERNELS]
+    if unknown or not value:
+        what = f"has unknown kernel(s) {', '.join(unknown)}" if unknown else "is empty"
+        raise ConfigError(f"{key} {what}: use all, or a list of the registered kernels "
+                          f"({', '.join(sorted(KERNELS))})")
+    return tuple(canonical(str(k)) for k in value)
+
+
+#: the check of a kernel selection option (``method.kernels``)
+KERNEL_SELECTION = Check("`all` or a list of kernel names", _selection)

@@ -2,7 +2,9 @@
 
 A method is one folder ``methods/<name>/`` whose ``__init__.py`` defines a :class:`Method`
 subclass decorated with :func:`register`, plus one YAML ``framework/conf/method/<name>.yaml``
-(its ``name`` key is the registry key; the other keys reach the method as ``self.cfg``).
+(its ``name`` key is the registry key, its other keys the defaults of the method's options).
+The method's ``Options`` is a frozen dataclass (:mod:`framework.options`): built once from the
+config group, checked as it is built, and kept as ``self.options``.
 """
 from __future__ import annotations
 
@@ -24,7 +26,7 @@ class Problem:
 
     ``settings`` are the run-wide settings (:class:`framework.config.RunSettings`: spp,
     max_bounces, tail_bounces, seed, budget_renders, variant, executor, cache_dir, observe),
-    checked once; a method's own options come to it as ``Method(cfg)``.
+    checked once; a method's own options come to it as ``Method(options)``.
     """
 
     scene: Any                       # framework.scene.Scene
@@ -67,15 +69,30 @@ class MethodResult:
 
 
 class Method(ABC):
-    """Base class: ``Method(cfg).run(problem) -> MethodResult``.
+    """Base class: ``Method(options).run(problem) -> MethodResult``.
 
-    ``cfg`` is the method's own config group (``framework/conf/method/<name>.yaml``).
+    ``options`` is an instance of the class's ``Options`` dataclass, or the method's config group
+    (``framework/conf/method/<name>.yaml`` as composed), which :meth:`options_from` turns into one.
     """
 
     name: ClassVar[str]
+    Options: ClassVar[type]
 
-    def __init__(self, cfg):
-        self.cfg = cfg
+    def __init__(self, options):
+        self.options = options if isinstance(options, self.Options) else self.options_from(options)
+
+    @classmethod
+    def options_from(cls, cfg) -> Any:
+        """The checked options of the config group ``cfg``: ConfigError (one line naming the key)
+        for a missing, unknown or bad option."""
+        from framework.options import build
+        return cls.check_options(build(cls.Options, cfg))
+
+    @classmethod
+    def check_options(cls, options):
+        """What a method refuses beyond each option's own range (a combination, a preset's fixed
+        value); returns ``options``."""
+        return options
 
     def parameters(self, problem: Problem) -> list[Parameter]:
         """The unknowns this method estimates (default: all of ``problem.parameters``); the

@@ -20,6 +20,7 @@ import hashlib
 
 import numpy as np
 
+from framework.options import ANY, choice, flag, nullable, number, option
 from framework.render.mitsuba_scene import MitsubaScene
 from framework.scene import Camera, Emitter, Scene
 
@@ -105,24 +106,37 @@ def segment_reflectance(scene: Scene, rho: np.ndarray, parameters, *, kind: str 
     return table
 
 
-def relight_outputs(problem, parameters, estimate: np.ndarray, opt) -> dict[str, np.ndarray]:
-    """The images of the symbolic method's ``relight`` option, keyed ``<view>.relit`` and
-    ``<view>.reflectance``.
+@dataclasses.dataclass(frozen=True)
+class RelightOptions:
+    """``method.relight.*``: images under other illumination with the estimated weights."""
 
-    ``opt`` keys: ``sun_direction`` (list of 3; null keeps the scene's directional emitters),
-    ``sun_irradiance`` (number or per channel, default the first directional emitter's, else 1),
-    ``sky_radiance`` (number or per channel; null keeps the scene's constant/envmap skies),
-    ``spp`` (default 64), ``reflectance`` (``diffuse`` | ``total``, default ``diffuse``).
+    enabled: bool = option("after the inversion, render relit and reflectance images (not counted in "
+                           "`renders`, timed as `timings_s.relight`)", flag())
+    sun_direction: tuple | None = option("direction the new sunlight travels; `null` keeps the scene's "
+                                         "directional emitters", nullable(ANY))
+    sun_irradiance: float | tuple | None = option("the new sun's irradiance (a number or one per channel); "
+                                                  "`null`: the scene's first sun's, else 1", nullable(ANY))
+    sky_radiance: float | tuple | None = option("a constant sky (a number or one per channel) replacing the "
+                                                "scene's `constant`/`envmap` skies; `null` keeps them",
+                                                nullable(ANY))
+    spp: int = option("samples per pixel of the relit images", number(1, integer=True))
+    reflectance: str = option("the shadow-free reflectance image: each pixel's segment ρ_d (`diffuse`), or "
+                              "Σρ over its kernels (`total`)", choice("diffuse", "total"))
+
+
+def relight_outputs(problem, parameters, estimate: np.ndarray, opt: RelightOptions) -> dict[str, np.ndarray]:
+    """The images of the symbolic method's ``relight`` option (:class:`RelightOptions`), keyed
+    ``<view>.relit`` and ``<view>.reflectance``.
+
     Seeds: ``2 * problem.seed + 100_001`` + view index (never an inversion's even seed stream).
     """
     scene = problem.scene
     new = relight_emitters(scene, opt)
     relit = relit_scene(scene, new)
-    spp = int(opt.get("spp", 64) or 64)
-    images = render_relit(relit, problem.cameras, estimate, parameters, spp=spp,
+    images = render_relit(relit, problem.cameras, estimate, parameters, spp=opt.spp,
                           seed=2 * int(problem.seed) + 100_001)
     albedo = reflectance_images(scene, problem.cameras, estimate, parameters,
-                                kind=str(opt.get("reflectance", "diffuse")))
+                                kind=opt.reflectance)
     out = {}
     for c in problem.cameras:
         out[f"{c.name}.relit"] = images[c.name]
@@ -130,18 +144,18 @@ def relight_outputs(problem, parameters, estimate: np.ndarray, opt) -> dict[str,
     return out
 
 
-def relight_emitters(scene: Scene, opt) -> list[Emitter]:
-    """Replacement non-area emitters from a ``relight`` option mapping (see :func:`relight_outputs`)."""
+def relight_emitters(scene: Scene, opt: RelightOptions) -> list[Emitter]:
+    """Replacement non-area emitters of the ``relight`` options (:class:`RelightOptions`)."""
     ch = scene.channels
     suns = [e for e in scene.emitters if e.type == "directional"]
     skies = [e for e in scene.emitters if e.type in ("constant", "envmap")]
-    if opt.get("sun_direction") is not None:
-        irr = opt.get("sun_irradiance")
+    if opt.sun_direction is not None:
+        irr = opt.sun_irradiance
         if irr is None:
             irr = suns[0].irradiance if suns else 1.0
         irr = list(irr) if not isinstance(irr, (int, float)) else irr
         suns = [sun(list(opt.sun_direction), irr, ch)]
-    if opt.get("sky_radiance") is not None:
-        rad = opt.get("sky_radiance")
+    if opt.sky_radiance is not None:
+        rad = opt.sky_radiance
         skies = [sky(list(rad) if not isinstance(rad, (int, float)) else rad, ch)]
     return skies + suns

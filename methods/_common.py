@@ -1,6 +1,6 @@
-"""Pieces shared by the render-in-the-loop baselines (``iterative``, ``differentiable``).
+"""Pieces shared by the methods.
 
-* option checks that raise :class:`~framework.errors.ConfigError` naming the key and range;
+* :class:`StartOptions`, the options every method has (``init``, ``guess``);
 * the initial guess (``guess`` number or per-kernel mapping, or ``init: lambertian_prior``);
 * the feasible set of the weights (bounds [0, 1] and, per segment and channel, Σ_kernels ρ <= 1):
   nlopt constraint groups and a Euclidean projection;
@@ -18,53 +18,43 @@ import numpy as np
 
 from framework import optim
 from framework.errors import ConfigError
+from framework.options import ANY, choice, option
 from framework.registry import Method, MethodResult
 from framework.render.mitsuba_scene import max_depth_for
 
 
 # ------------------------------------------------------------------------------------------------
-# Option checks
+# Options every method has
 # ------------------------------------------------------------------------------------------------
-def check_choice(cfg, key: str, choices, *, section: str = "method") -> str:
-    """``cfg[key]`` as a string, or :class:`ConfigError` listing ``choices`` (the message names
-    the option ``<section>.<key>``, as a command line sets it)."""
-    value = cfg.get(key)
-    if str(value) not in choices:
-        raise ConfigError(f"{section}.{key}={value} is not allowed: use one of {', '.join(map(str, choices))}")
-    return str(value)
+@dataclasses.dataclass(frozen=True)
+class StartOptions:
+    """``method.init`` and ``method.guess``: where a method starts."""
 
-
-def check_number(cfg, key: str, lo: float, hi: float | None = None, *, integer: bool = False,
-                 lo_open: bool = False, section: str = "method") -> float | int:
-    """``cfg[key]`` if it is a number in ``[lo, hi]`` (``(lo, hi]`` when ``lo_open``); else
-    ConfigError naming ``<section>.<key>``."""
-    value = cfg.get(key)
-    kinds = (int,) if integer else (int, float)
-    ok = isinstance(value, kinds) and not isinstance(value, bool)
-    ok = ok and (value > lo if lo_open else value >= lo) and (hi is None or value <= hi)
-    if not ok:
-        what = "an integer" if integer else "a number"
-        rng = f"{'(' if lo_open else '['}{lo}, {hi if hi is not None else '∞'}{']' if hi is not None else ')'}"
-        raise ConfigError(f"{section}.{key}={value} is out of range: use {what} in {rng}")
-    return value
+    init: str = option(
+        "start point: `guess`, or the diffuse estimates of a `lambertian_prior` run with its shipped "
+        "options but one pass and the joint cost, the cost of the fits it starts (its pass counts as a "
+        "render against the budget; the other kernels keep `guess`)", choice("guess", "lambertian_prior"))
+    guess: float | dict = option(
+        "initial weights: a number in [0, 1], or a mapping kernel → number with one entry per kernel "
+        "of the scene, e.g. `{diffuse: 0.5, specular: 0.1}`; projected onto Σρ ≤ 1. For `symbolic` "
+        "they also drive the kernel selection of the pass", ANY)
 
 
 # ------------------------------------------------------------------------------------------------
 # Initial guess and feasible set
 # ------------------------------------------------------------------------------------------------
-def initial_guess(cfg, problem, *, prior: Callable | None = None) -> tuple[np.ndarray, int]:
+def initial_guess(options: StartOptions, problem, *, prior: Callable | None = None) -> tuple[np.ndarray, int]:
     """(P, C) start weights and the renders spent to get them.
 
-    ``cfg.init``: ``guess`` uses ``cfg.guess`` (a number for every kernel, or a mapping
+    ``options.init``: ``guess`` uses ``options.guess`` (a number for every kernel, or a mapping
     kernel -> number); ``lambertian_prior`` calls ``prior(problem)`` (the Lambertian prior's
     :class:`~framework.registry.MethodResult`: the method passes it, so this module imports no
-    method) and takes its diffuse estimates, the other kernels keeping ``cfg.guess``. The result
+    method) and takes its diffuse estimates, the other kernels keeping ``options.guess``. The result
     is projected onto the feasible set.
     """
-    init = check_choice(cfg, "init", ("guess", "lambertian_prior"))
-    rho = _guess_from_config(cfg.get("guess"), problem)
+    rho = _guess_from_config(options.guess, problem)
     spent = 0
-    if init == "lambertian_prior":
+    if options.init == "lambertian_prior":
         rho, spent = _from_prior(rho, prior(problem), problem)
     return project_feasible(rho, problem.parameters), spent
 
@@ -272,5 +262,5 @@ class RenderingBaseline(Method):
         ``method.init=lambertian_prior``) and the render ledger with the prior's renders spent."""
         self.check_problem(problem)
         t0 = time.perf_counter()
-        rho0, spent = initial_guess(self.cfg, problem, prior=prior)
+        rho0, spent = initial_guess(self.options, problem, prior=prior)
         return t0, rho0, RenderLedger(problem.settings.budget_renders, desc=self.name, spent=spent)

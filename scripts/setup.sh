@@ -30,6 +30,12 @@ fi
 stamp=.venv/.installed-$(cat pyproject.toml requirements.lock | sha1sum | cut -c1-12)
 if [ ! -f "$stamp" ]; then
   echo "setup: installing requirements.lock into .venv (a few minutes the first time)"
+  # pip, setuptools and wheel first (from the lock): the venv's own pip is Python's bundled one,
+  # which builds an sdist of the lock (antlr4) the deprecated way without wheel
+  bootstrap="$(mktemp)"
+  awk '/^(pip|setuptools|wheel)==/{p=1} p{print} p && !/\\$/{p=0}' requirements.lock > "$bootstrap"
+  .venv/bin/python -m pip install -q --require-hashes --no-deps -r "$bootstrap"
+  rm -f "$bootstrap"
   .venv/bin/python -m pip install -q --require-hashes --no-deps -r requirements.lock
   .venv/bin/python -m pip install -q --no-deps --no-build-isolation -e .
   .venv/bin/python -m pip check

@@ -42,7 +42,7 @@ def test_unit_weights_rebuild_the_pass_system_and_the_plain_estimate(problem):
     x0 = np.full((len(params), 3), 0.5)
     settings = problem.settings
     views = view_systems(problem, params, x0, max_bounces=settings.max_bounces, spp=settings.spp,
-                         prob_floor=float(method.cfg.prob_floor), memory_mb=float(method.cfg.memory_mb),
+                         prob_floor=method.options.prob_floor, memory_mb=method.options.memory_mb,
                          tail_bounces=settings.tail_bounces)
     for cam, (system, coeffs) in zip(problem.cameras, views):
         rebuilt = weighted_system(coeffs, problem.observed[cam.name].reshape(-1, 3), np.ones(cam.width * cam.height))

@@ -228,7 +228,7 @@ def test_symbolic_errors(key, value):
     from framework.registry import get_method
     cfg = compose(["method=symbolic", f"method.{key}={value}"])
     with pytest.raises(ConfigError, match=f"method.{key}={value}"):
-        get_method("symbolic")(cfg.method).check()
+        get_method("symbolic")(cfg.method)
 
 
 def test_tail_bounces_range():
@@ -242,7 +242,7 @@ def test_refinement_move_ignores_weights_without_std():
     """The refinement's stopping measure, by hand: a weight moving 0.02 with std 0.005 moves
     0.02 / (0.005 + 2·0.005) = 4/3 units; a weight without a finite std (the data do not pin it)
     wandering 0 -> 0.7 does not count, nor does one not estimated in both passes."""
-    from methods.symbolic import _moved
+    from methods.symbolic.refinement import moved as _moved
     previous = np.array([[0.10, 0.0, np.nan]])
     current = np.array([[0.12, 0.7, 0.3]])
     assert _moved(previous, current, np.array([[0.005, np.nan, 0.01]]), 0.005) == pytest.approx(4 / 3)

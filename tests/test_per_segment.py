@@ -199,7 +199,7 @@ def test_per_segment_errors():
         with open_dict(cfg):
             cfg.update(bad)
         with pytest.raises(ConfigError, match=match):
-            SymbolicMethod(cfg).check()
+            SymbolicMethod(cfg)
 
 
 def test_per_segment_memory_error(problem, monkeypatch):

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from framework.errors import SceneError
+from framework.kernels import canonical
 
 CHANNELS = {"rgb": ("R", "G", "B"), "mono": ("Y",)}
 
@@ -142,11 +143,12 @@ class Scene:
     photometry: Photometry = field(default_factory=Photometry)
 
     def parameters(self, *, kernels: tuple[str, ...] | None = None):
-        """The unknowns (segment, kernel) in segment order; ``kernels`` restricts the kernel set."""
+        """The unknowns (segment, kernel) in segment order; ``kernels`` (canonical names,
+        :func:`framework.kernels.canonical`) restricts the kernel set."""
         out = []
         for s, seg in enumerate(self.segments):
             for k in seg.kernels:
-                if kernels is None or k in kernels:
+                if kernels is None or canonical(k) in kernels:
                     out.append(Parameter(len(out), s, seg.name, k))
         return out
 

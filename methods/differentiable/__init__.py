@@ -10,6 +10,7 @@ from framework.registry import MethodResult, Problem, register
 from framework.render.mitsuba_scene import MitsubaScene
 from methods import _common as C
 from methods.differentiable.integrator import integrator_dict
+from methods.differentiable.options import DifferentiableOptions
 from methods.lambertian_prior import lambertian_prior
 
 
@@ -44,28 +45,10 @@ class DifferentiableMethod(C.RenderingBaseline):
     ``budget.renders``. The estimate is the last iterate (Adam's iterates are noisy; the
     recorded cost of each iteration is the Monte-Carlo cost of its primal render).
 
-    Parameters (``framework/conf/method/differentiable.yaml``)
-    -----------------------------------------------------------
-    lr : float
-        Adam learning rate in ρ units, > 0 (default 0.1). On urban_canyon (default view, 16
-        spp, 200 renders, seed 0) the mean |error| of the visible segments' weights was
-        0.18, 0.13, 0.07, 0.018, 0.013, 0.024 at lr 0.005, 0.01, 0.02, 0.05, 0.1, 0.2 (seed 1
-        within 0.001 at 0.02, 0.05, 0.1): the mirror weights travel far from the 0.5 guess.
-        The benchmark's sweep at the comparison's settings (BENCHMARKS.md, section 3) keeps the
-        best as the default. On diffuse-only scenes a smaller rate has the smaller noise ball
-        (cornell_box, 120 renders, seeds 0-5: worst |error| 0.019 at lr 0.02, 0.026 at 0.05,
-        0.043 at 0.1).
-    beta1, beta2 : float
-        Adam moment decay rates in [0, 1) (defaults 0.9, 0.999).
-    iterations : int
-        Most iterations (default 1000; the budget usually stops the run first).
-    spp_grad : int or null
-        Samples per pixel of the backward pass (null, default: ``render.spp``).
-    init : str
-        ``guess`` (default) or ``lambertian_prior`` (diffuse start weights from that method).
-    guess : float or mapping
-        Start weights: one number in [0, 1] for every kernel (default 0.5) or a mapping
-        kernel -> number, e.g. ``{diffuse: 0.5, specular: 0.1}``.
+    Options: :class:`~methods.differentiable.options.DifferentiableOptions` (defaults in
+    ``framework/conf/method/differentiable.yaml``; docs/cli.md's table is generated from it).
+    The learning rate's default is the best of the benchmark's sweep (BENCHMARKS.md, the
+    comparison section); on diffuse-only scenes a smaller rate has the smaller noise ball.
 
     Every weight gets a gradient, Dirac-lobe kernels (``specular``, a perfect mirror)
     included: Mitsuba's own ``prb`` gives those none (it attaches the gradient through
@@ -81,8 +64,10 @@ class DifferentiableMethod(C.RenderingBaseline):
     ``lr`` and raise the budget for a tighter estimate.
     """
 
+    Options = DifferentiableOptions
+
     def run(self, problem: Problem) -> MethodResult:
-        opts = _options(self.cfg, problem)
+        opts = self.options
         t0, rho, ledger = self._start(problem, lambertian_prior)
         try:
             fit = _Fit(problem, ledger, opts, trace=C.Trace(t0))
@@ -94,25 +79,13 @@ class DifferentiableMethod(C.RenderingBaseline):
         return C.loop_result(
             problem, ledger, started=t0, rho=rho, costs=fit.costs, times=fit.times, reconstructions=recon,
             trace=fit.trace,
-            extras={"iterations": len(fit.costs), "lr": opts["lr"], "spp": opts["spp"],
-                    "spp_grad": opts["spp_grad"], "projection": "clip + simplex face"})
+            extras={"iterations": len(fit.costs), "lr": opts.lr, "spp": fit.spp,
+                    "spp_grad": fit.spp_grad, "projection": "clip + simplex face"})
 
     def render_at(self, problem: Problem, rho: np.ndarray, *, seed: int = 0) -> dict[str, np.ndarray]:
         """The primal pass of the fit's own AD renderer at ρ, weights written as the fit writes them."""
         return C.render_once(problem, seed, "differentiable render",
-                             lambda pb, ledger: _Fit(pb, ledger, _options(self.cfg, pb)).final_render(rho))
-
-
-def _options(cfg, problem) -> dict:
-    """The validated options; :class:`ConfigError` naming the first bad key."""
-    spp = problem.settings.spp
-    spp_grad = cfg.get("spp_grad")
-    return {"lr": float(C.check_number(cfg, "lr", 0.0, 1.0, lo_open=True)),
-            "beta1": float(C.check_number(cfg, "beta1", 0.0, 0.999999)),
-            "beta2": float(C.check_number(cfg, "beta2", 0.0, 0.999999)),
-            "iterations": int(C.check_number(cfg, "iterations", 1, integer=True)),
-            "spp": spp,
-            "spp_grad": spp if spp_grad is None else int(C.check_number(cfg, "spp_grad", 1, integer=True))}
+                             lambda pb, ledger: _Fit(pb, ledger, self.options).final_render(rho))
 
 
 class _Adam:
@@ -134,9 +107,11 @@ class _Adam:
 class _Fit:
     """The Mitsuba scene with a ``prb_dirac`` integrator, its weight keys, and the optimisation loop."""
 
-    def __init__(self, problem: Problem, ledger: C.RenderLedger, opts: dict, *, trace: C.Trace | None = None):
+    def __init__(self, problem: Problem, ledger: C.RenderLedger, opts: DifferentiableOptions, *, trace: C.Trace | None = None):
         self.problem, self.ledger, self.opts = problem, ledger, opts
-        self.ms = MitsubaScene(problem.scene, problem.cameras, spp=opts["spp"],
+        self.spp = problem.settings.spp
+        self.spp_grad = self.spp if opts.spp_grad is None else opts.spp_grad
+        self.ms = MitsubaScene(problem.scene, problem.cameras, spp=self.spp,
                                integrator=integrator_dict(C.max_depth(problem)))
         self.observed = C.observed_list(problem)
         self.weights = C.weights_list(problem)         # the scene's pixel weights, or None
@@ -146,8 +121,8 @@ class _Fit:
 
     def optimise(self, rho: np.ndarray) -> np.ndarray:
         """Adam + projection until ``iterations`` or the budget (keeping one render for the end)."""
-        adam = _Adam(rho.shape, lr=self.opts["lr"], beta1=self.opts["beta1"], beta2=self.opts["beta2"])
-        for it in range(self.opts["iterations"]):
+        adam = _Adam(rho.shape, lr=self.opts.lr, beta1=self.opts.beta1, beta2=self.opts.beta2)
+        for it in range(self.opts.iterations):
             if not self.ledger.can_afford(2 + 1):
                 break
             cost, grad = self.cost_and_gradient(rho, it)
@@ -165,8 +140,8 @@ class _Fit:
         cost, t0 = 0.0, time.perf_counter()
         for v, obs in enumerate(self.observed):
             seed, seed_grad = self.seeds(it, v)
-            img = mi.render(self.ms.scene, self.ms.params, sensor=v, spp=self.opts["spp"],
-                            spp_grad=self.opts["spp_grad"], seed=seed, seed_grad=seed_grad)
+            img = mi.render(self.ms.scene, self.ms.params, sensor=v, spp=self.spp,
+                            spp_grad=self.spp_grad, seed=seed, seed_grad=seed_grad)
             residual2 = dr.square(img[..., : obs.shape[-1]] - mi.TensorXf(obs.astype(np.float32)))
             if self.weights is not None:                       # masked / saturated pixels: 0
                 residual2 = residual2 * mi.TensorXf(self.weights[v].astype(np.float32))
@@ -199,7 +174,7 @@ class _Fit:
             return []
         self.write(rho, grad=False)
         seeds = [self.seeds(len(self.costs), v)[0] for v in range(len(self.observed))]
-        return C.render_pass(self.ms, spp=self.opts["spp"], seeds=seeds, ledger=self.ledger)
+        return C.render_pass(self.ms, spp=self.spp, seeds=seeds, ledger=self.ledger)
 
 
 def _to_numpy(value, n_channels: int) -> np.ndarray:

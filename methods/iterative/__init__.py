@@ -10,6 +10,7 @@ from framework.optim import StopOptimization, check_algorithm, minimize
 from framework.registry import MethodResult, Problem, register
 from framework.render.mitsuba_scene import MitsubaScene
 from methods import _common as C
+from methods.iterative.options import IterativeOptions
 from methods.lambertian_prior import lambertian_prior
 
 
@@ -41,32 +42,8 @@ class IterativeMethod(C.RenderingBaseline):
     at most ``evaluations × (D + 1) + 1`` renders (the ``+ 1`` is the final reconstruction;
     evaluations nlopt asks for without a gradient cost one render).
 
-    Parameters (``framework/conf/method/iterative.yaml``)
-    ------------------------------------------------------
-    fd : str
-        ``forward`` (default; D + 1 renders per gradient) or ``central`` (2D + 1).
-    step : float
-        Finite-difference step in ρ, in (0, 0.5] (default 0.02). A forward step that would
-        leave [0, 1] is taken backwards; central steps are clipped into [0, 1].
-    noise : str
-        ``fresh`` (default): every render has a new Mitsuba seed (``inversion_seed(seed, n)``),
-        the paper's setting, whose Monte-Carlo noise changes between the renders of one
-        finite difference; ``fixed``: common random numbers, every pass reuses the same seed
-        per view, so differences see no noise change (but a fixed bias).
-    algorithm : str
-        nlopt algorithm: ``LD_SLSQP`` (default), ``LD_MMA``, ``LD_CCSAQ``; the bound-only
-        ``LD_LBFGS``... are refused when a segment has several kernels (Σ ρ <= 1).
-    max_eval : int
-        Most cost evaluations (0, default: limited by the budget only).
-    xtol_rel, ftol_rel : float
-        nlopt's relative stopping tolerances on ρ and on the cost.
-    init : str
-        ``guess`` (default) or ``lambertian_prior`` (diffuse start weights from that method,
-        if registered; its renders count against the budget).
-    guess : float or mapping
-        Start weights: one number in [0, 1] for every kernel (default 0.5), or a mapping
-        kernel -> number such as ``{diffuse: 0.5, specular: 0.1}``. Projected onto the
-        feasible set.
+    Options: :class:`~methods.iterative.options.IterativeOptions` (defaults in
+    ``framework/conf/method/iterative.yaml``; docs/cli.md's table is generated from it).
 
     Limitations
     -----------
@@ -76,8 +53,15 @@ class IterativeMethod(C.RenderingBaseline):
     with the number of parameters.
     """
 
+    Options = IterativeOptions
+
+    def check_problem(self, problem) -> None:
+        super().check_problem(problem)
+        several = any(len(g) > 1 for g in C.segment_groups(problem.parameters))
+        check_algorithm(self.options.algorithm, constrained=several, key="method.algorithm")
+
     def run(self, problem: Problem) -> MethodResult:
-        opts = _options(self.cfg, problem)
+        opts = self.options
         t0, rho0, ledger = self._start(problem, lambertian_prior)
         objective = _Objective(problem, ledger, opts, trace=C.Trace(t0))
         objective.trace.record(ledger.used, rho0)
@@ -92,43 +76,29 @@ class IterativeMethod(C.RenderingBaseline):
             reconstructions=recon,
             extras={"status": status, "evaluations": len(objective.costs),
                     "gradient_evaluations": objective.n_grad, "renders_per_gradient": objective.grad_renders,
-                    "fd": opts["fd"], "step": opts["step"], "noise": opts["noise"]})
+                    "fd": opts.fd, "step": opts.step, "noise": opts.noise})
 
     def render_at(self, problem: Problem, rho: np.ndarray, *, seed: int = 0) -> dict[str, np.ndarray]:
         """One pass of the objective's own renderer (what every cost evaluation renders)."""
         return C.render_once(problem, seed, "iterative render",
-                             lambda pb, ledger: _Objective(pb, ledger, _options(self.cfg, pb)).render(rho))
+                             lambda pb, ledger: _Objective(pb, ledger, self.options).render(rho))
 
 
-def _options(cfg, problem) -> dict:
-    """The validated options; :class:`ConfigError` naming the first bad key."""
-    opts = {"fd": C.check_choice(cfg, "fd", ("forward", "central")),
-            "step": float(C.check_number(cfg, "step", 0.0, 0.5, lo_open=True)),
-            "noise": C.check_choice(cfg, "noise", ("fresh", "fixed")),
-            "algorithm": str(cfg.get("algorithm")),
-            "max_eval": int(C.check_number(cfg, "max_eval", 0, integer=True)),
-            "xtol_rel": float(C.check_number(cfg, "xtol_rel", 0.0)),
-            "ftol_rel": float(C.check_number(cfg, "ftol_rel", 0.0))}
-    several = any(len(g) > 1 for g in C.segment_groups(problem.parameters))
-    check_algorithm(opts["algorithm"], constrained=several, key="method.algorithm")
-    return opts
-
-
-def _optimise(objective: "_Objective", rho0: np.ndarray, problem: Problem, opts: dict) -> tuple[np.ndarray, str]:
+def _optimise(objective: "_Objective", rho0: np.ndarray, problem: Problem, opts: IterativeOptions) -> tuple[np.ndarray, str]:
     """nlopt over vec(ρ); (best x seen, status). Returns ρ0 untouched if no evaluation fits the budget."""
     if not objective.affordable(need_grad=True):
         return rho0.ravel(), "BUDGET_TOO_SMALL"
     res = minimize(objective, rho0.ravel(), lower=0.0, upper=1.0,
                    inequality_groups=C.flat_constraint_groups(problem.parameters, problem.n_channels),
-                   algorithm=opts["algorithm"], max_eval=opts["max_eval"],
-                   xtol_rel=opts["xtol_rel"], ftol_rel=opts["ftol_rel"])
+                   algorithm=opts.algorithm, max_eval=opts.max_eval,
+                   xtol_rel=opts.xtol_rel, ftol_rel=opts.ftol_rel)
     return res.x, res.status
 
 
 class _Objective:
     """``(x, need_grad) -> (cost, gradient)`` by re-rendering; counts renders, records costs."""
 
-    def __init__(self, problem: Problem, ledger: C.RenderLedger, opts: dict, *, trace: C.Trace | None = None):
+    def __init__(self, problem: Problem, ledger: C.RenderLedger, opts: IterativeOptions, *, trace: C.Trace | None = None):
         self.problem, self.ledger, self.opts = problem, ledger, opts
         self.spp = problem.settings.spp
         self.ms = MitsubaScene(problem.scene, problem.cameras, spp=self.spp,
@@ -136,7 +106,7 @@ class _Objective:
         self.observed = C.observed_list(problem)
         self.weights = C.weights_list(problem)         # the scene's pixel weights, or None
         self.shape = (len(problem.parameters), problem.n_channels)
-        self.grad_renders = len(problem.parameters) * (2 if opts["fd"] == "central" else 1)
+        self.grad_renders = len(problem.parameters) * (2 if opts.fd == "central" else 1)
         self.costs: list[float] = []
         self.times: list[float] = []     # seconds since the method started, at each evaluation
         self.trace = trace or C.Trace(time.perf_counter())
@@ -172,7 +142,7 @@ class _Objective:
     def seeds(self) -> list[int]:
         """Per-view Mitsuba seeds of the next pass (fresh: never reused; fixed: the same every pass)."""
         n = len(self.problem.cameras)
-        start = self._counter if self.opts["noise"] == "fresh" else 0
+        start = self._counter if self.opts.noise == "fresh" else 0
         self._counter += n
         return [inversion_seed(self.problem.seed, start + v) for v in range(n)]
 
@@ -181,16 +151,16 @@ class _Objective:
         self.n_grad += 1
         grad = np.empty(self.shape)
         for k in range(self.shape[0]):
-            grad[k] = self._forward(rho, k, base) if self.opts["fd"] == "forward" else self._central(rho, k)
+            grad[k] = self._forward(rho, k, base) if self.opts.fd == "forward" else self._central(rho, k)
         return grad.ravel()
 
     def _forward(self, rho: np.ndarray, k: int, base: np.ndarray) -> np.ndarray:
-        step = self.opts["step"]
+        step = self.opts.step
         h = np.where(rho[k] + step <= 1.0, step, -step)
         return (self.channel_costs(_perturbed(rho, k, rho[k] + h)) - base) / h
 
     def _central(self, rho: np.ndarray, k: int) -> np.ndarray:
-        step = self.opts["step"]
+        step = self.opts.step
         hi, lo = np.minimum(rho[k] + step, 1.0), np.maximum(rho[k] - step, 0.0)
         return (self.channel_costs(_perturbed(rho, k, hi)) - self.channel_costs(_perturbed(rho, k, lo))) / (hi - lo)
 

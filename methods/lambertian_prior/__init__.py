@@ -24,11 +24,12 @@ class LambertianPriorMethod(SymbolicMethod):
 
     kernels = ("diffuse",)
 
-    def check(self):
-        if self.cfg.get("init", "guess") != "guess":
-            raise ConfigError(f"method.init={self.cfg.init}: lambertian_prior starts from method.guess; "
+    @classmethod
+    def check_options(cls, options):
+        if options.init != "guess":
+            raise ConfigError(f"method.init={options.init}: lambertian_prior starts from method.guess; "
                               "use method.init=guess")
-        super().check()
+        return super().check_options(options)
 
 
 def lambertian_prior(problem) -> MethodResult:

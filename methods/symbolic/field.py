@@ -38,7 +38,9 @@ import scipy.sparse as sp
 
 from framework.results import per_channel
 from methods.symbolic.basis import code_digits, encode_digits
+from methods.symbolic.fit import Fit
 from methods.symbolic.gram import weighted_system
+from methods.symbolic.options import ROBUST_LOSSES, SymbolicOptions
 from methods.symbolic.polynomial_pass import TiledCoefficients, ViewCoefficients, predicted
 
 #: ``segment_name`` of a view's gain parameter: this prefix, then the view's name
@@ -50,7 +52,6 @@ MAD_TO_STD = 1.4826
 #: tuning constants at 95 % efficiency for Gaussian residuals
 CAUCHY_K = 2.385
 HUBER_K = 1.345
-ROBUST_LOSSES = ("none", "cauchy", "huber")
 
 
 def with_gain(coeffs, *, n_params: int, max_degree: int, n_total: int, gain: int | None):
@@ -176,7 +177,7 @@ class FieldOptions:
         return self.weights is not None or self.reference is not None or self.robust != "none"
 
     @classmethod
-    def from_config(cls, cfg, problem, *, boundaries: bool = True) -> "FieldOptions":
+    def resolve(cls, options: SymbolicOptions, problem, *, boundaries: bool = True) -> "FieldOptions":
         """Resolve ``method.exposure`` (``scene``: as scene.yaml says | ``known``),
         ``method.weights`` (``scene`` | ``none``), ``method.robust`` (``auto``: Cauchy for
         photographs, i.e. images decoded from 8/16-bit files, pixel weights or per-view exposure;
@@ -185,42 +186,40 @@ class FieldOptions:
         from framework.errors import ConfigError
         scene = problem.scene
         photometry = getattr(scene, "photometry", None)
-        per_view = (str(cfg.get("exposure", "scene")) == "scene" and photometry is not None
+        per_view = (options.exposure == "scene" and photometry is not None
                     and photometry.exposure == "per_view")
         reference = photometry.reference_view if per_view else None
         names = [c.name for c in problem.cameras]
         if per_view and reference not in names:
             raise ConfigError(f"photometry reference_view {reference} is not among this run's views "
                               f"({', '.join(names)}): add it to views, or set method.exposure=known")
-        use = str(cfg.get("weights", "scene")) == "scene" and problem.weights is not None
+        use = options.weights == "scene" and problem.weights is not None
         weights = {n: np.asarray(w, np.float64).ravel() for n, w in problem.weights.items()} if use else None
-        boundary = _boundary_width(cfg, problem) if boundaries else 0
+        boundary = _boundary_width(options.boundary, problem) if boundaries else 0
         if boundary:
             edges = segment_boundaries(problem, boundary)
             weights = {n: (1.0 if weights is None else weights[n]) * ~edges[n] for n in names}
         noise = getattr(scene, "noise", None) or {}
         floors = {n: np.median(np.asarray(noise[n], float).reshape(-1, noise[n].shape[-1]), axis=0)
                   for n in names if n in noise}
-        robust = str(cfg.get("robust", "auto"))
+        robust = options.robust
         if robust == "auto":
             robust = "cauchy" if (weights is not None or per_view or noise) else "none"
-        irls = cfg.get("irls", {}) or {}
-        iterations = int(irls.get("iterations", 10)) if robust != "none" else 1
-        return cls(weights, floors, reference, robust, iterations, float(irls.get("tol", 1e-4)))
+        iterations = options.irls.iterations if robust != "none" else 1
+        return cls(weights, floors, reference, robust, iterations, options.irls.tol)
 
-    def describe(self, fit: dict) -> dict:
+    def describe(self, fit: Fit) -> dict:
         """``extras["field"]``: what the fit did (JSON-able)."""
         return {"exposure": "per_view" if self.reference is not None else "known",
                 "reference_view": self.reference, "robust": self.robust,
-                "scene_weights": self.weights is not None, "irls_rounds": fit["irls_rounds"],
-                "irls_stopped": fit["irls_stopped"]}
+                "scene_weights": self.weights is not None, "irls_rounds": fit.irls_rounds,
+                "irls_stopped": fit.irls_stopped}
 
 
-def _boundary_width(cfg, problem) -> int:
+def _boundary_width(value: int | str, problem) -> int:
     """``method.boundary`` in pixels: ``auto`` is 1 when some view was resampled from a distorted
     camera (its interpolation mixes the materials on either side of an edge, which the pass's
     box-filtered pixels do not), else 0."""
-    value = str(cfg.get("boundary", "auto"))
     if value != "auto":
         return int(value)
     return int(any(getattr(c, "distortion", None) is not None for c in problem.cameras))
@@ -297,17 +296,16 @@ def field_views(result, problem, params, x0: np.ndarray, options: FieldOptions
 
 
 def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, solve, *,
-              start: dict | None = None) -> dict:
+              start: dict | None = None) -> Fit:
     """Fit ρ (and the gains) to the weighted pixels, reweighting them (IRLS) from the stored
     coefficients; the module docstring gives the model.
 
-    ``solve(system, basis, parameters, x0, problem, views=, groups=)`` is the method's solve
-    (nlopt and the sandwich std). Returns its dict restricted to ρ's ``P`` rows, plus
-    ``exposure`` (contract list or None), ``pixel_weights`` (view -> (H, W) weights of the last
-    solve), ``images`` (a function giving the reconstructions), ``iterates`` (every round's),
-    ``irls_rounds``, ``irls_stopped``, ``n_monomials``, ``gram_nnz`` and ``robust_weights``
-    (view -> the robust weights after the last round: a refinement pass starts from them,
-    ``start``, instead of a plain L2 round that outliers drag).
+    ``solve(system, basis, parameters, x0, problem, views=, groups=)`` is the method's solve (the
+    joint or the per-segment fit and the sandwich std). Returns its :class:`Fit` restricted to ρ's
+    ``P`` rows, with ``exposure``, ``pixel_weights``, ``robust_weights``, ``irls_rounds``,
+    ``irls_stopped``, the images and every round's iterates; ``start``: the robust weights a
+    previous pass ended with (a refinement pass starts from them instead of a plain L2 round that
+    outliers drag).
     """
     from functools import reduce
 
@@ -327,9 +325,9 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
         used = [v.weights for v in views]
         fit = solve(system, basis, every, x, problem, groups=segment_groups(params),
                     views=lambda: ((v.coeffs, v.y, w) for v, w in zip(views, used)))
-        iterates += fit["iterates"]
-        moved = np.nanmax(np.abs(fit["estimate"] - x)) if np.isfinite(fit["estimate"]).any() else 0.0
-        x = np.where(np.isnan(fit["estimate"]), x, fit["estimate"])
+        iterates += fit.iterates
+        moved = np.nanmax(np.abs(fit.estimate - x)) if np.isfinite(fit.estimate).any() else 0.0
+        x = np.where(np.isnan(fit.estimate), x, fit.estimate)
         if options.robust == "none":
             break
         if round_ and moved < options.tol:
@@ -344,9 +342,9 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
     return _field_outputs(fit, views, used, basis, system, gains, P, C, round_ + 1, stopped, iterates)
 
 
-def _field_outputs(fit, views, used, basis, system, gains, P, C, rounds, stopped, iterates) -> dict:
-    """The method's fit dict from the extended solve (see :func:`fit_field`)."""
-    est, std = fit["estimate"], fit["std"]
+def _field_outputs(fit: Fit, views, used, basis, system, gains, P, C, rounds, stopped, iterates) -> Fit:
+    """The fit of ρ from the extended solve (see :func:`fit_field`)."""
+    est, std = fit.estimate, fit.std
     exposure = None
     if gains:
         names = {p.index: p.segment_name.removeprefix(GAIN_PREFIX) for p in gains}
@@ -354,14 +352,13 @@ def _field_outputs(fit, views, used, basis, system, gains, P, C, rounds, stopped
                      "estimate": [1.0] * C if v.gain is None else per_channel(GAIN_MAX * est[v.gain]),
                      "std": None if v.gain is None else per_channel(GAIN_MAX * std[v.gain])}
                     for v in views if v.gain is None or v.gain in names]
-    rho = fit.get("at", np.nan_to_num(est))       # the per-segment fit holds unseen blocks at their guess
+    rho = fit.evaluated_at       # the per-segment fit holds unseen blocks at their guess
     mu = np.stack([basis.evaluate(rho[:, c]) for c in range(C)])
-    out = dict(fit)
-    out.update(estimate=est[:P], at=rho[:P], std=std[:P], observable=fit["observable"][:P], exposure=exposure,
-               iterates=[(at, x[:P]) for at, x in iterates], irls_rounds=rounds, irls_stopped=stopped,
-               n_monomials=basis.size, gram_nnz=system.nnz, robust_weights={v.name: v.robust_w for v in views},
-               pixel_weights={v.name: (np.ones(len(v.y)) if w is None else w).reshape(v.shape).astype(np.float32)
-                              for v, w in zip(views, used)},
-               images=lambda: {v.name: predicted(v.coeffs, mu, system.codes).reshape(*v.shape, C).astype(np.float32)
-                               for v in views})
-    return out
+    return fit.replace(
+        estimate=est[:P], evaluated_at=rho[:P], std=std[:P], observable=fit.observable[:P], exposure=exposure,
+        iterates=[(at, x[:P]) for at, x in iterates], irls_rounds=rounds, irls_stopped=stopped,
+        n_monomials=basis.size, gram_nnz=system.nnz, robust_weights={v.name: v.robust_w for v in views},
+        pixel_weights={v.name: (np.ones(len(v.y)) if w is None else w).reshape(v.shape).astype(np.float32)
+                       for v, w in zip(views, used)},
+        images=lambda: {v.name: predicted(v.coeffs, mu, system.codes).reshape(*v.shape, C).astype(np.float32)
+                        for v in views})

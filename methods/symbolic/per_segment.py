@@ -47,6 +47,7 @@ import scipy.sparse as sp
 from framework.optim import minimize_sqp, project_feasible
 from framework.render.checks import check_memory
 from methods.symbolic.basis import MonomialBasis
+from methods.symbolic.fit import Fit
 from methods.symbolic.field import GAIN_PREFIX
 from methods.symbolic.gram import owned_systems, summed
 from methods.symbolic.solve import ChannelCost, SolveResult
@@ -194,11 +195,10 @@ def estimating_jacobian(systems: list, basis: MonomialBasis, blocks: list[list[i
 
 
 def fit_per_segment(system, basis: MonomialBasis, params, x0: np.ndarray, problem, *, views, groups,
-                    xtol: float, psd: bool = True) -> dict:
-    """The per-segment fit of one pass: the dict of the symbolic method's joint solve (estimate,
-    std, observable, solve, iterates, correlation, sigma2, std_method, stages_s, psd_skipped)
-    plus ``at`` (the ``(D, C)`` weights the images are evaluated at: the estimate, and the
-    guess where a block is held) and ``per_segment`` (sweeps, converged, held parameters).
+                    xtol: float, psd: bool = True) -> Fit:
+    """The per-segment fit of one pass: a :class:`~methods.symbolic.fit.Fit` whose
+    ``evaluated_at`` holds the guess where a block is held and whose ``per_segment`` says the
+    sweeps, whether they converged and the held parameters.
 
     ``system``: the pass's summed system (its size bounds the blocks'); ``views``: a function
     giving ``(coefficients, y, weights or None)`` per view in ``problem.cameras`` order;
@@ -235,12 +235,13 @@ def fit_per_segment(system, basis: MonomialBasis, params, x0: np.ndarray, proble
     estimate, std = np.full((D, C), np.nan), np.full((D, C), np.nan)
     estimate[keep], std[keep] = at[keep], unc.std
     held = [f"{p.segment_name}/{p.kernel}" for p, f in zip(params, free) if not f]
-    return {"estimate": estimate, "std": std, "observable": free, "solve": sol, "at": at,
-            "iterates": [(t, np.where(free[:, None], x, np.nan)) for t, x in sol.iterates],
-            "correlation": correlation_extra(params, free, unc), "sigma2": [float(v) for v in sigma2],
-            "std_method": "sandwich", "stages_s": {"psd": t_psd, "nlopt": sol.solve_s, "uncertainty": time.perf_counter() - t_unc},
-            "psd_skipped": tuple(n for s in systems if s is not None for n in s.psd_skipped),
-            "per_segment": {"sweeps": sweeps, "converged": converged, "held_at_guess": held}}
+    return Fit(estimate=estimate, std=std, observable=free, evaluated_at=at, solve=sol,
+               iterates=[(t, np.where(free[:, None], x, np.nan)) for t, x in sol.iterates],
+               correlation=correlation_extra(params, free, unc), sigma2=[float(v) for v in sigma2],
+               std_method="sandwich",
+               stages_s={"psd": t_psd, "solver": sol.solve_s, "uncertainty": time.perf_counter() - t_unc},
+               psd_skipped=tuple(n for s in systems if s is not None for n in s.psd_skipped),
+               per_segment={"sweeps": sweeps, "converged": converged, "held_at_guess": held})
 
 
 def _residual_variance(systems: list, basis: MonomialBasis, rho: np.ndarray, n_free: int) -> np.ndarray:

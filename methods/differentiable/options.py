@@ -1,0 +1,21 @@
+"""The options of ``method=differentiable`` (defaults in ``framework/conf/method/differentiable.yaml``)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from framework.options import nullable, number, option
+from methods._common import StartOptions
+
+
+@dataclass(frozen=True)
+class DifferentiableOptions(StartOptions):
+    """``method.*`` of the differentiable-rendering baseline."""
+
+    lr: float = option("Adam learning rate, in ρ units (the sweep in BENCHMARKS.md picks it)",
+                       number(0.0, 1.0, lo_open=True))
+    beta1: float = option("Adam first-moment decay, in [0, 1)", number(0.0, 0.999999))
+    beta2: float = option("Adam second-moment decay, in [0, 1)", number(0.0, 0.999999))
+    iterations: int = option("most iterations; `budget.renders` usually stops the run first",
+                             number(1, integer=True))
+    spp_grad: int | None = option("samples per pixel of the backward pass; `null`: `render.spp`",
+                                  nullable(number(1, integer=True)))

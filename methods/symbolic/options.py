@@ -1,0 +1,121 @@
+"""The options of ``method=symbolic`` (and of its presets ``symbolic_paper`` and ``lambertian_prior``).
+
+One frozen dataclass, built once from the method's config group (:func:`framework.options.build`);
+the defaults are in ``framework/conf/method/symbolic.yaml`` and the presets' YAML files, the
+descriptions here (docs/cli.md's table is generated from them).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from framework.errors import ConfigError
+from framework.kernels import KERNEL_SELECTION
+from framework.options import choice, either, flag, number, option
+from framework.relight import RelightOptions
+from methods._common import StartOptions
+
+ROBUST_LOSSES = ("none", "cauchy", "huber")
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """``method.solver.*``: the exact solve of the polynomial cost."""
+
+    algorithm: str = option(
+        "`SQP`: Newton steps on the exact Hessian of the polynomial cost, each an exact quadratic "
+        "program under the bounds and Σρ ≤ 1 (quadprog); the others are nlopt's algorithms (all take "
+        "the per-segment Σρ ≤ 1 constraints)", choice("SQP", "LD_SLSQP", "LD_MMA", "LD_CCSAQ"))
+    starts: int | str = option(
+        "starts per channel and parameter block: the initial guess, then seeded random feasible "
+        "points; `auto`: 4 for blocks of at most 32 parameters, 1 above (where measured, the random "
+        "starts of large blocks found nothing and cost most of the solve)",
+        either("auto", number(1, integer=True)))
+    max_eval: int = option("evaluations per start (`SQP`: iterations per start)", number(1, integer=True))
+    xtol_rel: float = option(
+        "nlopt's relative tolerance on the (preconditioned) weights; `SQP` stops when no weight steps "
+        "more than this; the per-segment sweeps stop when no weight moves more than this", number(0.0))
+    ftol_rel: float = option(
+        "relative tolerance on the cost's decrease (the joint cost; the per-segment sweeps do not use "
+        "it)", number(0.0))
+    precondition: bool = option(
+        "nlopt only: solve in coordinates where the cost's Hessian is about the identity (3-5 times "
+        "fewer evaluations)", flag())
+
+
+@dataclass(frozen=True)
+class IrlsOptions:
+    """``method.irls.*``: the robust reweighting rounds."""
+
+    iterations: int = option("cap on the robust rounds (one solve each)", number(1, 100, integer=True))
+    tol: float = option("the robust rounds stop when no weight or gain moves more than this", number(0.0))
+
+
+@dataclass(frozen=True)
+class SymbolicOptions(StartOptions):
+    """``method.*`` of the symbolic family (``method.tail_bounces`` is the framework's:
+    :mod:`framework.config` resolves ``render.tail_bounces=auto`` to it)."""
+
+    kernels: tuple[str, ...] | None = option(
+        "the kernels to estimate; the others are treated as absent (`[diffuse]` is the paper's "
+        "Lambertian setting, Table 1). An unknown name is refused with the list of registered kernels "
+        "(`diffuse`, `specular`, `glossy(α)` with α in (0, 1]; quote it on the command line: "
+        "`method.kernels='[diffuse,\"glossy(0.2)\"]'`), as is a list that selects none of the scene's "
+        "kernels", KERNEL_SELECTION)
+    prob_floor: float = option(
+        "least probability of choosing each kernel of a segment at a path vertex, so the polynomial "
+        "is unbiased for every ρ, not only near the guess", number(0.0, 1.0))
+    gram: str = option(
+        "`cross`: the Gram matrix from two independent halves of the samples, G = ½(AᵀB + BᵀA), "
+        "unbiased; `plain`: G = AᵀA, which shrinks the estimates at low spp", choice("cross", "plain"))
+    psd: bool = option("project G onto the positive semi-definite matrices before the solve", flag())
+    cost: str = option(
+        "`joint`: one L2 cost over every pixel (the paper's eq. 6), minimised exactly; `per_segment`: "
+        "the estimating equations of each segment's own pixels (the pixels whose centre sees it; a "
+        "view's exposure gain owns its view's pixels), solved together by block Gauss-Seidel with the "
+        "light between segments kept in the polynomial: a segment the kernels cannot reproduce then "
+        "keeps its misfit in its own weights instead of biasing the segments it lights. Both are "
+        "consistent when the kernels are right (the per-segment fit is a little less efficient); a "
+        "segment no pixel sees is held at its guess and reported unobservable; standard errors by the "
+        "sandwich of estimating equations (`method.std=residual` is refused with it). results.json "
+        "`cost`, `per_segment`", choice("joint", "per_segment"))
+    std: str = option(
+        "the standard error reported: `sandwich` covers the image noise and the Monte Carlo noise of "
+        "the polynomial's coefficients (H⁺MH⁺, M from every pixel's term of the cost gradient, with "
+        "the two half-sample passes); `residual` counts the image residual only (too small along "
+        "weakly constrained directions); see results.md", choice("sandwich", "residual"))
+    refine: int = option(
+        "cap on further passes, each re-rendered at the previous estimate (one render each): the "
+        "tail's linearisation and the kernel selection move to the estimate", number(0, 8, integer=True))
+    refine_tol: float = option(
+        "refinement stops once no weight moved more than `refine_tol` + 2 std between two passes (a "
+        "pass cannot settle closer than its Monte Carlo noise; weights without a finite std, which "
+        "the data do not pin, are not waited for); results.json `refine_moves`, `refine_stopped`",
+        number(0.0))
+    exposure: str = option(
+        "`scene`: as scene.yaml's `photometry` says (with `exposure: per_view`, one gain per view and "
+        "channel solved jointly with ρ, results.json `exposure`); `known`: gains 1", choice("scene", "known"))
+    weights: str = option(
+        "`scene`: leave out the pixels the scene marks (masks, saturated and black-clipped pixels, "
+        "pixels outside the delivered image after undistortion); `none`: every pixel counts",
+        choice("scene", "none"))
+    robust: str = option(
+        "robust reweighting of the pixels (IRLS from the stored coefficients, no render) against "
+        "objects the model lacks; `auto`: `cauchy` for photographs (8/16-bit images, pixel weights or "
+        "per-view exposure), `none` for linear radiance", choice("auto", *ROBUST_LOSSES))
+    boundary: int | str = option(
+        "leave out pixels within this many pixels of a change of segment (a photograph resampled from "
+        "a distorted camera mixes the two materials there); `auto`: 1 when some view has a distorted "
+        "camera, else 0", either("auto", number(0, 8, integer=True)))
+    irls: IrlsOptions = option("the robust rounds")
+    memory_mb: float = option(
+        "memory for the event buffers of one tile of the pass (sets the tile size). With a cache, each "
+        "tile's per-pixel coefficients go to the cache as they are rendered and are read back one tile "
+        "at a time, so a large view costs disk, not memory; with `cache.dir=null` they are held in "
+        "memory", number(0.0, lo_open=True))
+    solver: SolverOptions = option("the solve")
+    relight: RelightOptions = option("relit images")
+
+    def __post_init__(self):
+        if self.cost == "per_segment" and self.std == "residual":
+            raise ConfigError("method.std=residual is the joint cost's formula: with method.cost=per_segment "
+                              "use method.std=sandwich, or method.cost=joint")

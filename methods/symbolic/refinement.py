@@ -1,0 +1,141 @@
+"""The passes of ``method=symbolic``: a polynomial pass, its fit, and further passes at the estimate.
+
+Each pass renders every view once at guesses ``x0`` (:func:`~methods.symbolic.polynomial_pass.polynomial_pass`)
+and is solved without more rendering: through the joint cost, the per-segment estimating
+equations, or the field path around either (pixel weights, exposure gains, robust rounds). With
+``refine`` > 0 the next pass is rendered at the estimate (the tail's linearisation and the kernel
+selection move there) until no weight moved more than ``refine_tol + 2 std`` between two
+passes, or the cap.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from framework.cache import Cache
+from framework.executor import make_executor
+from methods._common import Trace, segment_groups
+from methods.symbolic.basis import MonomialBasis
+from methods.symbolic.field import FieldOptions, fit_field
+from methods.symbolic.fit import Fit, images_at
+from methods.symbolic.joint import fit_joint
+from methods.symbolic.options import SymbolicOptions
+from methods.symbolic.per_segment import fit_per_segment
+from methods.symbolic.polynomial_pass import polynomial_pass
+
+
+@dataclasses.dataclass
+class Passes:
+    """What the passes of one run gave: the last fit and the bookkeeping of the run's results."""
+
+    fit: Fit
+    renders: int
+    render_s: float
+    solve_s: float
+    stages_s: dict
+    moves: list
+    stopped: str
+    from_cache: list
+    field: FieldOptions
+
+
+def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, renders: int, trace: Trace) -> Passes:
+    """Render and fit passes until the estimate stops moving (module docstring).
+
+    ``problem`` holds ``params`` as its parameters; ``renders``: passes already spent (a prior);
+    every solver evaluation is recorded in ``trace``.
+    """
+    field = FieldOptions.resolve(options, problem)
+    stopped = "single pass" if options.refine == 0 else f"cap of {options.refine} refinement pass(es)"
+    render_s = solve_s = 0.0
+    stages, moves, fit = {}, [], None
+    for k in range(1 + options.refine):
+        if k:      # re-render at the estimate: better kernel selection, and a tail at the estimate
+            x0 = np.where(np.isnan(fit.estimate), x0, fit.estimate)
+        result = render_pass(problem, params, x0, options, seed=int(problem.seed) + 7777 * renders)
+        renders += 1
+        t_solve = time.perf_counter()
+        previous = fit
+        fit = fit_pass(result, params, x0, problem, options, field,
+                       start=previous.robust_weights if previous is not None else None)
+        for at, x in fit.iterates:
+            trace.record(renders, x, at=at)
+        render_s += result.render_s
+        solve_s += time.perf_counter() - t_solve     # PSD projection, solver and uncertainty
+        stages = {name: stages.get(name, 0.0) + t for name, t in fit.stages_s.items()}
+        if k:
+            fit = carried(previous, fit)
+            moves.append(moved(previous.estimate, fit.estimate, fit.std, options.refine_tol))
+            if moves[-1] <= 1.0:
+                stopped = (f"converged after {k} refinement pass(es): no weight moved more than "
+                           f"refine_tol + 2 std ({moves[-1]:.2f} of it)")
+                break
+    return Passes(fit, renders, render_s, solve_s, stages, moves, stopped, result.from_cache, field)
+
+
+def render_pass(problem, params, x0: np.ndarray, options: SymbolicOptions, *, seed: int):
+    """The polynomial pass of every view with guesses ``x0`` (one render)."""
+    settings = problem.settings
+    with make_executor(settings.executor) as executor:
+        return polynomial_pass(problem, params, x0, settings.max_bounces, spp=settings.spp,
+                               tail_bounces=settings.tail_bounces, seed=seed, prob_floor=options.prob_floor,
+                               memory_mb=options.memory_mb, cache=Cache(settings.cache_dir), executor=executor,
+                               cross_gram=options.gram == "cross")
+
+
+def fit_pass(result, params, x0: np.ndarray, problem, options: SymbolicOptions, field: FieldOptions, *,
+             start: dict | None = None) -> Fit:
+    """The fit of one pass: on the pass's own system, or through the field path
+    (:func:`~methods.symbolic.field.fit_field`); ``start``: the robust weights the previous pass
+    ended with."""
+    solve = lambda system, basis, every, x, pb, *, views, groups: solve_system(  # noqa: E731
+        system, basis, every, x, pb, options, views=views, groups=groups)
+    if field.active:
+        result.take_system()    # released: the field fit forms its own weighted systems
+        return fit_field(result, params, x0, problem, field, solve, start=start)
+    basis = MonomialBasis(len(params), problem.settings.max_bounces, result.codes)
+    views = lambda: ((result.coefficients(cam.name), problem.observed[cam.name], None)  # noqa: E731
+                     for cam in problem.cameras)
+    nnz = result.system.nnz
+    # handed over, not held here: the solve releases it once restricted
+    fit = solve(result.take_system(), basis, params, x0, problem, views=views, groups=segment_groups(params))
+    return fit.replace(n_monomials=basis.size, gram_nnz=nnz,
+                       images=lambda: images_at(result, basis, fit.evaluated_at, problem.cameras))
+
+
+def solve_system(system, basis, params, x0: np.ndarray, problem, options: SymbolicOptions, *, views,
+                 groups) -> Fit:
+    """The fit of a summed system by the cost ``options.cost`` names."""
+    if options.cost == "per_segment":
+        return fit_per_segment(system, basis, params, x0, problem, views=views, groups=groups,
+                               xtol=options.solver.xtol_rel, psd=options.psd)
+    return fit_joint(system, basis, params, x0, problem, options, views=views, groups=groups)
+
+
+def carried(previous: Fit, fit: Fit) -> Fit:
+    """``fit`` with the estimate and std of the parameters it could not observe but the previous
+    pass could taken from that pass: a weight seen through a handful of paths may get none in
+    the next pass's samples, which says nothing new about it."""
+    lost = previous.observable & ~fit.observable
+    if not lost.any():
+        return fit
+    estimate, std = fit.estimate.copy(), fit.std.copy()
+    estimate[lost], std[lost] = previous.estimate[lost], previous.std[lost]
+    return fit.replace(estimate=estimate, std=std, observable=fit.observable | lost)
+
+
+def moved(previous: np.ndarray, current: np.ndarray, std: np.ndarray, tol: float) -> float:
+    """Largest change of an estimate between two passes in units of ``tol + 2 std``: below 1 the
+    passes agree within their Monte Carlo noise (each pass has its own samples, so the estimate
+    never settles closer than that) or within ``tol``. Parameters estimated in both passes with a
+    finite std count: one without (the data do not pin it; reported ill-determined) wanders from
+    pass to pass whatever the passes do."""
+    both = np.isfinite(previous) & np.isfinite(current) & np.isfinite(std)
+    if not both.any():
+        return 0.0
+    scale = tol + 2.0 * np.where(both, std, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.abs(current - previous) / scale
+    return float(np.nanmax(np.where(both, ratio, 0.0)))
