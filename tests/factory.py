@@ -319,10 +319,14 @@ def ad_and_fd_gradients(problem, *, spp: int, rho: float, repeats: int, step: fl
     (I_c(ρ + h e_j) - I_c(ρ - h e_j)) / 2h`` with common random numbers (seed ``c`` on both
     sides) and the residual from an independent seed ``r``.
     """
+    import dataclasses
+
     from methods import _common as C
-    from methods.differentiable import _Fit
+    from methods.differentiable import DifferentiableMethod, _Fit
     ledger = C.RenderLedger(10 ** 6, desc="gradient test")
-    fit = _Fit(problem, ledger, {"spp": spp, "spp_grad": spp})
+    options = DifferentiableMethod.options_from(method_config("differentiable", spp_grad=spp))
+    problem = dataclasses.replace(problem, settings=dataclasses.replace(problem.settings, spp=spp))
+    fit = _Fit(problem, ledger, options)
     x = np.full((len(problem.parameters), problem.n_channels), rho)
     obs = C.observed_list(problem)[0]
 

@@ -9,7 +9,7 @@ from factory import run_method, run_symbolic, tiny_problem, view_systems
 from framework.errors import ConfigError
 from framework.scene.model import Photometry
 from methods.symbolic.field import GAIN_MAX, robust_weights, weighted_system, with_gain
-from methods.symbolic.polynomial_pass import ViewCoefficients
+from methods.symbolic.coefficients import ViewCoefficients
 
 GAINS = np.array([1.5, 0.8, 1.2])      # view_1's gains per channel; view_0 is the reference
 

@@ -13,7 +13,7 @@ from framework.scene.model import Parameter, Photometry
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.gram import owned_systems, weighted_system
 from methods.symbolic.per_segment import estimating_jacobian, ownership, parameter_blocks, solve_blocks
-from methods.symbolic.polynomial_pass import ViewCoefficients
+from methods.symbolic.coefficients import ViewCoefficients
 from methods.symbolic.solve import ChannelCost, hessian
 from methods.symbolic.uncertainty import estimating_uncertainty, parameter_uncertainty
 

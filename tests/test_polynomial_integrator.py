@@ -276,7 +276,7 @@ def test_halves_split_the_samples():
 def test_event_csr_matches_scipy_coo():
     """_csr (one within-row sort shared by the channels) equals scipy's COO -> CSR conversion,
     duplicates summed, on random events with sorted rows."""
-    from methods.symbolic.integrator import _csr
+    from methods.symbolic.events import csr as _csr
     import scipy.sparse as sp
     rng = np.random.default_rng(0)
     rows = np.sort(rng.integers(0, 50, 2000))

@@ -33,7 +33,7 @@ from factory import make_problem, make_tiny_scene, method_config
 from framework.registry import get_method
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.gram import GramSystem
-from methods.symbolic.polynomial_pass import ViewCoefficients
+from methods.symbolic.coefficients import ViewCoefficients
 from methods.symbolic.uncertainty import ill_determined, parameter_uncertainty, score_meat
 
 SEEDS = range(20)

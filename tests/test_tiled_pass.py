@@ -7,8 +7,9 @@ from factory import tiny_problem
 from framework.cache import Cache
 from framework.executor import SerialExecutor
 from methods.symbolic.basis import MonomialBasis
-from methods.symbolic.polynomial_pass import (TileLoader, TiledCoefficients, polynomial_pass, predicted, render_view_task,
-                                              tile_pixels_for, view_task)
+from methods.symbolic.coefficients import TiledCoefficients, predicted
+from methods.symbolic.pass_cache import TileLoader
+from methods.symbolic.polynomial_pass import polynomial_pass, render_view_task, tile_pixels_for, view_task
 from methods.symbolic.uncertainty import score_meat
 
 #: 16 spp, N_max 3, 2 tail bounces, RGB: 4.5 KiB of event buffers a pixel, so 0.3 MiB gives tiles

@@ -4,7 +4,8 @@ A plugin must derive from the *current* variant's base class (``mi.BSDF``,
 ``mi.SamplingIntegrator``...), which differs between variants, and nanobind types accept a single
 base: no ``class Plugin(Mixin, mi.BSDF)``. So the plugin's methods are written in a plain class
 (the *mixin*) and copied onto a subclass of the variant's base, built and registered once per
-variant, so that one process can run rgb and mono scenes. The mixin's methods therefore cannot
+variant, so that one process can run rgb and mono scenes. The mixin may itself derive from plain
+classes (one job each); their attributes are copied too. The mixin's methods therefore cannot
 use zero-argument ``super()``: they call the base through ``mi`` (the active variant).
 """
 from __future__ import annotations
@@ -25,7 +26,9 @@ def plugin_class(name: str, mixin: type, base: type, register: Callable, plugin:
     variant, later calls return the same class."""
     key = (mi.variant(), name)
     if key not in _CLASSES:
-        cls = type(name, (base,), {k: v for k, v in vars(mixin).items() if k not in _OWN})
+        # the mixin's attributes and those of the plain classes it derives from (later ones win)
+        attrs = {k: v for klass in reversed(mixin.__mro__[:-1]) for k, v in vars(klass).items() if k not in _OWN}
+        cls = type(name, (base,), attrs)
         register(plugin, lambda props: cls(props))
         _CLASSES[key] = cls
     return _CLASSES[key]

@@ -41,7 +41,7 @@ from methods.symbolic.basis import code_digits, encode_digits
 from methods.symbolic.fit import Fit
 from methods.symbolic.gram import weighted_system
 from methods.symbolic.options import ROBUST_LOSSES, SymbolicOptions
-from methods.symbolic.polynomial_pass import TiledCoefficients, ViewCoefficients, predicted
+from methods.symbolic.coefficients import TiledCoefficients, ViewCoefficients, predicted
 
 #: ``segment_name`` of a view's gain parameter: this prefix, then the view's name
 GAIN_PREFIX = "exposure:"

@@ -3,58 +3,24 @@
 The estimator lives in :class:`PolynomialPathMixin`; ``mi.SamplingIntegrator`` (like every
 Mitsuba type) differs between variants, so :func:`integrator_class` builds the Mitsuba plugin
 ``PolynomialPathIntegrator`` from it once per variant (:mod:`framework.render.plugin`).
-Camera rays and tile seeding are in :mod:`methods.symbolic.common`, the events a path writes
-and their sparse assembly in :mod:`methods.symbolic.events`.
+Its host-side tables are :class:`~methods.symbolic.integrator_tables.KernelTables`, its tiling
+API :class:`~methods.symbolic.integrator_tiles.CoefficientTiles`; camera rays and tile seeding
+are in :mod:`methods.symbolic.common`, the events a path writes and their sparse assembly in
+:mod:`methods.symbolic.events`.
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Self
-
 import drjit as dr
 import mitsuba as mi
-import numpy as np
 
-from framework import kernels as kernel_registry
 from framework.errors import ConfigError
 from framework.render.plugin import plugin_class
-from methods.symbolic.basis import check_key_range, merge_codes, monomial_columns
-from methods.symbolic.common import camera_rays, mis_weight, pixel_window, tile_sampler
-from methods.symbolic.events import EventBuffer, lane_pixel, reindex_columns, stack_tiles, tile_matrices
-
-# Re-exported under its former name: tests/test_polynomial_integrator.py imports it from here.
-from methods.symbolic.events import csr as _csr  # noqa: F401
+from methods.symbolic.common import mis_weight
+from methods.symbolic.integrator_tables import KernelTables
+from methods.symbolic.integrator_tiles import CoefficientTiles
 
 
-def selection_probabilities(guesses: np.ndarray, segment_kernels, prob_floor: float) -> list[np.ndarray]:
-    """Per segment, the kernel selection probabilities ``q_k``.
-
-    ``q_k ∝ mean_c guess[p_k, c]`` floored at ``min(prob_floor, 1/K)`` and renormalised so that
-    every ``q_k >= floor`` and ``Σ_k q_k = 1`` exactly (water filling: the kernels at the floor keep
-    it, the others share the rest in proportion to their guesses). All-zero guesses: uniform.
-    """
-    out = []
-    for kernels in segment_kernels:
-        K = len(kernels)
-        w = np.array([max(float(np.mean(guesses[p])), 0.0) for _, p in kernels])
-        floor = min(float(prob_floor), 1.0 / K)
-        if w.sum() <= 0:
-            out.append(np.full(K, 1.0 / K))
-            continue
-        fixed = np.zeros(K, bool)
-        for _ in range(K):
-            free_mass = 1.0 - floor * fixed.sum()
-            q = np.where(fixed, floor, free_mass * w / max(w[~fixed].sum(), 1e-300))
-            newly = (q < floor) & ~fixed
-            if not newly.any():
-                break
-            fixed |= newly
-        q = np.where(fixed, floor, q)
-        out.append(q / q.sum())
-    return out
-
-
-class PolynomialPathMixin:
+class PolynomialPathMixin(KernelTables, CoefficientTiles):
     r"""Polynomial (a.k.a. "symbolic", paper section 4.2) path tracer for kernel-BRDF scenes.
 
     Every segment ``s`` of the scene has the kernel BRDF ``f_s = Σ_k ρ_{p_k} f_k`` (paper eq. 3-4),
@@ -104,7 +70,7 @@ class PolynomialPathMixin:
     matrices (:mod:`methods.symbolic.events`), so memory is ``tile_pixels × spp × (N_max + T + 1)``
     events, never pixels × N_e.
 
-    Kernel selection probabilities (:func:`selection_probabilities`): ``q_k ∝ mean_c guess[p_k, c]``,
+    Kernel selection probabilities (:func:`~methods.symbolic.integrator_tables.selection_probabilities`): ``q_k ∝ mean_c guess[p_k, c]``,
     floored so that every kernel keeps ``q_k >= min(prob_floor, 1/K)`` (``K`` kernels on the
     segment), renormalised. The estimate is unbiased for *any* ρ whatever the guesses; guesses
     near ρ reduce the variance.
@@ -157,131 +123,7 @@ class PolynomialPathMixin:
         self._configured = False
         self._shape_tables: dict[int, mi.Int32] = {}
 
-    def _set_scalars(self, max_bounces, prob_floor, tail_bounces=0):
-        if int(max_bounces) != max_bounces or int(max_bounces) < 1:
-            raise ConfigError(f"max_bounces={max_bounces}: N_max must be an integer in [1, ∞) "
-                              "(1 = direct lighting only)")
-        if not (0.0 <= float(prob_floor) <= 1.0):
-            raise ConfigError(f"prob_floor={prob_floor}: must be in [0, 1]")
-        if int(tail_bounces) != tail_bounces or int(tail_bounces) < 0:
-            raise ConfigError(f"tail_bounces={tail_bounces}: must be an integer in [0, ∞) "
-                              "(0 = no light beyond max_bounces reflections)")
-        self.max_bounces = int(max_bounces)
-        self.prob_floor = float(prob_floor)
-        self.tail_bounces = int(tail_bounces)
-
-    # -- configuration ---------------------------------------------------------------------------
-    @classmethod
-    def create(cls, shape_segments, segment_kernels, n_params, guesses, *, max_bounces: int = 3,
-               prob_floor: float = 0.1, tile_pixels: int = 4096, tail_bounces: int = 0) -> Self:
-        """Build and :meth:`configure` an integrator in one call (arguments as there)."""
-        props = mi.Properties("polynomial_path")
-        props["max_bounces"] = int(max_bounces)
-        props["prob_floor"] = float(prob_floor)
-        props["tile_pixels"] = int(tile_pixels)
-        props["tail_bounces"] = int(tail_bounces)
-        integ = cls(props)
-        integ.configure(shape_segments, segment_kernels, n_params, guesses)
-        return integ
-
-    def configure(self, shape_segments: Sequence[tuple], segment_kernels: Sequence[Sequence[tuple]],
-                  n_params: int, guesses: np.ndarray) -> None:
-        """Set the scene-dependent model.
-
-        Parameters
-        ----------
-        shape_segments : list of (mi.Shape, int)
-            Each shape with its segment index, or -1 for emit-only shapes (they absorb).
-        segment_kernels : list of list of (str, int)
-            Per segment, its kernels as (registered kernel name, parameter index into ρ).
-        n_params : int
-            ``D``, the length of ρ.
-        guesses : numpy.ndarray
-            ``(D, C)`` guesses of ρ, used for the kernel selection probabilities and by
-            :meth:`sample`.
-        """
-        D = int(n_params)
-        if D < 1:
-            raise ConfigError(f"n_params={n_params}: must be >= 1")
-        g = self._checked_guesses(segment_kernels, D, guesses)
-        self.n_params, self.n_channels = D, g.shape[1]
-        self.guesses = g
-        self.segment_kernels = [[(str(n), int(p)) for n, p in kl] for kl in segment_kernels]
-        self._build_kernel_tables()
-        self._shape_segment = _shape_ids(shape_segments, len(self.segment_kernels))
-        self._shape_tables = {}
-        self._configured = True
-
-    def _checked_guesses(self, segment_kernels, D: int, guesses) -> np.ndarray:
-        """Check the key range and the kernels; the guesses as a ``(D, C)`` array (broadcast over
-        the channels)."""
-        check_key_range(D, self.max_bounces)
-        C = dr.size_v(mi.Spectrum)
-        g = np.asarray(guesses, dtype=float)
-        if g.ndim == 1:
-            g = g[:, None]
-        if g.shape[0] != D:
-            raise ConfigError(f"guesses has {g.shape[0]} rows, expected n_params={D}")
-        g = np.broadcast_to(g, (D, C)).copy()
-        if len(segment_kernels) == 0:
-            raise ConfigError("segment_kernels is empty: at least one segment is needed")
-        for s, kl in enumerate(segment_kernels):
-            if len(kl) == 0:
-                raise ConfigError(f"segment {s} has no kernel")
-            for name, p in kl:
-                kernel_registry.get(name)
-                if not 0 <= int(p) < D:
-                    raise ConfigError(f"segment {s}: parameter index {p} outside [0, {D - 1}]")
-        return g
-
-    def _build_kernel_tables(self) -> None:
-        """Device tables of the kernel choice: per segment, ``K_max`` slots (padded) of selection
-        cdf, ``q``, parameter and kernel type; the unit BSDF and Dirac flag of each kernel type;
-        and the guesses (index ``p·C + c``)."""
-        names = sorted({n for kl in self.segment_kernels for n, _ in kl})
-        self._unit_bsdfs = [mi.load_dict(kernel_registry.get(n).unit_bsdf()) for n in names]
-        n_seg = len(self.segment_kernels)
-        K_max = max(len(kl) for kl in self.segment_kernels)
-        q = selection_probabilities(self.guesses, self.segment_kernels, self.prob_floor)
-        self.selection_probs = q
-        cdf = np.ones((n_seg, K_max))               # padding slots are never chosen: cdf 1
-        prob = np.ones((n_seg, K_max))
-        param = np.zeros((n_seg, K_max), np.uint32)
-        ktype = np.zeros((n_seg, K_max), np.uint32)
-        for s, kl in enumerate(self.segment_kernels):
-            c = np.cumsum(q[s])
-            c[-1] = 1.0                                 # no gap above the last kernel from rounding
-            cdf[s, :len(kl)] = c
-            prob[s, :len(kl)] = q[s]
-            for j, (n, p) in enumerate(kl):
-                param[s, j] = p
-                ktype[s, j] = names.index(n)
-        self._K_max = K_max
-        self._cdf = mi.Float(cdf.ravel())
-        self._prob = mi.Float(prob.ravel())
-        self._param = mi.UInt32(param.ravel())
-        self._ktype = mi.UInt32(ktype.ravel())
-        self._delta = mi.UInt32([int(kernel_registry.get(n).delta) for n in names])
-        self._guess_flat = mi.Float(self.guesses.ravel())
-
-    def _segment_table(self, scene: mi.Scene) -> mi.Int32:
-        """Registry id -> segment table covering every shape of ``scene`` (unlisted: -1)."""
-        key = id(scene)
-        if key not in self._shape_tables:
-            ids = [_shape_id(s) for s in scene.shapes()]
-            n = max(ids + list(self._shape_segment) + [0]) + 1
-            tab = np.full(n, -1, np.int32)
-            for sid, seg in self._shape_segment.items():
-                tab[sid] = seg
-            self._shape_tables = {key: mi.Int32(tab)}   # keep only the latest scene
-        return self._shape_tables[key]
-
-    def _check(self):
-        if not self._configured:
-            raise ConfigError("PolynomialPathIntegrator used before configure(): call "
-                              "configure(shape_segments, segment_kernels, n_params, guesses)")
-
-    # -- the path loop ---------------------------------------------------------------------------
+    # -- the path loop    # -- the path loop ---------------------------------------------------------------------------
     @dr.syntax
     def _trace(self, scene, sampler, ray, β, active, store=None):
         """Trace one path per lane (a Dr.Jit recorded loop over bounces, so that lanes whose
@@ -430,97 +272,6 @@ class PolynomialPathMixin:
         return (f"PolynomialPathIntegrator[max_bounces={self.max_bounces}, "
                 f"tail_bounces={self.tail_bounces}, prob_floor={self.prob_floor}]")
 
-    # -- coefficients ----------------------------------------------------------------------------
-    def coefficients(self, scene: mi.Scene, sensor=0, *, spp: int, seed: int = 0,
-                     pixel_range: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """``(codes, γ)``: dense ``(stop - start, len(codes), C)`` float32 coefficients (eq. 8) of
-        one view's pixels over the monomial ``codes`` that occur.
-
-        Same arguments as :meth:`coefficients_sparse`, whose result this densifies (for tests and
-        small images; the inversion keeps the sparse form).
-        """
-        codes, mats = self.coefficients_sparse(scene, sensor, spp=spp, seed=seed, pixel_range=pixel_range)
-        return codes, np.stack([m.toarray() for m in mats], axis=-1).astype(np.float32)
-
-    def coefficients_sparse(self, scene: mi.Scene, sensor=0, *, spp: int, seed: int = 0,
-                            pixel_range: tuple[int, int] | None = None) -> tuple[np.ndarray, list]:
-        """Polynomial coefficients ``γ`` (eq. 8) of the pixels of one view, one sparse matrix per channel.
-
-        Parameters
-        ----------
-        scene : mi.Scene
-            The scene whose shapes were given to :meth:`configure`.
-        sensor : int or mi.Sensor
-            Sensor (index into ``scene.sensors()`` or the sensor itself).
-        spp : int
-            Samples per pixel (>= 1).
-        seed : int
-            Sampler seed; tiles after the first derive their own seed from it.
-        pixel_range : (int, int), optional
-            Pixels ``[start, stop)`` in row-major order of the film's crop window; default all.
-
-        Returns
-        -------
-        (numpy.ndarray, list of scipy.sparse.csr_matrix)
-            The sorted multiset codes of the monomials that occur (always 0, the constant;
-            :class:`~methods.symbolic.basis.MonomialBasis`), and ``C`` matrices of shape
-            ``(stop - start, len(codes))``, float64, canonical (sorted indices, no duplicates).
-        """
-        codes, gamma = self._tiled(scene, sensor, spp, seed, pixel_range, halves=False)
-        return codes, gamma
-
-    def coefficients_halves(self, scene: mi.Scene, sensor=0, *, spp: int, seed: int = 0,
-                            pixel_range: tuple[int, int] | None = None) -> tuple[np.ndarray, list, list, list]:
-        """``(codes, A, B, Γ)``: two independent estimates of the coefficients and their mean, from
-        one render, over the monomial ``codes`` that occur.
-
-        ``A`` uses the samples ``0 .. spp//2 - 1`` of every pixel, ``B`` the others, ``Γ`` all
-        of them (``Γ = (spp//2 · A + (spp - spp//2) · B) / spp``; the lanes are laid out in two
-        sample blocks, so Γ is not :meth:`coefficients_sparse`'s result at the same seed, only
-        an estimate of the same coefficients). The sampler is ``independent``, so ``A`` and ``B`` are independent and
-        ``E[AᵀB] = E[A]ᵀE[B]`` (:meth:`GramSystem.accumulate_sparse`). Arguments as
-        :meth:`coefficients_sparse`, with ``spp >= 2``.
-        """
-        if int(spp) < 2:
-            raise ConfigError(f"spp={spp}: two independent halves need spp >= 2")
-        return self._tiled(scene, sensor, spp, seed, pixel_range, halves=True)
-
-    def _tiled(self, scene, sensor, spp, seed, pixel_range, halves: bool) -> tuple:
-        """Checks, then the tiles of ``tile_pixels`` pixels over their merged codes, stacked:
-        ``(codes, Γ)`` or ``(codes, A, B, Γ)``."""
-        self._check()
-        if isinstance(sensor, int):
-            sensor = scene.sensors()[sensor]
-        if int(spp) < 1:
-            raise ConfigError(f"spp={spp}: must be >= 1")
-        spp = int(spp)
-        start, stop = pixel_window(sensor.film(), pixel_range)
-        split = spp // 2 if halves else spp
-        tiles = [self._tile(scene, sensor, spp, seed, t0, min(stop, t0 + self.tile_pixels), split)
-                 for t0 in range(start, stop, self.tile_pixels)]
-        codes = merge_codes([0], *(codes for codes, _ in tiles))
-        mats = [reindex_columns(t, np.searchsorted(codes, c), len(codes)) for c, t in tiles]
-        return (codes,) + stack_tiles(mats, 3 if halves else 1, self.n_channels, len(codes))
-
-    def _tile(self, scene, sensor, spp, seed, start, stop, split) -> tuple:
-        """Trace the pixels ``[start, stop)``, ``spp`` samples each, as one kernel: the codes of
-        their monomials and their matrices ``(Γ,)``, or ``(A, B, Γ)`` with the first
-        ``split < spp`` samples of each pixel in ``A``."""
-        n = stop - start
-        if n * spp >= 2 ** 32:
-            raise ConfigError(f"tile of {n} pixels x {spp} spp too large for 32-bit indices: lower tile_pixels")
-        sampler = tile_sampler(sensor, spp, seed, start, n)
-        pix = lane_pixel(dr.arange(mi.UInt32, n * spp), n, spp, split) + dr.opaque(mi.UInt32, start)
-        ray, weight = camera_rays(sensor, sampler, pix)
-        events = EventBuffer(n * spp, self.max_bounces + self.tail_bounces + 1, self.n_channels)
-        β = mi.Spectrum(weight) * dr.opaque(mi.Float, 1.0 / spp)      # box filter: 1/spp per sample
-        self._trace(scene, sampler, mi.Ray3f(ray), β, mi.Bool(True), events.store)
-        (rows, keys, vals), first_b = events.compact(n, spp, split)
-        # the ordered keys of one monomial differ by the order of its parameters: sort them out
-        codes, cols = monomial_columns(keys, self.n_params, self.max_bounces)
-        return codes, tile_matrices((rows, cols, vals), first_b, (n, len(codes)), spp, split)
-
-
 def _emission_hit(scene, si, prev_si, prev_pdf, prev_delta, active):
     """``(Le, mis)``: radiance of the emitter hit at ``si`` by a ray sampled from the kernel at
     ``prev_si`` with pdf ``prev_pdf``, and its MIS weight against emitter sampling (1 after a
@@ -531,22 +282,6 @@ def _emission_hit(scene, si, prev_si, prev_pdf, prev_delta, active):
     em_pdf = dr.select(prev_delta, 0.0, em_pdf)
     mis = mis_weight(prev_pdf, em_pdf)
     return emitter.eval(si, active & (prev_pdf > 0)), mis
-
-
-def _shape_id(shape) -> int:
-    """Mitsuba's registry id of ``shape``: the value ``si.shape`` holds for it on the device."""
-    return int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape))[0])
-
-
-def _shape_ids(shape_segments, n_seg: int) -> dict[int, int]:
-    """Registry id -> segment of each configured shape, the segment checked in ``[-1, n_seg)``."""
-    out = {}
-    for shape, seg in shape_segments:
-        seg = int(seg)
-        if not -1 <= seg < n_seg:
-            raise ConfigError(f"shape {shape.id()}: segment {seg} outside [-1, {n_seg - 1}]")
-        out[_shape_id(shape)] = seg
-    return out
 
 
 def integrator_class() -> type:

@@ -202,7 +202,7 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
         giving ``(first row, block)``, a block with ``a``, ``b`` (lists of ``C`` sparse
         matrices, ``b`` possibly None), ``split`` and ``codes`` (the monomial codes of the
         matrices' columns, a subset of ``codes``):
-        :class:`~methods.symbolic.polynomial_pass.TiledCoefficients` or ``ViewCoefficients``),
+        :class:`~methods.symbolic.coefficients.TiledCoefficients` or ``ViewCoefficients``),
         and the ``(n, C)`` observed pixels.
     columns : numpy.ndarray
         Index in ``codes`` of each monomial of ``basis`` (:func:`restrict_system`); the other

@@ -1,0 +1,116 @@
+"""A view's per-pixel coefficients as the polynomial pass keeps them, and the pass's result.
+
+Each pixel's coefficients are sparse rows over the monomials that occur (2-6 % non-zero), as the
+two independent estimates from the two halves of its samples (:class:`ViewCoefficients`): their
+cross product is the unbiased Gram matrix, their mean the coefficients, their difference the
+per-pixel Monte Carlo noise the sandwich standard errors need. A view is a list of row blocks
+(the pass's tiles, :class:`TiledCoefficients`), each held or loaded from the cache when iterated.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from methods.symbolic.gram import GramSystem
+
+
+@dataclass
+class ViewCoefficients:
+    """A view's per-pixel coefficients, one sparse ``(pixels, len(codes))`` float64 matrix per
+    channel, over the monomial ``codes`` that occur in the view (its system's codes).
+
+    ``a``, ``b``: the two independent estimates of the coefficients from the two halves of each
+    pixel's samples (each a full estimate; ``a`` holds the fraction ``split`` of the samples, 1/2
+    at even spp), kept as the pass made them: the cross Gram is ½(AᵀB + BᵀA) and the estimate
+    from all samples (eq. 8) is Γ = split·A + (1 - split)·B (:meth:`apply`). ``b`` is None when
+    the pass had no halves (``gram=plain`` or spp < 2): ``a`` is then Γ.
+    """
+
+    a: list
+    b: list | None = None
+    split: float = 0.5
+    codes: np.ndarray | None = None
+
+    @property
+    def n_rows(self) -> int:
+        return self.a[0].shape[0]
+
+    def apply(self, c: int, x: np.ndarray) -> np.ndarray:
+        """``Γ_c x`` for channel ``c`` (x over this block's ``codes``), without forming Γ."""
+        if self.b is None:
+            return self.a[c] @ x
+        return self.split * (self.a[c] @ x) + (1.0 - self.split) * (self.b[c] @ x)
+
+    def blocks(self):
+        """``(first row, ViewCoefficients)`` of each row block: itself, from row 0."""
+        yield 0, self
+
+
+class TiledCoefficients:
+    """A view's coefficients as row blocks (the pass's tiles), each a :class:`ViewCoefficients`
+    over the monomials of its own pixels; a block is held, or a function loading it (from the
+    cache): iterating :meth:`blocks` then holds one block at a time, so a megapixel view's
+    coefficients never need to fit in memory at once.
+
+    Consumers (:func:`predicted`, :func:`~methods.symbolic.gram.weighted_system`,
+    :func:`~methods.symbolic.uncertainty.score_meat`) iterate :meth:`blocks` of either class.
+    """
+
+    def __init__(self, starts, blocks: list, n_rows: int):
+        self.starts = [int(s) for s in starts]
+        self._blocks = list(blocks)
+        self.n_rows = int(n_rows)
+
+    def blocks(self):
+        for start, block in zip(self.starts, self._blocks):
+            yield start, (block() if callable(block) else block)
+
+
+@dataclass
+class PassResult:
+    """The pass over all views: their summed Gram system, and each view's coefficients.
+
+    ``views[name]`` is the view's :class:`TiledCoefficients`; with a cache its blocks wait on
+    disk (:class:`TileLoader`): memory then stays flat in the number of views and in their size. The views' own Gram
+    systems are consumed by the sum.
+    """
+
+    system: GramSystem | None                            # summed over views as a tree, in view order
+    views: dict[str, object]
+    render_s: float = 0.0
+    from_cache: list[str] = field(default_factory=list)  # views read from the cache
+    codes: np.ndarray | None = None                      # the monomials of the pass (the system's)
+
+    def __post_init__(self):
+        if self.codes is None:
+            self.codes = self.system.codes
+
+    def coefficients(self, name: str) -> TiledCoefficients:
+        return self.views[name]
+
+    def take_system(self) -> GramSystem:
+        """The summed Gram system, handed over: this result keeps its ``codes`` only, so the
+        solve can release the system's memory (hundreds of MB on a long street) as it restricts
+        and projects it, and a refinement pass does not render with it still held."""
+        system, self.system = self.system, None
+        if system is None:
+            raise RuntimeError("the pass's Gram system was already taken")
+        return system
+
+    def image(self, view: str, mu: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+        """The polynomial image of ``view`` at monomials ``mu`` (C, N) over ``codes``:
+        (H, W, C) float32."""
+        pixels = predicted(self.coefficients(view), mu, self.codes)
+        return pixels.reshape(*shape, len(mu)).astype(np.float32)
+
+
+def predicted(coeffs, mu: np.ndarray, codes: np.ndarray) -> np.ndarray:
+    """``(n, C)`` pixel values of a view's coefficients (:class:`ViewCoefficients` or
+    :class:`TiledCoefficients`, Γ over each block's ``codes``) at monomials ``mu``
+    (C, N) over the sorted ``codes``, a superset of the view's."""
+    out = []
+    for _, block in coeffs.blocks():
+        at = np.searchsorted(codes, block.codes)
+        out.append(np.stack([block.apply(c, mu[c][at]) for c in range(len(block.a))], axis=1))
+    return np.concatenate(out)

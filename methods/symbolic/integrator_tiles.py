@@ -1,0 +1,107 @@
+"""The tiling API of the polynomial path tracer: a view's pixels traced tile by tile into sparse
+coefficient matrices (:class:`CoefficientTiles`, a base of
+:class:`~methods.symbolic.integrator.PolynomialPathMixin`)."""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from framework.errors import ConfigError
+from methods.symbolic.basis import merge_codes, monomial_columns
+from methods.symbolic.common import camera_rays, pixel_window, tile_sampler
+from methods.symbolic.events import EventBuffer, lane_pixel, reindex_columns, stack_tiles, tile_matrices
+
+
+class CoefficientTiles:
+    """``coefficients*``: one view's polynomial coefficients (eq. 8), traced ``tile_pixels`` pixels
+    at a time by the path loop ``_trace`` of the class it is mixed into."""
+
+    def coefficients(self, scene: mi.Scene, sensor=0, *, spp: int, seed: int = 0,
+                     pixel_range: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(codes, γ)``: dense ``(stop - start, len(codes), C)`` float32 coefficients (eq. 8) of
+        one view's pixels over the monomial ``codes`` that occur.
+
+        Same arguments as :meth:`coefficients_sparse`, whose result this densifies (for tests and
+        small images; the inversion keeps the sparse form).
+        """
+        codes, mats = self.coefficients_sparse(scene, sensor, spp=spp, seed=seed, pixel_range=pixel_range)
+        return codes, np.stack([m.toarray() for m in mats], axis=-1).astype(np.float32)
+
+    def coefficients_sparse(self, scene: mi.Scene, sensor=0, *, spp: int, seed: int = 0,
+                            pixel_range: tuple[int, int] | None = None) -> tuple[np.ndarray, list]:
+        """Polynomial coefficients ``γ`` (eq. 8) of the pixels of one view, one sparse matrix per channel.
+
+        Parameters
+        ----------
+        scene : mi.Scene
+            The scene whose shapes were given to :meth:`configure`.
+        sensor : int or mi.Sensor
+            Sensor (index into ``scene.sensors()`` or the sensor itself).
+        spp : int
+            Samples per pixel (>= 1).
+        seed : int
+            Sampler seed; tiles after the first derive their own seed from it.
+        pixel_range : (int, int), optional
+            Pixels ``[start, stop)`` in row-major order of the film's crop window; default all.
+
+        Returns
+        -------
+        (numpy.ndarray, list of scipy.sparse.csr_matrix)
+            The sorted multiset codes of the monomials that occur (always 0, the constant;
+            :class:`~methods.symbolic.basis.MonomialBasis`), and ``C`` matrices of shape
+            ``(stop - start, len(codes))``, float64, canonical (sorted indices, no duplicates).
+        """
+        codes, gamma = self._tiled(scene, sensor, spp, seed, pixel_range, halves=False)
+        return codes, gamma
+
+    def coefficients_halves(self, scene: mi.Scene, sensor=0, *, spp: int, seed: int = 0,
+                            pixel_range: tuple[int, int] | None = None) -> tuple[np.ndarray, list, list, list]:
+        """``(codes, A, B, Γ)``: two independent estimates of the coefficients and their mean, from
+        one render, over the monomial ``codes`` that occur.
+
+        ``A`` uses the samples ``0 .. spp//2 - 1`` of every pixel, ``B`` the others, ``Γ`` all
+        of them (``Γ = (spp//2 · A + (spp - spp//2) · B) / spp``; the lanes are laid out in two
+        sample blocks, so Γ is not :meth:`coefficients_sparse`'s result at the same seed, only
+        an estimate of the same coefficients). The sampler is ``independent``, so ``A`` and ``B`` are independent and
+        ``E[AᵀB] = E[A]ᵀE[B]`` (:meth:`GramSystem.accumulate_sparse`). Arguments as
+        :meth:`coefficients_sparse`, with ``spp >= 2``.
+        """
+        if int(spp) < 2:
+            raise ConfigError(f"spp={spp}: two independent halves need spp >= 2")
+        return self._tiled(scene, sensor, spp, seed, pixel_range, halves=True)
+
+    def _tiled(self, scene, sensor, spp, seed, pixel_range, halves: bool) -> tuple:
+        """Checks, then the tiles of ``tile_pixels`` pixels over their merged codes, stacked:
+        ``(codes, Γ)`` or ``(codes, A, B, Γ)``."""
+        self._check()
+        if isinstance(sensor, int):
+            sensor = scene.sensors()[sensor]
+        if int(spp) < 1:
+            raise ConfigError(f"spp={spp}: must be >= 1")
+        spp = int(spp)
+        start, stop = pixel_window(sensor.film(), pixel_range)
+        split = spp // 2 if halves else spp
+        tiles = [self._tile(scene, sensor, spp, seed, t0, min(stop, t0 + self.tile_pixels), split)
+                 for t0 in range(start, stop, self.tile_pixels)]
+        codes = merge_codes([0], *(codes for codes, _ in tiles))
+        mats = [reindex_columns(t, np.searchsorted(codes, c), len(codes)) for c, t in tiles]
+        return (codes,) + stack_tiles(mats, 3 if halves else 1, self.n_channels, len(codes))
+
+    def _tile(self, scene, sensor, spp, seed, start, stop, split) -> tuple:
+        """Trace the pixels ``[start, stop)``, ``spp`` samples each, as one kernel: the codes of
+        their monomials and their matrices ``(Γ,)``, or ``(A, B, Γ)`` with the first
+        ``split < spp`` samples of each pixel in ``A``."""
+        n = stop - start
+        if n * spp >= 2 ** 32:
+            raise ConfigError(f"tile of {n} pixels x {spp} spp too large for 32-bit indices: lower tile_pixels")
+        sampler = tile_sampler(sensor, spp, seed, start, n)
+        pix = lane_pixel(dr.arange(mi.UInt32, n * spp), n, spp, split) + dr.opaque(mi.UInt32, start)
+        ray, weight = camera_rays(sensor, sampler, pix)
+        events = EventBuffer(n * spp, self.max_bounces + self.tail_bounces + 1, self.n_channels)
+        β = mi.Spectrum(weight) * dr.opaque(mi.Float, 1.0 / spp)      # box filter: 1/spp per sample
+        self._trace(scene, sampler, mi.Ray3f(ray), β, mi.Bool(True), events.store)
+        (rows, keys, vals), first_b = events.compact(n, spp, split)
+        # the ordered keys of one monomial differ by the order of its parameters: sort them out
+        codes, cols = monomial_columns(keys, self.n_params, self.max_bounces)
+        return codes, tile_matrices((rows, cols, vals), first_b, (n, len(codes)), spp, split)
