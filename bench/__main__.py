@@ -22,7 +22,7 @@ from pathlib import Path
 from bench import accuracy, compare, field, glossy, materials, megapixel, memory, paper, render_ratio
 from bench.common import ROOT
 from bench.machine import describe
-from bench.markdown import render
+from bench.markdown import README, readme_block, render, with_readme_block
 from bench.sizes import DEFAULT, QUICK
 from reports import write_comparison
 
@@ -113,6 +113,11 @@ def main(argv=None) -> int:
     out = Path(args.out) if args.out else (root / "BENCHMARKS.md" if args.quick else ROOT / "BENCHMARKS.md")
     out.write_text(render(machine, command, sizes, stored), encoding="utf-8")
     log(f"wrote {out}")
+    block = readme_block(stored)
+    if block is not None and not args.quick and args.out is None:
+        readme = ROOT / README
+        readme.write_text(with_readme_block(readme.read_text(encoding="utf-8"), block), encoding="utf-8")
+        log(f"wrote {readme}'s results table")
     return 0
 
 

@@ -16,6 +16,9 @@ from bench.common import compose, resized_copy, seed_cache, views_override
 from bench.render_ratio import build_problem
 from framework.config import BUNDLED_SCENES
 from framework.experiment import run_experiment
+from bench.tables import f, table, yes
+from bench.common import error_stats, observable_keys
+from reports.convergence import equal_error_rows, error_curve
 
 #: (label, method overrides, iterative-type: budget reduced on all views). The comparison is at the
 #: paper's light model: ``symbolic`` is the paper's single truncated pass (``method=symbolic_paper``),
@@ -143,3 +146,130 @@ def run(sizes, root: Path, log=print, resume: bool = False) -> list[dict]:
             rows.append(try_one(sizes, root, label, "urban_canyon", n_views, overrides, budget, log=log,
                                 resume=resume))
     return [r for r in rows if r is not None]
+
+
+# ----------------------------------------------------------------------------------------------
+# BENCHMARKS.md
+# ----------------------------------------------------------------------------------------------
+
+SPEEDUP_TARGET = {"iterative (noise fresh)": 100, "iterative (noise fixed)": 100, "differentiable": 20}
+
+
+def markdown(rows: list[dict], sizes, report_path) -> list[str]:
+    lines = ["## 3. Method comparison at equal spp", "",
+             f"urban_canyon, render.spp = {sizes.cmp_spp}, observe.spp = {sizes.cmp_observe_spp}, "
+             f"budget.renders = {sizes.cmp_budget}"
+             + (f" on one view; on all views {sizes.cmp_budget_all} for the iterative baselines and "
+                f"{getattr(sizes, 'cmp_budget_all_differentiable', sizes.cmp_budget_all)} for the differentiable "
+                "one (each until its curve is flat, below)")
+             + (f"; every run on all views at {sizes.cmp_all_image} pixels wide (the cameras scaled, the "
+                "observations rendered at that size), so that the baselines' budget fits in the "
+                "benchmark's time" if getattr(sizes, "cmp_all_image", None) else "")
+             + ", in this process with "
+             "`run_experiment`. Observations come from a shared observation cache (rendered once per "
+             "view set, copied into each run's otherwise empty cache), so totals exclude them. Errors: "
+             "over the parameters and channels the symbolic run on the same views reports observable. "
+             "Times are wall-clock seconds on a shared 2-core machine whose load changed during the section "
+             "(other sections or tests may run beside it): renders are the load-free measure of cost.",
+             "The comparison report of the run folders (`python -m reports`) is written to the bench's "
+             "run folder (`--runs`), which is not committed.", ""]
+    for vtag in ("single", "all"):
+        sub = [r for r in rows if r["views"] == vtag]
+        if not sub:
+            continue
+        base = next(r for r in sub if r["label"] == "symbolic")
+        keys = observable_keys(base["results"])
+        image = sub[0].get("image")
+        lines += [f"### {'Single view (default)' if vtag == 'single' else 'All views'}"
+                  + (f" ({image} pixels wide)" if image else ""), ""]
+        lines += summary_table(sub)
+        lines += [""] + _speedup_verdicts(sub, keys) + [""] + _equal_error(sub, keys)
+    for scene, vtag, label, err in FAILED:
+        lines.append(f"- FAILED: {scene} {vtag} {label}: `{err}` (no numbers)")
+    return lines + ([""] if FAILED else [])
+
+
+def summary_table(rows: list[dict]) -> list[str]:
+    """The comparison's table of one view set: each method's time, renders and errors against the
+    symbolic pass's (README.md shows the single-view one)."""
+    base = next(r for r in rows if r["label"] == "symbolic")
+    keys = observable_keys(base["results"])
+    return table(["method", "views", "budget", "total (s)", "renders", "worst abs. error", "mean abs. error",
+                  "time / symbolic"], [_cmp_row(r, base if r is not base else None, keys) for r in rows])
+
+
+def _cmp_row(row: dict, base: dict | None, keys: set) -> list:
+    res = row["results"]
+    worst, mean = error_stats(res, keys)
+    total = res["timings_s"]["total"]
+    ratio = total / base["results"]["timings_s"]["total"] if base else None
+    label = row["label"] + (" (passes read from a cache: time not comparable)" if res.get("views_from_cache") else "")
+    return [label, row["n_views"], row["budget"], f(total, 1), res["renders"], f(worst), f(mean),
+            f(ratio, 1) if ratio else "1"]
+
+
+def _speedup_verdicts(rows: list[dict], keys: set) -> list[str]:
+    base = next(r for r in rows if r["label"] == "symbolic")
+    b_worst, b_mean = error_stats(base["results"], keys)
+    out = []
+    for r in rows:
+        if r["label"] not in SPEEDUP_TARGET:
+            continue
+        ratio = r["results"]["timings_s"]["total"] / base["results"]["timings_s"]["total"]
+        worst, mean = error_stats(r["results"], keys)
+        err_ok = b_worst <= worst
+        target = SPEEDUP_TARGET[r["label"]]
+        out.append(f"- {r['label']} / symbolic total time = {ratio:.1f} (target >= {target}: "
+                   f"{yes(ratio >= target)}); symbolic worst |error| {f(b_worst)} vs {f(worst)} "
+                   f"({'equal or lower' if err_ok else 'higher'}); target at equal or lower error: "
+                   f"{yes(ratio >= target and err_ok)}.")
+    return out
+
+
+def _equal_error(rows: list[dict], keys: set) -> list[str]:
+    """Per baseline: the time (and renders) its iterates need to reach the symbolic run's final
+    worst error, and the error it levels off at, from the results' ``trace``."""
+    curves = {r["label"]: [c] for r in rows if (c := error_curve(r["results"], keys)) is not None}
+    out = []
+    for row in equal_error_rows(curves, "symbolic"):
+        if row["method"] not in SPEEDUP_TARGET:
+            continue
+        reach = (f"{f(row['time_s'], 1)} s ({row['renders']} renders), {f(row['ratio'], 1)} x symbolic"
+                 if row["time_s"] is not None else
+                 f"not reached in {row['max_renders']} renders / {f(row['max_time_s'], 1)} s")
+        drop = row["drop_per_tenth"]
+        floor = f"{f(row['floor'])} " + ("(flat)" if row["flattened"] else "(too few iterates to tell)"
+                                         if drop != drop else f"(still falling {100 * drop:.0f} % per tenth)")
+        out.append([row["method"], f(row["target"]), reach, floor])
+    if not out:
+        return []
+    return (["At equal error (from each run's iterates, results.json `trace`): the time a baseline needs "
+             "to reach the symbolic run's final worst |error|, and its floor: the median worst |error| over "
+             "the last 10 % of its iterates, *flat* when a least-squares line through log(worst |error|) "
+             "over the last 30 % of them falls by less than 10 % per tenth of the iterates (the curve "
+             "has levelled off within the budget; otherwise the drop per tenth is given).", ""]
+            + table(["method", "symbolic worst |error|", "time to reach it", "floor"], out) + [""])
+
+
+def lr_sweep_markdown(rows: list[dict], sweep: list[dict]) -> list[str]:
+    """The differentiable baseline's learning rates on the single view (the default is the
+    comparison's run): errors over the symbolic run's observable parameters."""
+    single = [r for r in rows if r["views"] == "single"]
+    base = next((r for r in single if r["label"] == "symbolic"), None)
+    default = next((r for r in single if r["label"] == "differentiable"), None)
+    if base is None or default is None or not sweep:
+        return []
+    keys = observable_keys(base["results"])
+    runs = [(r["results"]["settings"]["method_settings"]["lr"], r) for r in sweep + [default]]
+    def floor(r):
+        c = error_curve(r["results"], keys)
+        return "-" if c is None else f"{f(c.floor)}{' (flat)' if c.flattened else ''}"
+    out = [[f"{lr}{' (default)' if r is default else ''}", r["results"]["renders"],
+            *(f(x) for x in error_stats(r["results"], keys)), floor(r), f(r["results"]["image_rmse"], 4),
+            f(r["results"]["timings_s"]["total"], 1)] for lr, r in sorted(runs, key=lambda t: t[0])]
+    return (["### Learning rate of the differentiable baseline (single view)", "",
+             "Adam's learning rate swept at the comparison's budget; the shipped default is marked. "
+             "Errors at the end and the floor as above (a constant rate ends in a noise ball of radius "
+             "about the rate: smaller rates end lower but need more renders).", ""]
+            + table(["lr", "renders", "worst abs. error", "mean abs. error", "floor", "image RMSE", "total (s)"],
+                    out) + [""])

@@ -49,6 +49,7 @@ import numpy as np
 import yaml
 
 from bench.common import compose, downsample_scene
+from bench.tables import f, table
 from framework.config import BUNDLED_SCENES
 from framework.experiment import run_experiment
 from framework.kernels import canonical
@@ -229,10 +230,6 @@ def run(sizes, work: Path, log=print) -> dict:
 # ----------------------------------------------------------------------------------------------
 # Markdown
 # ----------------------------------------------------------------------------------------------
-def _f(x, fmt: str = ".3f") -> str:
-    return "n/a" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, fmt)
-
-
 def _ok(rows: list[dict]) -> list[dict]:
     return [r for r in rows if r.get("error") is None and r.get("bic") is not None]
 
@@ -269,9 +266,9 @@ def markdown(out: dict) -> list[str]:
         s = r.get("window_std") or {}
         kernels = ("diffuse", "specular", canonical(ucg.glossy_name(ucg.WINDOW_ALPHA)))
         cells = [_mean(w.get(k)) + (f" ± {_mean(s.get(k))}" if w.get(k) and s.get(k) else "") for k in kernels]
-        body.append([r["label"], r["P"], _f(r["diffuse_worst"]), _f(r["diffuse_median"]), _f(r["mse"], ".4e"),
-                     _f(r["pass_mse"], ".4e"), _f(r["bic"], ".0f"), " / ".join(cells), _f(r["wall_s"], ".1f")])
-    lines += _table(["model (window, wall)", "P", "diffuse worst", "diffuse median", "residual", "pass residual",
+        body.append([r["label"], r["P"], f(r["diffuse_worst"], fmt=".3f"), f(r["diffuse_median"], fmt=".3f"), f(r["mse"], fmt=".4e"),
+                     f(r["pass_mse"], fmt=".4e"), f(r["bic"], fmt=".0f"), " / ".join(cells), f(r["wall_s"], fmt=".1f")])
+    lines += table(["model (window, wall)", "P", "diffuse worst", "diffuse median", "residual", "pass residual",
                      "criterion", "window ρ_d / ρ_s / ρ_g ± std (mean of channels; truth 0.18 / 0 / 0.72)",
                      "fit (s)"], body)
     best = preferred(models)
@@ -289,10 +286,10 @@ def markdown(out: dict) -> list[str]:
         if not rows:
             continue
         by = {r["alpha"]: r for r in rows}
-        cells = [f"{_f(by[a].get('mse'), '.4e')} ({_f(by[a].get('bic'), '.0f')})" if a in by else "n/a" for a in alphas]
+        cells = [f"{f(by[a].get('mse'), fmt='.4e')} ({f(by[a].get('bic'), fmt='.0f')})" if a in by else "n/a" for a in alphas]
         pick = preferred(rows)
         body.append([label] + cells + [f"{pick['alpha']}" if pick else "n/a"])
-    lines += _table(["model"] + [f"α = {a}" for a in alphas] + ["lowest residual at"], body)
+    lines += table(["model"] + [f"α = {a}" for a in alphas] + ["lowest residual at"], body)
     best = preferred(sweep)
     if best:
         lines += ["", f"Over the sweep the lowest criterion is {best['label']} at window α = {best['alpha']} "
@@ -320,12 +317,7 @@ def _one_pass_note(models: list[dict], sweep: list[dict]) -> list[str]:
 
 def _mean(v) -> str:
     vals = [x for x in (v or []) if x is not None]
-    return _f(float(np.mean(vals))) if vals else "–"
-
-
-def _table(header: list[str], rows: list[list]) -> list[str]:
-    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    return out + ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+    return f(float(np.mean(vals)), fmt=".3f") if vals else "–"
 
 
 def main(argv=None) -> int:

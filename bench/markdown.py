@@ -1,35 +1,11 @@
-"""BENCHMARKS.md from the measured numbers of one ``python -m bench`` run."""
+"""BENCHMARKS.md from the stored results of ``python -m bench``: the machine, then each section
+as its own module draws it (``markdown`` of :mod:`bench.render_ratio`, :mod:`bench.megapixel`,
+:mod:`bench.memory`, :mod:`bench.compare`, :mod:`bench.paper`, :mod:`bench.materials`,
+:mod:`bench.accuracy`, :mod:`bench.field`, :mod:`bench.glossy`), through :mod:`bench.tables`."""
 from __future__ import annotations
 
-import math
-
-from bench.common import error_stats, observable_keys, param_errors
-from bench.compare import FAILED
-from bench.glossy import markdown as glossy_markdown
-from bench.materials import growth_law, targets
-from bench.paper import PAPER_TOTAL_MIN, TABLE1, TABLE2, TARGET
-from reports.convergence import equal_error_rows, error_curve
-
-RATIO_TARGET, SOLVE_TARGET = 1.5, 0.05
-SPEEDUP_TARGET = {"iterative (noise fresh)": 100, "iterative (noise fixed)": 100, "differentiable": 20}
-
-
-def f(x, digits: int = 3) -> str:
-    """A number for a table ('n/a' for None or NaN)."""
-    if x is None or (isinstance(x, float) and math.isnan(x)):
-        return "n/a"
-    return f"{x:.{digits}f}" if isinstance(x, float) else str(x)
-
-
-def table(header: list[str], rows: list[list]) -> list[str]:
-    """Markdown table lines."""
-    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    return out + ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
-
-
-def yes(ok) -> str:
-    """``ok`` may come back from JSON as a string (numpy booleans were stored as text)."""
-    return "**met**" if ok in (True, "True") else "**not met**"
+from bench import accuracy, compare, field, glossy, materials, megapixel, memory, paper, render_ratio
+from bench.tables import stamped, table
 
 
 def section_machine(m: dict, command: str, sizes, stored: dict) -> list[str]:
@@ -49,368 +25,45 @@ def section_machine(m: dict, command: str, sizes, stored: dict) -> list[str]:
     return lines + table(["", ""], rows) + [""]
 
 
-def section_ratio(r: dict) -> list[str]:
-    n_e, d = r["rows"][0]["n_monomials"], r["rows"][0]["n_params"]
-    lines = ["## 1. Symbolic pass vs plain render", "",
-             f"urban_canyon, view {r['view']} ({r['size']}), {r['segments']} segments x "
-             f"{len(r['kernels'])} kernels (D = {d}), N_max = {r['max_bounces']}, N_e = {n_e}, "
-             f"channels {','.join(r['channels'])}. Pass = the method's per-view pass (coefficients, Gram "
-             f"accumulation, sparse coefficients) of `method=symbolic_paper` (T = 0); render = Mitsuba `path`, "
-             f"max_depth = N_max + T + 1, box filter, same view and spp; the last row is the default "
-             f"`method=symbolic` pass with its tail of T reflections beyond N_max. Median of {r['reps']} after one warm-up. N_e = the monomials that "
-             f"occur (of C(D + N_max, N_max)). Solve = the method's solve on that pass's sparse Gram system "
-             f"(PSD projection, nlopt multi-start, sandwich uncertainty from the per-pixel coefficients), median "
-             f"the same way; its stages (PSD projection, nlopt with its evaluation count) are those of "
-             f"the last run.", ""]
-    rows = [[f"{x['spp']}" + (f" (default, T = {x['tail']})" if x.get("tail") else ""), f(x["pass_s"], 2), f(x["render_s"], 3), f(x["ratio"], 1),
-             yes(x["ratio"] <= RATIO_TARGET), f(x["solve_s"], 3), _stages(x), f"{100 * x['solve_share']:.1f} %",
-             f"{100 * x['solve_share_pass']:.1f} %", yes(x["solve_share"] <= SOLVE_TARGET)] for x in r["rows"]]
-    return lines + table(["spp", "pass (s)", "render (s)", "pass / render", f"<= {RATIO_TARGET}",
-                          "solve (s)", "of which PSD / nlopt (evals)", "solve / render", "solve / pass",
-                          f"solve/render <= {SOLVE_TARGET:.0%}"], rows) + [""]
-
-
-def _stages(row: dict) -> str:
-    st = row.get("solve_stages_s")
-    if not st:
-        return "n/a"
-    return f"{st.get('psd', 0):.3f} / {st.get('nlopt', 0):.3f} ({row.get('solver_evaluations', '?')})"
-
-
-def section_memory(rows: list[dict], sizes) -> list[str]:
-    lines = ["## 2. Peak memory of the symbolic method vs number of views and image size", "",
-             f"`python -m framework.run method=symbolic scene=urban_canyon scene.dir=<variant> views=<first n> "
-             f"render.spp={sizes.mem_spp} observe.spp={sizes.mem_observe_spp} report=false`, serial and with "
-             "`executor=dask executor.n_workers=2 executor.threads_per_worker=1`. The variant is urban_canyon "
-             f"with {sizes.mem_scene_views - 1} street views and the aerial one ({sizes.mem_scene_views} views; "
-             "`scenes.urban_canyon.build(folder, n_street=..., image=...)`, same geometry and light) at each "
-             "image size, built into the benchmark's work folder; a run on n views takes the first n: the "
-             "default view street_002, then in name order (aerial_000, street_000, ...). Each run is in a "
-             "fresh subprocess (`bench.child`) with a fresh empty cache.dir (observations rendered inside the "
-             "job). "
-             "Peak RSS: `getrusage(RUSAGE_CHILDREN).ru_maxrss` of the wrapper after the job exits (the "
-             "largest single process); tree peak: the largest sampled sum of RSS over the job and its "
-             "descendants (Dask workers included; sampled every 0.1 s). Target: flat in the number of views.", ""]
-    body = [[r["views"], f"{r['image']}x{r['image']}", r["executor"], r["rc"], f(r["wall_s"], 1),
-             f(r["timings_s"].get("render"), 1), f(r["timings_s"].get("solve"), 2), f(r["maxrss_mib"], 0),
-             f(r["tree_peak_mib"], 0)] for r in rows]
-    lines += table(["views", "image", "executor", "exit", "wall (s)", "pass (s)", "solve (s)", "peak RSS (MiB)",
-                    "tree peak (MiB)"], body)
-    growth = _memory_growth(rows)
-    if growth:
-        lines += ["", "Serial peak RSS from the fewest to the most views: " + "; ".join(growth) + "."]
-    return lines + [""]
-
-
-def _memory_growth(rows: list[dict]) -> list[str]:
-    """Per image size, the serial peak-RSS change from the fewest to the most views (successful runs)."""
-    out = []
-    for image in sorted({r["image"] for r in rows}):
-        ok = sorted((r["views"], r["maxrss_mib"]) for r in rows
-                    if r["executor"] == "serial" and r["image"] == image and r["rc"] == 0)
-        if len(ok) < 2 or ok[0][0] == ok[-1][0]:
-            continue
-        (n0, m0), (n1, m1) = ok[0], ok[-1]
-        out.append(f"{image}x{image}: {100 * (m1 / m0 - 1):+.0f} % ({m0:.0f} MiB at {n0} view"
-                   f"{'s' if n0 > 1 else ''} to {m1:.0f} MiB at {n1})")
-    return out
-
-
-def _cmp_row(row: dict, base: dict | None, keys: set) -> list:
-    res = row["results"]
-    worst, mean = error_stats(res, keys)
-    total = res["timings_s"]["total"]
-    ratio = total / base["results"]["timings_s"]["total"] if base else None
-    label = row["label"] + (" (passes read from a cache: time not comparable)" if res.get("views_from_cache") else "")
-    return [label, row["n_views"], row["budget"], f(total, 1), res["renders"], f(worst), f(mean),
-            f(ratio, 1) if ratio else "1"]
-
-
-def _speedup_verdicts(rows: list[dict], keys: set) -> list[str]:
-    base = next(r for r in rows if r["label"] == "symbolic")
-    b_worst, b_mean = error_stats(base["results"], keys)
-    out = []
-    for r in rows:
-        if r["label"] not in SPEEDUP_TARGET:
-            continue
-        ratio = r["results"]["timings_s"]["total"] / base["results"]["timings_s"]["total"]
-        worst, mean = error_stats(r["results"], keys)
-        err_ok = b_worst <= worst
-        target = SPEEDUP_TARGET[r["label"]]
-        out.append(f"- {r['label']} / symbolic total time = {ratio:.1f} (target >= {target}: "
-                   f"{yes(ratio >= target)}); symbolic worst |error| {f(b_worst)} vs {f(worst)} "
-                   f"({'equal or lower' if err_ok else 'higher'}); target at equal or lower error: "
-                   f"{yes(ratio >= target and err_ok)}.")
-    return out
-
-
-def _equal_error(rows: list[dict], keys: set) -> list[str]:
-    """Per baseline: the time (and renders) its iterates need to reach the symbolic run's final
-    worst error, and the error it levels off at, from the results' ``trace``."""
-    curves = {r["label"]: [c] for r in rows if (c := error_curve(r["results"], keys)) is not None}
-    out = []
-    for row in equal_error_rows(curves, "symbolic"):
-        if row["method"] not in SPEEDUP_TARGET:
-            continue
-        reach = (f"{f(row['time_s'], 1)} s ({row['renders']} renders), {f(row['ratio'], 1)} x symbolic"
-                 if row["time_s"] is not None else
-                 f"not reached in {row['max_renders']} renders / {f(row['max_time_s'], 1)} s")
-        drop = row["drop_per_tenth"]
-        floor = f"{f(row['floor'])} " + ("(flat)" if row["flattened"] else "(too few iterates to tell)"
-                                         if drop != drop else f"(still falling {100 * drop:.0f} % per tenth)")
-        out.append([row["method"], f(row["target"]), reach, floor])
-    if not out:
-        return []
-    return (["At equal error (from each run's iterates, results.json `trace`): the time a baseline needs "
-             "to reach the symbolic run's final worst |error|, and its floor: the median worst |error| over "
-             "the last 10 % of its iterates, *flat* when a least-squares line through log(worst |error|) "
-             "over the last 30 % of them falls by less than 10 % per tenth of the iterates (the curve "
-             "has levelled off within the budget; otherwise the drop per tenth is given).", ""]
-            + table(["method", "symbolic worst |error|", "time to reach it", "floor"], out) + [""])
-
-
-def _lr_sweep(rows: list[dict], sweep: list[dict]) -> list[str]:
-    """The differentiable baseline's learning rates on the single view (the default is the
-    comparison's run): errors over the symbolic run's observable parameters."""
-    single = [r for r in rows if r["views"] == "single"]
-    base = next((r for r in single if r["label"] == "symbolic"), None)
-    default = next((r for r in single if r["label"] == "differentiable"), None)
-    if base is None or default is None or not sweep:
-        return []
-    keys = observable_keys(base["results"])
-    runs = [(r["results"]["settings"]["method_settings"]["lr"], r) for r in sweep + [default]]
-    def floor(r):
-        c = error_curve(r["results"], keys)
-        return "-" if c is None else f"{f(c.floor)}{' (flat)' if c.flattened else ''}"
-    out = [[f"{lr}{' (default)' if r is default else ''}", r["results"]["renders"],
-            *(f(x) for x in error_stats(r["results"], keys)), floor(r), f(r["results"]["image_rmse"], 4),
-            f(r["results"]["timings_s"]["total"], 1)] for lr, r in sorted(runs, key=lambda t: t[0])]
-    return (["### Learning rate of the differentiable baseline (single view)", "",
-             "Adam's learning rate swept at the comparison's budget; the shipped default is marked. "
-             "Errors at the end and the floor as above (a constant rate ends in a noise ball of radius "
-             "about the rate: smaller rates end lower but need more renders).", ""]
-            + table(["lr", "renders", "worst abs. error", "mean abs. error", "floor", "image RMSE", "total (s)"],
-                    out) + [""])
-
-
-def section_compare(rows: list[dict], sizes, report_path) -> list[str]:
-    lines = ["## 3. Method comparison at equal spp", "",
-             f"urban_canyon, render.spp = {sizes.cmp_spp}, observe.spp = {sizes.cmp_observe_spp}, "
-             f"budget.renders = {sizes.cmp_budget}"
-             + (f" on one view; on all views {sizes.cmp_budget_all} for the iterative baselines and "
-                f"{getattr(sizes, 'cmp_budget_all_differentiable', sizes.cmp_budget_all)} for the differentiable "
-                "one (each until its curve is flat, below)")
-             + (f"; every run on all views at {sizes.cmp_all_image} pixels wide (the cameras scaled, the "
-                "observations rendered at that size), so that the baselines' budget fits in the "
-                "benchmark's time" if getattr(sizes, "cmp_all_image", None) else "")
-             + ", in this process with "
-             "`run_experiment`. Observations come from a shared observation cache (rendered once per "
-             "view set, copied into each run's otherwise empty cache), so totals exclude them. Errors: "
-             "over the parameters and channels the symbolic run on the same views reports observable. "
-             "Times are wall-clock seconds on a shared 2-core machine whose load changed during the section "
-             "(other sections or tests may run beside it): renders are the load-free measure of cost.",
-             f"Comparison report: `{report_path}`.", ""]
-    for vtag in ("single", "all"):
-        sub = [r for r in rows if r["views"] == vtag]
-        if not sub:
-            continue
-        base = next(r for r in sub if r["label"] == "symbolic")
-        keys = observable_keys(base["results"])
-        image = sub[0].get("image")
-        lines += [f"### {'Single view (default)' if vtag == 'single' else 'All views'}"
-                  + (f" ({image} pixels wide)" if image else ""), ""]
-        lines += table(["method", "views", "budget", "total (s)", "renders", "worst abs. error", "mean abs. error",
-                        "time / symbolic"], [_cmp_row(r, base if r is not base else None, keys) for r in sub])
-        lines += [""] + _speedup_verdicts(sub, keys) + [""] + _equal_error(sub, keys)
-    for scene, vtag, label, err in FAILED:
-        lines.append(f"- FAILED: {scene} {vtag} {label}: `{err}` (no numbers)")
-    return lines + ([""] if FAILED else [])
-
-
-def _estimate(res: dict, seg: str, kernel: str):
-    p = next((p for p in res["parameters"] if p["segment"] == seg and p["kernel"] == kernel), None)
-    return None if p is None or p.get("estimate") is None else p["estimate"][0]
-
-
-def _reference(res: dict, seg: str, kernel: str):
-    p = next((p for p in res["parameters"] if p["segment"] == seg and p["kernel"] == kernel), None)
-    return None if p is None or p.get("reference") is None else p["reference"][0]
-
-
-def _table1(lam: dict) -> list[str]:
-    rows = []
-    for seg, (ref, est, err) in TABLE1.items():
-        ours = _estimate(lam, seg, "diffuse")
-        rows.append([seg, ref, est, err, f(ours), f(None if ours is None else ours - ref)])
-    return table(["object", "Table 1 ref. (ρ_d + ρ_s)", "Table 1 est.", "Table 1 error", "our est.",
-                  "our error vs Table 1 ref."], rows)
-
-
-def _table2(sym: dict, multi: dict) -> list[str]:
-    rows = []
-    for (seg, kernel), paper in TABLE2.items():
-        ours, ref, mv = _estimate(sym, seg, kernel), _reference(sym, seg, kernel), _estimate(multi, seg, kernel)
-        ref_paper, est_paper, err_paper = paper if paper else ("-", "-", "-")
-        err_mv = None if mv is None else mv - ref
-        ok = "n/a" if err_mv is None else ("yes" if abs(err_mv) <= TARGET[kernel] else "no")
-        rows.append([seg, kernel, ref_paper, f(ref), est_paper, err_paper, f(ours),
-                     f(None if ours is None else ours - ref), f(mv), f(err_mv), ok])
-    return table(["object", "kernel", "Table 2 ref.", "our ref.", "Table 2 est.", "Table 2 error",
-                  "our est. (1 view)", "our error (1 view)", "our est. (all views)", "our error (all views)",
-                  "meets multi-view target"], rows)
-
-
-def _target_summary(rows: list[dict]) -> list[str]:
-    out = []
-    for r in rows:
-        if r["views"] != "all" or not r["label"].startswith("symbolic"):
-            continue
-        for (seg, kernel), errs in sorted(param_errors(r["results"]).items()):
-            worst = max(abs(e) for e in errs)
-            scene = r["scene"] + (f" ({r['image']} px wide)" if r.get("image") else "")
-            out.append([scene, r["label"], f"{seg}/{kernel}", f(worst), TARGET.get(kernel, "-"),
-                        "yes" if worst <= TARGET.get(kernel, 0) else "no"])
-    return table(["scene", "method", "parameter", "worst abs. error over channels", "target", "met"], out)
-
-
-def section_paper(mono: list[dict], cmp_rows: list[dict]) -> list[str]:
-    lam = next(r for r in mono if r["label"] == "lambertian_prior")["results"]
-    sym = next(r for r in mono if r["label"] == "symbolic" and r["views"] == "single")["results"]
-    multi = next(r for r in mono if r["label"] == "symbolic" and r["views"] == "all")["results"]
-    sym_t = sym["timings_s"]["total"]
-    lines = ["## 4. Against the paper (Tables 1 and 2, section 5)", "",
-             "urban_canyon_mono (the paper's 550 nm band; its references are Table 2's), default view, same "
-             "settings as section 3. Table 1 compares `lambertian_prior` (diffuse-only kernels) with the "
-             "paper's Lambertian estimates, whose reference albedo is ρ_d + ρ_s of Table 2.", "",
-             "### Table 1 (Lambertian)", ""] + _table1(lam)
-    lines += ["", "### Table 2 (Lambertian + specular) and all views", ""] + _table2(sym, multi)
-    lines += ["", f"Multi-view target: |error| <= {TARGET['diffuse']} diffuse, <= {TARGET['specular']} "
-                  "specular, on every channel:", ""] + _target_summary(mono + cmp_rows)
-    lines += ["", f"Total time: the paper reports about {PAPER_TOTAL_MIN:.0f} min (symbolic ray tracing + "
-                  f"minimisation, 200x200, Table 2 setting); ours, single view: {sym_t:.1f} s "
-                  f"({sym_t / 60:.2f} min), all views: {multi['timings_s']['total']:.1f} s "
-                  "(different hardware and renderer: indicative only).", ""]
-    return lines
-
-
-def section_materials(rows: list[dict], sizes) -> list[str]:
-    """Section 5: occurring monomials, system size, memory and time against the number of materials."""
-    if not rows:
-        return []
-    lines = ["## 5. Many materials: the street cut into K buildings per side", "",
-             f"`scenes.street_block`: the urban canyon's facade elements cut into K buildings per side, "
-             f"each building with its own seeded materials (wall, window, balcony, awning; roof and asphalt "
-             f"shared), same street and 9 views of {sizes.mat_image}x{sizes.mat_image}, all views, "
-             f"render.spp = {sizes.mem_spp}, observe.spp = {sizes.mem_observe_spp}, N_max = 3, one fresh "
-             f"subprocess each (peak RSS of the process tree's main process). Errors: every parameter the "
-             f"run calls observable and not ill-determined. N_e: the full monomial basis C(D + 3, 3) "
-             f"the method used to allocate densely (8·3·N_e² bytes for its Gram).", ""]
-    out = []
-    for r in rows:
-        n_e = math.comb(r["D"] + 3, 3) if r["D"] else None
-        out.append([r.get("method", "symbolic_paper"), r.get("renders") or "n/a",
-                    r["buildings"], r["materials"], r["D"], f"{n_e:,}" if n_e else "n/a",
-                    f"{r['monomials']:,}" if r["monomials"] else "n/a",
-                    f"{r['gram_nnz']:,}" if r["gram_nnz"] else "n/a", f(r["maxrss_mib"], 0),
-                    f(r["pass_s"], 1), f(r["solve_s"], 1), f(r["wall_s"], 0), f(r["worst"]), f(r["median"]),
-                    "exit 0" if r["rc"] == 0 else f"exit {r['rc']}: {str(r['error'])[-120:]}"])
-    lines += table(["method", "renders", "K", "materials", "D", "N_e (full)", "occurring monomials",
-                    "nnz(G), 3 channels", "peak RSS (MiB)", "pass (s)", "solve (s)", "wall (s)", "worst |error|",
-                    "median |error|", "run"], out)
-    lines += ["", "Pass and solve: every pass and every solve of the run (the default method repeats both). "
-              "Targets of a 66-material street, on each method's smallest K with at least 66 materials, "
-              "and of the 18-material one (K = 2); wall: the whole run, observation renders included:", ""]
-    lines += table(["run", "target", "met"], [[n, t, "n/a" if ok is None else yes(ok)] for n, t, ok in targets(rows)])
-    lines += [""]
-    paper = [r for r in rows if r.get("method", "symbolic_paper") == "symbolic_paper"]
-    fits = {key: growth_law(paper, key) for key in ("monomials", "gram_nnz", "maxrss_mib", "pass_s", "solve_s")}
-    described = [f"{key} ≈ {a:.3g}·D^{b:.2f} (predicted at D = 2000, a 1,000-material street: {a * 2000 ** b:,.3g})"
-                 for key, fit in fits.items() if fit for a, b in [fit]]
-    if described:
-        lines += ["Growth laws fitted by least squares on log-log over the `symbolic_paper` rows (a prediction, not a "
-                  "measurement; the PSD projection is skipped on connected blocks of more than 4,000 "
-                  "monomials, see `psd_skipped_components` in results.json):", ""]
-        lines += [f"- {d}" for d in described] + [""]
-    return lines
-
-
-def _stamped(lines: list[str], rec: dict) -> list[str]:
-    """A section's lines with the date and commit of its measurement under its heading."""
-    if not lines:
-        return lines
-    note = f"_Measured {rec['date']} at commit {rec['git']} ({rec['sizes']} sizes, {rec['wall_s'] / 60:.1f} min)._"
-    return lines[:1] + ["", note] + lines[1:]
-
-
 def render(machine: dict, command: str, sizes, stored: dict) -> str:
     """The whole BENCHMARKS.md text from the stored sections (:mod:`bench.__main__`)."""
     data = {name: rec["data"] for name, rec in stored.items()}
     lines = section_machine(machine, command, sizes, stored)
     cmp = data.get("compare") or {"rows": [], "lr": [], "report": ""}
     parts = {
-        "ratio": lambda: section_ratio(data["ratio"]),
-        "megapixel": lambda: section_megapixel(data["megapixel"]),
-        "memory": lambda: section_memory(data["memory"], sizes),
-        "compare": lambda: section_compare(cmp["rows"], sizes, cmp["report"]) + _lr_sweep(cmp["rows"], cmp["lr"]),
-        "paper": lambda: section_paper(data["paper"], cmp["rows"]),
-        "materials": lambda: section_materials(data["materials"], sizes),
-        "defaults": lambda: section_defaults(data["defaults"]),
-        "field": lambda: section_field(data["field"]),
-        "glossy": lambda: glossy_markdown(data["glossy"]),
+        "ratio": lambda: render_ratio.markdown(data["ratio"]),
+        "megapixel": lambda: megapixel.markdown(data["megapixel"]),
+        "memory": lambda: memory.markdown(data["memory"], sizes),
+        "compare": lambda: compare.markdown(cmp["rows"], sizes, cmp["report"]) + compare.lr_sweep_markdown(cmp["rows"], cmp["lr"]),
+        "paper": lambda: paper.markdown(data["paper"], cmp["rows"]),
+        "materials": lambda: materials.markdown(data["materials"], sizes),
+        "defaults": lambda: accuracy.markdown(data["defaults"]),
+        "field": lambda: field.markdown(data["field"]),
+        "glossy": lambda: glossy.markdown(data["glossy"]),
     }
     for name, part in parts.items():
         if name in data:
-            lines += _stamped(part(), stored[name])
+            lines += stamped(part(), stored[name])
     return "\n".join(lines) + "\n"
 
 
-def section_defaults(rows: list[dict]) -> list[str]:
-    """Section 6: default settings against the targets (:mod:`bench.accuracy`)."""
+README = "README.md"
+README_START, README_END = "<!-- bench: comparison -->", "<!-- /bench -->"
+
+
+def readme_block(stored: dict) -> list[str] | None:
+    """README.md's results table: the comparison's single-view table with the date and commit of
+    its measurement (None when the comparison was not measured)."""
+    rec = stored.get("compare")
+    rows = [r for r in (rec or {}).get("data", {}).get("rows", []) if r["views"] == "single"]
     if not rows:
-        return []
-    lines = ["## 6. Accurate by default", "",
-             "`python -m framework.run` with shipped options on urban_canyon (render.spp 64, observe.spp 512): "
-             "`method=symbolic` traces 4 reflections beyond N_max and repeats the pass at the estimate until "
-             "no weight moves more than 0.005 (at most 3 more passes); `method=symbolic_paper` is the paper's "
-             "single truncated pass; `method=lambertian_prior` fits each segment's albedo to the pixels that see "
-             "it (`cost: per_segment`), the rows with `method.cost=joint` fit the paper's one cost over every pixel "
-             "(eq. 6). Targets: all views within 0.02 diffuse / 0.03 specular; Lambertian "
-             "default view: balcony, asphalt, awning within 0.01; default view: every |error| <= 3 std + 0.005.", ""]
-    body = [[r["label"], r["target"], yes(r["met"]), r["detail"], r.get("renders"), r.get("stopped") or "",
-             f(r["wall_s"], 1), f(r["maxrss_mib"], 0)] for r in rows]
-    return lines + table(["run", "target", "met", "detail", "renders", "stopped", "wall (s)", "peak RSS (MiB)"],
-                         body) + [""]
+        return None
+    note = (f"_From `python -m bench`, section 3 of [BENCHMARKS.md](BENCHMARKS.md) (measured {rec['date']} at "
+            f"commit {rec['git']}): urban_canyon's default street view, every method at the same spp._")
+    return [note, ""] + compare.summary_table(rows)
 
 
-def section_field(rows: list[dict]) -> list[str]:
-    """Section 7: field photographs (:mod:`bench.field`)."""
-    if not rows:
-        return []
-    lines = ["## 7. Field photographs (urban_canyon_field, all views)", "",
-             "Distorted cameras (OPENCV, SIMPLE_RADIAL), 8-bit sRGB JPEG with clipped highlights, per-view gains, "
-             "sensor noise, a masked car and an unmasked pedestrian the model lacks (the scene's README). Each row "
-             "switches on one more part of the field path. Errors over the parameters the run calls determined; "
-             "gain error relative to the truth. Targets (default row): 0.03 diffuse, 0.05 specular, gains 3 %.", ""]
-    body = [[r["label"], f(r.get("worst_diffuse"), 4), f(r.get("worst_specular"), 4), f(r.get("median"), 4),
-             f(100 * r["gain_error"], 2) if r.get("gain_error") is not None else "n/a (gains 1)",
-             r.get("ill_determined"), f(r.get("image_rmse"), 5), r.get("renders"), f(r["wall_s"], 1), yes(r["met"])]
-            for r in rows]
-    return lines + table(["fit", "worst diffuse", "worst specular", "median", "worst gain error (%)",
-                          "ill-determined", "image RMSE", "renders", "wall (s)", "targets"], body) + [""]
-
-
-def section_megapixel(r: dict) -> list[str]:
-    """Section 1b: the 1920x1080 view (:mod:`bench.megapixel`)."""
-    lines = ["## 1b. A megapixel view", ""]
-    if "error" in r:
-        return lines + [f"Failed: `{str(r['error'])[-300:]}`", ""]
-    lines += [f"urban_canyon's default view at {r['size']} (same pose and field of view), {r['spp']} spp, "
-              f"`method=symbolic_paper`, pass tiles of method.memory_mb = {r['memory_mb']:g} MiB, in a fresh "
-              "subprocess; timed as section 1. As a run with a cache does, the pass writes each tile's "
-              "per-pixel coefficients to the cache while the next tile renders (timed with it) and the "
-              "solve's standard errors read them back one tile at a time: the peak is bounded by the "
-              "tiles, not the image.", ""]
-    body = [[r["size"], r["spp"], f(r["pass_s"], 1), f(r["render_s"], 1), f(r["ratio"], 2),
-             yes(r["ratio"] <= RATIO_TARGET), f(r["solve_s"], 2), r["n_monomials"], f(r["maxrss_mib"], 0)]]
-    return lines + table(["view", "spp", "pass (s)", "render (s)", "pass / render", f"<= {RATIO_TARGET}",
-                          "solve (s)", "monomials", "peak RSS (MiB)"], body) + [""]
+def with_readme_block(text: str, block: list[str]) -> str:
+    """``text`` (README.md) with the lines between its bench markers replaced by ``block``."""
+    start, end = text.index(README_START) + len(README_START), text.index(README_END)
+    return text[:start] + "\n" + "\n".join(block) + "\n" + text[end:]

@@ -20,6 +20,7 @@ from pathlib import Path
 
 from bench.common import ROOT, views_override
 from scenes import urban_canyon
+from bench.tables import f, table
 
 SCENE = "urban_canyon"
 
@@ -84,3 +85,46 @@ def run(sizes, work: Path, log=print) -> list[dict]:
         log(f"[memory] {executor} {r['views']} view(s) {image}x{image}: rc {r['rc']}, {r['wall_s']:.1f} s, "
             f"peak RSS {r['maxrss_mib']:.0f} MiB, tree {r['tree_peak_mib']:.0f} MiB")
     return rows
+
+
+# ----------------------------------------------------------------------------------------------
+# BENCHMARKS.md
+# ----------------------------------------------------------------------------------------------
+
+def markdown(rows: list[dict], sizes) -> list[str]:
+    lines = ["## 2. Peak memory of the symbolic method vs number of views and image size", "",
+             f"`python -m framework.run method=symbolic scene=urban_canyon scene.dir=<variant> views=<first n> "
+             f"render.spp={sizes.mem_spp} observe.spp={sizes.mem_observe_spp} report=false`, serial and with "
+             "`executor=dask executor.n_workers=2 executor.threads_per_worker=1`. The variant is urban_canyon "
+             f"with {sizes.mem_scene_views - 1} street views and the aerial one ({sizes.mem_scene_views} views; "
+             "`scenes.urban_canyon.build(folder, n_street=..., image=...)`, same geometry and light) at each "
+             "image size, built into the benchmark's work folder; a run on n views takes the first n: the "
+             "default view street_002, then in name order (aerial_000, street_000, ...). Each run is in a "
+             "fresh subprocess (`bench.child`) with a fresh empty cache.dir (observations rendered inside the "
+             "job). "
+             "Peak RSS: `getrusage(RUSAGE_CHILDREN).ru_maxrss` of the wrapper after the job exits (the "
+             "largest single process); tree peak: the largest sampled sum of RSS over the job and its "
+             "descendants (Dask workers included; sampled every 0.1 s). Target: flat in the number of views.", ""]
+    body = [[r["views"], f"{r['image']}x{r['image']}", r["executor"], r["rc"], f(r["wall_s"], 1),
+             f(r["timings_s"].get("render"), 1), f(r["timings_s"].get("solve"), 2), f(r["maxrss_mib"], 0),
+             f(r["tree_peak_mib"], 0)] for r in rows]
+    lines += table(["views", "image", "executor", "exit", "wall (s)", "pass (s)", "solve (s)", "peak RSS (MiB)",
+                    "tree peak (MiB)"], body)
+    growth = _memory_growth(rows)
+    if growth:
+        lines += ["", "Serial peak RSS from the fewest to the most views: " + "; ".join(growth) + "."]
+    return lines + [""]
+
+
+def _memory_growth(rows: list[dict]) -> list[str]:
+    """Per image size, the serial peak-RSS change from the fewest to the most views (successful runs)."""
+    out = []
+    for image in sorted({r["image"] for r in rows}):
+        ok = sorted((r["views"], r["maxrss_mib"]) for r in rows
+                    if r["executor"] == "serial" and r["image"] == image and r["rc"] == 0)
+        if len(ok) < 2 or ok[0][0] == ok[-1][0]:
+            continue
+        (n0, m0), (n1, m1) = ok[0], ok[-1]
+        out.append(f"{image}x{image}: {100 * (m1 / m0 - 1):+.0f} % ({m0:.0f} MiB at {n0} view"
+                   f"{'s' if n0 > 1 else ''} to {m1:.0f} MiB at {n1})")
+    return out

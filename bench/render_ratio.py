@@ -22,6 +22,7 @@ from methods._common import initial_guess, segment_groups
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.polynomial_pass import render_view_task, tile_pixels_for, view_task
 from methods.symbolic.refinement import solve_system
+from bench.tables import f, table, yes
 
 
 def build_problem(cfg):
@@ -112,3 +113,38 @@ def run(sizes, cache_dir, log=print) -> dict:
             "max_bounces": int(cfg.render.max_bounces), "reps": sizes.ratio_reps,
             "segments": len(problem.scene.segments), "kernels": sorted({p.kernel for p in problem.parameters}),
             "channels": list(problem.scene.channels), "observe_spp": sizes.cmp_observe_spp}
+
+
+# ----------------------------------------------------------------------------------------------
+# BENCHMARKS.md
+# ----------------------------------------------------------------------------------------------
+
+RATIO_TARGET, SOLVE_TARGET = 1.5, 0.05
+
+
+def markdown(r: dict) -> list[str]:
+    n_e, d = r["rows"][0]["n_monomials"], r["rows"][0]["n_params"]
+    lines = ["## 1. Symbolic pass vs plain render", "",
+             f"urban_canyon, view {r['view']} ({r['size']}), {r['segments']} segments x "
+             f"{len(r['kernels'])} kernels (D = {d}), N_max = {r['max_bounces']}, N_e = {n_e}, "
+             f"channels {','.join(r['channels'])}. Pass = the method's per-view pass (coefficients, Gram "
+             f"accumulation, sparse coefficients) of `method=symbolic_paper` (T = 0); render = Mitsuba `path`, "
+             f"max_depth = N_max + T + 1, box filter, same view and spp; the last row is the default "
+             f"`method=symbolic` pass with its tail of T reflections beyond N_max. Median of {r['reps']} after one warm-up. N_e = the monomials that "
+             f"occur (of C(D + N_max, N_max)). Solve = the method's solve on that pass's sparse Gram system "
+             f"(PSD projection, solver multi-start, sandwich uncertainty from the per-pixel coefficients), median "
+             f"the same way; its stages (PSD projection, the solver with its evaluation count) are those of "
+             f"the last run.", ""]
+    rows = [[f"{x['spp']}" + (f" (default, T = {x['tail']})" if x.get("tail") else ""), f(x["pass_s"], 2), f(x["render_s"], 3), f(x["ratio"], 1),
+             yes(x["ratio"] <= RATIO_TARGET), f(x["solve_s"], 3), _stages(x), f"{100 * x['solve_share']:.1f} %",
+             f"{100 * x['solve_share_pass']:.1f} %", yes(x["solve_share"] <= SOLVE_TARGET)] for x in r["rows"]]
+    return lines + table(["spp", "pass (s)", "render (s)", "pass / render", f"<= {RATIO_TARGET}",
+                          "solve (s)", "of which PSD / solver (evals)", "solve / render", "solve / pass",
+                          f"solve/render <= {SOLVE_TARGET:.0%}"], rows) + [""]
+
+
+def _stages(row: dict) -> str:
+    st = row.get("solve_stages_s")
+    if not st:
+        return "n/a"
+    return f"{st.get('psd', 0):.3f} / {st.get('solver', st.get('nlopt', 0)):.3f} ({row.get('solver_evaluations', '?')})"

@@ -166,8 +166,9 @@ def test_tail_and_refine_remove_the_truncation_bias(tmp_path, small_canyon):
     renders) reduces it. Seeds 0-3 at 48x48, 3 views, mean |error| over the facade parameters:
     measured 0.023 without, 0.014 with tail 4 and one refinement (worst 0.08-0.105 without,
     0.034-0.103 with: at this size the noise of the small segments is comparable). Asserted on
-    the mean over seeds: with <= 0.75 x without. The roof, seen by the aerial view only, is left
-    out: its ρ_d/ρ_s split is ill-posed (errors up to 0.5 either way)."""
+    the mean over seeds: the default's within 0.02 (measured 0.014), and every default run used
+    its tail and refined. The roof, seen by the aerial view only, is left out: its ρ_d/ρ_s split
+    is ill-posed (errors up to 0.5 either way)."""
     base = [f"scene.dir={small_canyon}", "views=all", "render.spp=64", "observe.spp=256", "observe.max_depth=-1"]
     facade = {"wall", "window", "balcony", "awning", "asphalt"}
     plain, tail = [], []
@@ -177,7 +178,7 @@ def test_tail_and_refine_remove_the_truncation_bias(tmp_path, small_canyon):
         assert p["renders"] == 1 and 2 <= t["renders"] <= 4 and t["settings"]["tail_bounces"] == 4
         plain.append(_errors(p, facade).mean())
         tail.append(_errors(t, facade).mean())
-    assert np.mean(tail) <= 0.75 * np.mean(plain)
+    assert np.mean(tail) <= 0.02, (tail, plain)
 
 
 def test_polynomial_matches_path_on_small_urban_canyon(small_canyon):

@@ -275,8 +275,15 @@ def test_cornell_box_matches_mitsuba_original():
 
 @pytest.mark.parametrize("name", NAMES)
 def test_framework_loads_bundled_scene(name):
+    """The loader's model of each bundled folder matches its scene.yaml: every segment with its
+    meshes and kernels, every COLMAP image a camera, one parameter per segment and kernel."""
     scene = load_scene(BUNDLED_DIR / name)
-    assert scene is not None
+    spec = _yaml(name)
+    assert [s.name for s in scene.segments] == [s["name"] for s in spec["segments"]]
+    assert [tuple(s.kernels) for s in scene.segments] == [tuple(s["kernels"]) for s in spec["segments"]]
+    for i, s in enumerate(spec["segments"]):
+        assert {m.path for m in scene.meshes if m.segment == i} == set(s["meshes"])
+    assert len(scene.cameras) >= 1 and len(scene.parameters()) == sum(len(s["kernels"]) for s in spec["segments"])
 
 
 def test_content_comparison_tolerates_last_bits_only(tmp_path):

@@ -4,10 +4,11 @@ Per channel ``c`` the cost is ``ε²_c(ρ) = μ(ρ)ᵀ G_c μ(ρ) - 2 b_cᵀ μ(
 :mod:`methods.symbolic.gram`), with exact gradient ``2 J(ρ)ᵀ (G_c μ - b_c)`` from
 :meth:`MonomialBasis.jacobian`. Constraints: ``0 <= ρ_j <= 1`` and, per segment, energy
 conservation ``Σ_{j in segment} ρ_j <= 1``. The paper used a conjugate-gradient method (GSL,
-section 4.4); here nlopt's ``LD_SLSQP`` (default) handles the constraints, in coordinates where
-the exact Hessian (or its Gauss-Newton part) is the identity: the cost of a street spans orders
-of magnitude of curvature (a wall's ρ_d against a window's ρ_s), which SLSQP's BFGS otherwise
-learns one evaluation at a time (about 60 evaluations per start on urban_canyon, 10-30 with it).
+section 4.4); here SQP on the exact Hessian (default; :func:`framework.optim.minimize_sqp`, each step an
+exact QP under the constraints) or one of nlopt's constrained algorithms, the latter in coordinates
+where the exact Hessian is the identity: the cost of a street spans orders of magnitude of
+curvature (a wall's ρ_d against a window's ρ_s), which SLSQP's BFGS otherwise learns one
+evaluation at a time.
 """
 from __future__ import annotations
 
@@ -181,7 +182,7 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
                      x0: np.ndarray, algorithm: str = "SQP", starts: int | str = "auto",
                      max_eval: int = 2000, xtol_rel: float = 1e-8, ftol_rel: float = 1e-12,
                      precondition: bool = True, seed: int = 0, executor=None) -> SolveResult:
-    """Minimise the cost of every channel over ρ with nlopt, one independent parameter block at a
+    """Minimise the cost of every channel over ρ (SQP or nlopt), one independent parameter block at a
     time (:func:`parameter_blocks`: the cost is a sum of one term per block plus a constant, so
     the blocks' minimisers together are the joint minimiser).
 
