@@ -589,4 +589,5 @@ def _shown(value: object) -> str:
         return f"the string '{one_line(value, 60)}'"
     if isinstance(value, dict):
         return "a mapping"
-    return one_line(repr(value), 60)
+    text = " ".join(repr(value).split())       # not one_line: it would drop a list's "[...]" as a C++ location
+    return text if len(text) <= 60 else text[:57] + "..."
