@@ -18,7 +18,7 @@ from framework.cache import Cache
 from framework.config import RunSettings, requested_views, scene_dir
 from framework.errors import ConfigError
 from framework.observe import observed_images
-from framework.registry import Method, Problem, get_method
+from framework.registry import Method, Problem, get_method, refuse_survey_unknowns
 from framework.render import backend
 from framework.render.mitsuba_scene import MitsubaScene
 from framework.results import results_dict, write_relit_images, write_results, write_view_images
@@ -84,6 +84,7 @@ def prepare(cfg: DictConfig) -> tuple[Problem, Method, float]:
     Cache(settings.cache_dir).check_writable()     # before anything is loaded
     method = get_method(str(cfg.method.name))(cfg.method)
     scene = load_scene(scene_dir(cfg))
+    refuse_survey_unknowns(scene, type(method))
     settings = dataclasses.replace(settings, variant=backend.set_variant(str(cfg.variant), channels=scene.channels))
     cameras = select_cameras(scene, cfg)
     _check_samples(scene, cameras, settings)

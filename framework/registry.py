@@ -77,6 +77,11 @@ class Method(ABC):
 
     name: ClassVar[str]
     Options: ClassVar[type]
+    #: the survey unknowns of scene.yaml this method treats (:func:`refuse_survey_unknowns`):
+    #: ``"scale"`` (an emitter's ``scale: unknown``, a sunsky's ``sun_scale``/``sky_scale: unknown``),
+    #: ``"known"`` (a segment's ``known`` weights), ``"vignetting"`` (``photometry vignetting``
+    #: other than ``none``); none yet
+    survey: ClassVar[frozenset[str]] = frozenset()
 
     def __init__(self, options):
         self.options = options if isinstance(options, self.Options) else self.options_from(options)
@@ -113,6 +118,33 @@ class Method(ABC):
         ``problem.parameters`` order; kernels outside :meth:`parameters` count as 0): what its
         cost compares with the observations. One render at ``problem.settings.spp``, seeded by
         ``seed``. Tests use it to check that every method renders the scene it claims."""
+
+
+def refuse_survey_unknowns(scene, method: type[Method]) -> None:
+    """Raise :class:`ConfigError` (one line naming the emitter, segment or key) when ``scene``
+    declares an unknown emitter scale, a known segment or a vignetting profile that the method
+    class ``method`` does not treat (:attr:`Method.survey`): running it would silently take them
+    as absent. Called before the observations are rendered."""
+    name = method.name
+    where = f"{scene.root}/scene.yaml" if getattr(scene, "root", None) is not None else "scene.yaml"
+    if "scale" not in method.survey:
+        for e in scene.emitters:
+            if e.scale_unknown:
+                key = "scale" if e.part is None else f"{e.part}_scale"
+                kind = "sunsky" if e.part is not None else e.type
+                raise ConfigError(f"{where}: emitter {e.source} ({kind}) {key}: unknown is not supported by "
+                                  f"method={name} yet; give {key} as a number")
+    if "known" not in method.survey:
+        for seg in scene.segments:
+            if seg.known:
+                raise ConfigError(f"{where}: segment '{seg.name}' known ({', '.join(seg.known)}) is not "
+                                  f"supported by method={name} yet; remove known (give the values as the "
+                                  "segment's reference to compare the estimates with them)")
+    vignetting = scene.photometry.vignetting
+    if "vignetting" not in method.survey and vignetting != "none":
+        shown = "estimate" if vignetting == "estimate" else "[a1, a2, a3]"
+        raise ConfigError(f"{where}: photometry vignetting: {shown} is not supported by method={name} yet; "
+                          "correct the photographs for the lens falloff and set vignetting: none")
 
 
 REGISTRY: dict[str, type[Method]] = {}

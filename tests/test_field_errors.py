@@ -152,7 +152,7 @@ def test_unknown_encoding(tiny_scene):
 
 @pytest.mark.parametrize("photometry, match", [
     ({"encodng": "srgb"}, r"photometry: unknown key 'encodng' \(did you mean 'encoding'\?\); allowed keys: "
-                          r"encoding, exposure, reference_view, saturation$"),
+                          r"encoding, exposure, reference_view, saturation, vignetting$"),
     ({"exposure": "auto"}, r"photometry exposure 'auto' unknown; use known \(pixel = radiance\) or per_view"),
     ({"reference_view": "view_0.png"}, r"photometry reference_view is used only with exposure: per_view"),
     ({"saturation": 1.5}, r"photometry saturation = 1.5 must lie in \(0, 1\]"),

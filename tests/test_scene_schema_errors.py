@@ -61,7 +61,7 @@ def test_segment_key_typo_is_refused(tiny_scene):
     """``kernel:`` instead of ``kernels:`` used to drop the specular kernel silently."""
     edit_scene_yaml(tiny_scene, lambda d: d["segments"][0].update(kernel=d["segments"][0].pop("kernels")))
     msg = _message(tiny_scene, r"segment 'ground': unknown key 'kernel' \(did you mean 'kernels'\?\); "
-                               r"allowed keys: name, meshes, kernels, reference$")
+                               r"allowed keys: name, meshes, kernels, reference, known$")
     assert msg.startswith(str(tiny_scene / "scene.yaml"))
 
 
@@ -70,7 +70,7 @@ def test_segment_key_typo_is_refused(tiny_scene):
      r"scene.yaml: unknown key 'segment' \(did you mean 'segments'\?\); allowed keys: name, channels, "),
     (lambda d: d["emitters"][0].update(irradiance=1.0),
      r"emitter 0 \(constant\): unknown key 'irradiance' \(did you mean 'radiance'\?\); "
-     r"allowed keys: type, radiance$"),
+     r"allowed keys: type, radiance, scale$"),
     (lambda d: d["segments"][1]["reference"].update(glossy=0.1),
      r"segment 'block' reference: unknown key 'glossy'; allowed keys: diffuse, specular$"),
 ], ids=["top-level", "emitter", "reference"])
@@ -128,7 +128,8 @@ def test_emitters_as_a_string(tiny_scene):
 
 def test_envmap_scale_not_a_number(tiny_scene):
     edit_scene_yaml(tiny_scene, lambda d: d["emitters"].append({"type": "envmap", "file": "sky.exr", "scale": "bright"}))
-    _message(tiny_scene, r"emitter 2 \(envmap\) scale must be a number >= 0; got the string 'bright'$")
+    _message(tiny_scene, r"emitter 2 \(envmap\) scale 'bright' is neither a number nor the word unknown; give a "
+                         r"number >= 0 \(it multiplies the light\), or unknown to estimate it$")
 
 
 @pytest.mark.parametrize("emitter, match", [
@@ -137,7 +138,7 @@ def test_envmap_scale_not_a_number(tiny_scene):
     ({"type": "directional", "direction": [0, 0, -1], "irradiance": -3.0},
      r"emitter 2 \(directional\) irradiance = \[-3.0, -3.0, -3.0\] is negative; light is >= 0"),
     ({"type": "envmap", "file": "sky.exr", "scale": -1},
-     r"emitter 2 \(envmap\) scale = -1.0 must be finite and >= 0"),
+     r"emitter 2 \(envmap\) scale = -1 must be finite and >= 0"),
 ], ids=["radiance", "irradiance", "envmap-scale"])
 def test_negative_light_is_refused(tiny_scene, emitter, match):
     edit_scene_yaml(tiny_scene, lambda d: d["emitters"].append(emitter))

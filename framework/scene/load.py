@@ -22,6 +22,7 @@ from typing import Iterator
 import numpy as np
 
 from framework.errors import SceneError
+from framework.render import sunsky
 from framework.scene.colmap import read_model
 from framework.scene.exr import read_exr_checked
 from framework.scene.model import Emitter, Mesh, Scene
@@ -55,10 +56,12 @@ def load_scene(directory: str | os.PathLike) -> Scene:
     """
     root = Path(directory).expanduser().resolve()
     spec = read_scene_yaml(root)
-    meshes = tuple(Mesh(path, *_read_mesh(root / path), segment=s, radiance=radiance)
-                   for path, s, radiance in _mesh_table(root, spec))
+    first = np.cumsum([0] + [2 if e.type == "sunsky" else 1 for e in spec.emitters])   # model index of each
+    meshes = tuple(Mesh(path, *_read_mesh(root / path), segment=s, radiance=radiance,
+                        emitter=None if source is None else int(first[source]))
+                   for path, s, radiance, source in _mesh_table(root, spec))
     _check_surfaces(spec, meshes)
-    emitters = tuple(_emitter(root, e, spec.channels) for e in spec.emitters)
+    emitters = tuple(part for i, e in enumerate(spec.emitters) for part in _emitter(root, e, i, spec))
     model = read_model(root)
     _check_reference_view(spec, model)
     photos = read_photos(root, model.cameras, spec.channels, spec.photometry)
@@ -88,10 +91,11 @@ def _check_reference_view(spec: SceneSpec, model) -> None:
 # Meshes and emitters
 # ----------------------------------------------------------------------------------------------
 
-def _mesh_table(root: Path, spec: SceneSpec) -> list[tuple[str, int | None, np.ndarray | None]]:
-    """(path as written, segment index or None, area radiance or None) of every mesh, segments'
-    meshes first. Meshes are told apart by the file they resolve to, so ``./meshes/a.ply`` and
-    ``meshes/a.ply`` are one mesh."""
+def _mesh_table(root: Path, spec: SceneSpec) -> list[tuple[str, int | None, np.ndarray | None, int | None]]:
+    """(path as written, segment index or None, area radiance or None, index of its area emitter
+    in scene.yaml or None) of every mesh, segments' meshes first. Meshes are told apart by the
+    file they resolve to, so ``./meshes/a.ply`` and ``meshes/a.ply`` are one mesh. A number
+    ``scale`` multiplies the radiance."""
     owner: dict[Path, tuple[str, int | None]] = {}
     for s, seg in enumerate(spec.segments):
         for m in seg.meshes:
@@ -99,15 +103,15 @@ def _mesh_table(root: Path, spec: SceneSpec) -> list[tuple[str, int | None, np.n
             if file in owner:
                 raise SceneError(_shared_mesh(spec, m, seg.name, *owner[file]))
             owner[file] = (m, s)
-    radiance: dict[Path, np.ndarray] = {}
-    for e in spec.emitters:
+    radiance: dict[Path, tuple[np.ndarray, int]] = {}
+    for i, e in enumerate(spec.emitters):
         for m in e.meshes:
             file = (root / m).resolve()
             if file in radiance:
                 raise SceneError(f"{spec.path}: mesh {m} is listed twice by area emitters; list it once")
-            radiance[file] = e.radiance
+            radiance[file] = (e.radiance * e.scale, i)
             owner.setdefault(file, (m, None))
-    return [(m, s, radiance.get(file)) for file, (m, s) in owner.items()]
+    return [(m, s, *radiance.get(file, (None, None))) for file, (m, s) in owner.items()]
 
 
 def _shared_mesh(spec: SceneSpec, m: str, segment: str, first: str, s: int) -> str:
@@ -171,11 +175,42 @@ def _check_surfaces(spec: SceneSpec, meshes: tuple[Mesh, ...]) -> None:
                              f"triangles of {', '.join(m.path for m in own)} have zero area; fix the mesh")
 
 
-def _emitter(root: Path, e: EmitterSpec, channels: tuple[str, ...]) -> Emitter:
+def _emitter(root: Path, e: EmitterSpec, i: int, spec: SceneSpec) -> tuple[Emitter, ...]:
+    """The model's emitter(s) of scene.yaml's emitter ``i``: one, or a sunsky's sky and sun. A
+    number ``scale`` is applied (see :class:`Emitter`)."""
+    tag = {"source": i, "scale_unknown": e.scale_unknown}
+    if e.type == "sunsky":
+        return _sunsky_parts(e.sunsky, i, spec)
     if e.type == "envmap":
-        image = read_exr_checked(root / e.file, channels=channels)
-        return Emitter(e.type, image=image, scale=e.scale, file=e.file)
-    return Emitter(e.type, radiance=e.radiance, direction=e.direction, irradiance=e.irradiance)
+        image = read_exr_checked(root / e.file, channels=spec.channels)
+        return (Emitter(e.type, image=image, scale=e.scale, file=e.file, **tag),)
+    if e.type == "area":
+        return (Emitter(e.type, radiance=e.radiance * e.scale, **tag),)
+    if e.type == "constant":
+        return (Emitter(e.type, radiance=e.radiance * e.scale, **tag),)
+    return (Emitter(e.type, direction=e.direction, irradiance=e.irradiance * e.scale, **tag),)
+
+
+def _sunsky_parts(s, i: int, spec: SceneSpec) -> tuple[Emitter, Emitter]:
+    """A ``sunsky``'s sky (``envmap``, baked by :mod:`framework.render.sunsky`, never written
+    anywhere) and sun (``directional``); the sun placed from place and time in the world with
+    the scene's ``north``, or given."""
+    channels = "mono" if spec.channels == ("Y",) else "rgb"
+    if s.sun_direction is not None:
+        sun = s.sun_direction
+    else:
+        elevation, azimuth = sunsky.sun_position(s.latitude, s.longitude, s.time)
+        if elevation <= 0:
+            raise SceneError(f"{spec.path}: emitter {i} (sunsky): the sun is {-elevation:.1f} deg below the "
+                             f"horizon at latitude {s.latitude:g}, longitude {s.longitude:g} on "
+                             f"{s.time.isoformat()}; check the date, the time and its UTC offset (the sky "
+                             "model needs a sun above the horizon)")
+        sun = sunsky.sun_vector(elevation, azimuth, north=s.north)
+    sky, e_sun = sunsky.sunsky_parts(sun, channels, turbidity=s.turbidity, ground_albedo=s.ground_albedo)
+    return (Emitter("envmap", image=sky, scale=s.sky_scale, scale_unknown=s.sky_scale_unknown,
+                    source=i, part="sky"),
+            Emitter("directional", direction=-sun, irradiance=e_sun * s.sun_scale,
+                    scale_unknown=s.sun_scale_unknown, source=i, part="sun"))
 
 
 # ----------------------------------------------------------------------------------------------

@@ -32,6 +32,10 @@ class Segment:
     meshes: tuple[str, ...]
     kernels: tuple[str, ...]
     reference: dict[str, np.ndarray] | None = None   # kernel -> (C,), where given
+    #: kernel -> (C,): weights held at these values (a calibration panel), ``known:`` in
+    #: scene.yaml; None when the segment has none. Checked: each a kernel of ``kernels``, in [0, 1],
+    #: and with ``reference``'s other kernels Σ ≤ 1 per channel (where both give a kernel, equal)
+    known: dict[str, np.ndarray] | None = None
 
 
 @dataclass(frozen=True)
@@ -43,6 +47,7 @@ class Mesh:
     faces: np.ndarray              # (F, 3) int32
     segment: int | None
     radiance: np.ndarray | None = None   # (C,) if the mesh is an area emitter
+    emitter: int | None = None           # its area emitter's index in Scene.emitters, if any
 
     @property
     def area(self) -> float:
@@ -52,8 +57,15 @@ class Mesh:
 
 @dataclass(frozen=True)
 class Emitter:
-    """Known illumination: ``envmap`` (image (H,W,C), scale), ``constant`` (radiance),
-    ``directional`` (direction the light travels, irradiance) or ``area`` (its meshes carry it)."""
+    """Illumination: ``envmap`` (image (H,W,C), scale), ``constant`` (radiance),
+    ``directional`` (direction the light travels, irradiance) or ``area`` (its meshes carry it).
+
+    A scene.yaml ``scale`` given as a number is already applied: it is the envmap's ``scale``,
+    and it multiplies the ``radiance`` or ``irradiance`` of the other types (their ``scale`` is
+    1). A ``sunsky`` of scene.yaml becomes two emitters, its sky (``envmap``, ``part="sky"``,
+    ``scale`` = its ``sky_scale``) and its sun (``directional``, ``part="sun"``, ``sun_scale``
+    applied), both with the sunsky's ``source``.
+    """
 
     type: str
     radiance: np.ndarray | None = None       # constant
@@ -61,7 +73,12 @@ class Emitter:
     scale: float = 1.0                       # envmap
     direction: np.ndarray | None = None      # directional, unit
     irradiance: np.ndarray | None = None     # directional
-    file: str | None = None                  # envmap source, relative
+    file: str | None = None                  # envmap source, relative; None for a baked sunsky sky
+    #: ``scale: unknown`` (or ``sun_scale``/``sky_scale: unknown`` for this part of a sunsky): one
+    #: unknown factor per channel multiplies this emitter's light as given here (the nominal value)
+    scale_unknown: bool = False
+    source: int | None = None                # index of the emitter in scene.yaml's ``emitters``
+    part: str | None = None                  # "sun" | "sky" for the parts of a ``sunsky``, else None
 
 
 @dataclass(frozen=True)
@@ -117,6 +134,11 @@ class Photometry:
     exposure: str = "known"              # "known": pixel = radiance; "per_view": one gain per view, channel
     reference_view: str | None = None    # with "per_view": the view whose gains are 1
     saturation: float | None = None      # as declared; None: 0.99 for 8/16-bit files, none for EXR
+    #: "none": no lens falloff; "estimate": per camera, pixel = (1 + a1 r^2 + a2 r^4 + a3 r^6) ·
+    #: radiance with a_i unknown (r = distance from the principal point / half the image
+    #: diagonal); "known": that profile with ``vignetting_profile``'s coefficients
+    vignetting: str = "none"
+    vignetting_profile: tuple[float, float, float] | None = None   # (a1, a2, a3) with "known"
 
 
 @dataclass(frozen=True)

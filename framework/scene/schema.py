@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import difflib
 from dataclasses import dataclass, field
+from datetime import date, datetime
 from pathlib import Path
 
 import numpy as np
@@ -20,20 +21,51 @@ from framework.scene.model import CHANNELS, Photometry, Segment
 
 # The keys of each mapping, in the order the docs list them: True for a required key.
 TOP_KEYS = {"name": False, "channels": False, "segments": True, "emitters": True, "photometry": False}
-SEGMENT_KEYS = {"name": True, "meshes": True, "kernels": False, "reference": False}
+SEGMENT_KEYS = {"name": True, "meshes": True, "kernels": False, "reference": False, "known": False}
 EMITTER_KEYS = {
-    "constant": {"type": True, "radiance": True},
-    "directional": {"type": True, "direction": True, "irradiance": True},
+    "constant": {"type": True, "radiance": True, "scale": False},
+    "directional": {"type": True, "direction": True, "irradiance": True, "scale": False},
     "envmap": {"type": True, "file": True, "scale": False},
-    "area": {"type": True, "meshes": True, "radiance": True},
+    "area": {"type": True, "meshes": True, "radiance": True, "scale": False},
+    "sunsky": {"type": True, "latitude": False, "longitude": False, "time": False, "sun_direction": False,
+               "turbidity": False, "ground_albedo": False, "north": False, "sun_scale": False,
+               "sky_scale": False},
 }
 EMITTER_TYPES = tuple(EMITTER_KEYS)
-PHOTOMETRY_KEYS = {"encoding": False, "exposure": False, "reference_view": False, "saturation": False}
+UNKNOWN = "unknown"                      # the word that makes an emitter's scale an unknown
+PLACE_AND_TIME = ("latitude", "longitude", "time")
+#: a sunsky's ``north`` may leave the horizontal plane by this much (its sine); it is projected on it
+NORTH_TILT_MAX_DEG = 5.0
+PHOTOMETRY_KEYS = {"encoding": False, "exposure": False, "reference_view": False, "saturation": False,
+                   "vignetting": False}
+VIGNETTING = {"none": "no lens falloff", "estimate": "one unknown profile per camera",
+              "[a1, a2, a3]": "a known profile"}
 ENCODINGS = {"linear": "pixel values are radiance", "srgb": "8/16-bit camera output, decoded to linear"}
 EXPOSURES = {"known": "pixel = radiance", "per_view": "one unknown gain per view and channel"}
 DEFAULT_KERNELS = ("diffuse",)
 # Σ ρ ≤ 1 up to the rounding of the 7 decimals scene.yaml is written with
 SUM_TOLERANCE = 1e-9
+
+
+@dataclass(frozen=True)
+class SunskySpec:
+    """A checked ``sunsky`` emitter: where and when (or the sun's direction) and the atmosphere.
+
+    Exactly one of (``latitude``, ``longitude``, ``time``) and ``sun_direction`` is given; the
+    loader computes the sun's direction from the first (:func:`framework.render.sunsky.sun_position`).
+    """
+
+    latitude: float | None = None            # degrees, north positive, in [-90, 90]
+    longitude: float | None = None           # degrees, east positive, in [-180, 180]
+    time: datetime | None = None             # aware: local civil time with its UTC offset
+    sun_direction: np.ndarray | None = None  # unit, towards the sun (z > 0)
+    turbidity: float = 3.0                   # in [1, 10]
+    ground_albedo: float = 0.2               # in [0, 1]
+    north: np.ndarray = field(default_factory=lambda: np.array([0.0, 1.0, 0.0]))   # unit, z = 0
+    sun_scale: float = 1.0
+    sun_scale_unknown: bool = False
+    sky_scale: float = 1.0
+    sky_scale_unknown: bool = False
 
 
 @dataclass(frozen=True)
@@ -45,8 +77,10 @@ class EmitterSpec:
     direction: np.ndarray | None = None      # directional: unit, the direction the light travels
     irradiance: np.ndarray | None = None     # directional: (C,)
     file: str | None = None                  # envmap, as written
-    scale: float = 1.0                       # envmap
+    scale: float = 1.0                       # every type but sunsky (1.0 when unknown)
     meshes: tuple[str, ...] = ()             # area, as written
+    scale_unknown: bool = False              # ``scale: unknown``
+    sunsky: SunskySpec | None = None         # sunsky
 
 
 @dataclass(frozen=True)
@@ -164,7 +198,8 @@ def _segment(s: object, i: int, path: Path, channels: tuple[str, ...]) -> Segmen
                     empty=f"{where} has no meshes; list its PLY files")
     kernels = _kernels(s["kernels"], f"{where} kernels") if "kernels" in s else DEFAULT_KERNELS
     reference = _reference(s["reference"], kernels, channels, f"{where} reference") if "reference" in s else None
-    return Segment(name, meshes, kernels, reference)
+    known = _known(s["known"], kernels, reference, channels, f"{where} known") if "known" in s else None
+    return Segment(name, meshes, kernels, reference, known)
 
 
 def _kernels(value: object, where: str) -> tuple[str, ...]:
@@ -195,6 +230,42 @@ def _reference(value: object, kernels: tuple[str, ...], channels, where: str) ->
     return ref
 
 
+def _known(value: object, kernels: tuple[str, ...], reference: dict[str, np.ndarray] | None, channels,
+           where: str) -> dict[str, np.ndarray]:
+    """``known: {kernel: value}``: weights held fixed (a calibration panel), each a kernel of the
+    segment, in [0, 1], equal to the reference where both give it, and with the references of the
+    other kernels summing to at most 1 per channel."""
+    example = f"{{{kernels[0]}: 0.5}}"
+    if not isinstance(value, dict) or not value:
+        got = "an empty mapping" if isinstance(value, dict) else _shown(value)
+        raise SceneError(f"{where} must map some of the segment's kernels {list(kernels)} to the weights "
+                         f"held fixed, e.g. {example}; got {got}")
+    value = {_canonical_or_same(k): v for k, v in value.items()}
+    for k in value:
+        if k not in kernels:
+            raise SceneError(f"{where}: '{k}' is not a kernel of the segment (its kernels: {list(kernels)}); "
+                             f"add it to the segment's kernels, or hold one of those, e.g. {example}")
+    known = {k: _spectrum(v, channels, f"{where} {k}", unit=True) for k, v in value.items()}
+    for k, v in known.items():
+        if reference is not None and k in reference and not np.allclose(reference[k], v, rtol=0, atol=SUM_TOLERANCE):
+            raise SceneError(f"{where} {k} = {_values(v)} differs from the segment's reference {k} = "
+                             f"{_values(reference[k])}; a known weight is its reference: give one value")
+    total = sum(known.values(), np.zeros(len(channels)))
+    others = [k for k in (reference or {}) if k not in known]
+    total = total + sum((reference[k] for k in others), np.zeros(len(channels)))
+    c = int(np.argmax(total))
+    if total[c] > 1 + SUM_TOLERANCE:
+        terms = " + ".join(list(known) + [f"reference {k}" for k in others])
+        raise SceneError(f"{where}: {terms} = {total[c]:.6g} > 1 in channel {channels[c]}; a segment's "
+                         "weights sum to at most 1 per channel (energy conservation): lower them")
+    return known
+
+
+def _values(v: np.ndarray) -> str:
+    """A (C,) value for a message: one number when every channel has it."""
+    return f"{v[0]:g}" if np.all(v == v[0]) else "[" + ", ".join(f"{x:g}" for x in v) + "]"
+
+
 def _canonical_or_same(key: object) -> object:
     """A reference key as its kernel's canonical name, or unchanged when it names no kernel (the
     mapping check then reports it)."""
@@ -219,19 +290,140 @@ def _emitter(e: object, i: int, path: Path, channels: tuple[str, ...]) -> Emitte
     def spectrum(key: str) -> np.ndarray:
         return _spectrum(e[key], channels, f"{where} {key}", unit=False)
 
+    if t == "sunsky":
+        return EmitterSpec(t, sunsky=_sunsky(e, where))
+    scale, unknown = _scale(e.get("scale", 1.0), f"{where} scale")
     if t == "constant":
-        return EmitterSpec(t, radiance=spectrum("radiance"))
+        return EmitterSpec(t, radiance=spectrum("radiance"), scale=scale, scale_unknown=unknown)
     if t == "directional":
         return EmitterSpec(t, direction=_direction(e["direction"], f"{where} direction"),
-                           irradiance=spectrum("irradiance"))
+                           irradiance=spectrum("irradiance"), scale=scale, scale_unknown=unknown)
     if t == "envmap":
-        scale = _number(e.get("scale", 1.0), f"{where} scale", "a number >= 0")
-        if not np.isfinite(scale) or scale < 0:
-            raise SceneError(f"{where} scale = {scale} must be finite and >= 0 (it multiplies radiance)")
-        return EmitterSpec(t, file=_text(e["file"], f"{where} file"), scale=scale)
+        return EmitterSpec(t, file=_text(e["file"], f"{where} file"), scale=scale, scale_unknown=unknown)
     return EmitterSpec(t, meshes=_names(e["meshes"], f"{where} meshes", "meshes/light.ply",
                                         empty=f"{where} meshes is empty; list the PLY files that emit"),
-                       radiance=spectrum("radiance"))
+                       radiance=spectrum("radiance"), scale=scale, scale_unknown=unknown)
+
+
+def _scale(value: object, where: str) -> tuple[float, bool]:
+    """An emitter's ``scale`` (or a sunsky's ``sun_scale``/``sky_scale``): (number, False), or
+    (1.0, True) for the word ``unknown``."""
+    if value == UNKNOWN:
+        return 1.0, True
+    if isinstance(value, str):
+        try:
+            float(value)
+        except ValueError:
+            close = difflib.get_close_matches(value, [UNKNOWN], n=1, cutoff=0.6)
+            hint = f" (did you mean '{UNKNOWN}'?)" if close else ""
+            raise SceneError(f"{where} {_quoted(value)} is neither a number nor the word {UNKNOWN}{hint}; "
+                             f"give a number >= 0 (it multiplies the light), or {UNKNOWN} to estimate it") from None
+    scale = _number(value, where, f"a number >= 0 or the word {UNKNOWN}")
+    if not np.isfinite(scale) or scale < 0:
+        raise SceneError(f"{where} = {scale:g} must be finite and >= 0 (it multiplies the light), "
+                         f"or the word {UNKNOWN}")
+    return scale, False
+
+
+def _sunsky(e: dict, where: str) -> SunskySpec:
+    """A ``sunsky`` emitter: place and time, or ``sun_direction``; the atmosphere and the scales."""
+    place = [k for k in PLACE_AND_TIME if k in e]
+    if place and "sun_direction" in e:
+        raise SceneError(f"{where} gives both {', '.join(place)} and sun_direction; give either latitude, "
+                         "longitude and time (where and when), or sun_direction, not both")
+    if not place and "sun_direction" not in e:
+        raise SceneError(f"{where} needs latitude, longitude and time (where and when: the loader places "
+                         "the sun), or sun_direction: add them")
+    options: dict = {}
+    if place:
+        missing = [k for k in PLACE_AND_TIME if k not in e]
+        if missing:
+            raise SceneError(f"{where} misses {' and '.join(missing)}; give latitude, longitude and time "
+                             "together (or sun_direction instead)")
+        options["latitude"] = _in_range(e["latitude"], -90, 90, f"{where} latitude",
+                                        "degrees, north positive")
+        options["longitude"] = _in_range(e["longitude"], -180, 180, f"{where} longitude",
+                                         "degrees, east positive")
+        options["time"] = _time(e["time"], f"{where} time")
+        if "north" in e:
+            options["north"] = _north(e["north"], f"{where} north")
+    else:
+        options["sun_direction"] = _sun_direction(e["sun_direction"], f"{where} sun_direction")
+        if "north" in e:
+            raise SceneError(f"{where}: north serves only to place the sun from latitude, longitude and "
+                             "time; with sun_direction (a world direction already) remove it")
+    if "turbidity" in e:
+        options["turbidity"] = _in_range(e["turbidity"], 1, 10, f"{where} turbidity",
+                                         "Hosek-Wilkie's range; about 2 for a clear arctic sky, 3 temperate, "
+                                         "6-10 hazy")
+    if "ground_albedo" in e:
+        options["ground_albedo"] = _in_range(e["ground_albedo"], 0, 1, f"{where} ground_albedo",
+                                             "a reflectance")
+    for part in ("sun", "sky"):
+        if f"{part}_scale" in e:
+            options[f"{part}_scale"], options[f"{part}_scale_unknown"] = _scale(e[f"{part}_scale"],
+                                                                                f"{where} {part}_scale")
+    return SunskySpec(**options)
+
+
+def _in_range(value: object, low: float, high: float, where: str, what: str) -> float:
+    x = _number(value, where, f"a number in [{low:g}, {high:g}] ({what})")
+    if not low <= x <= high:
+        raise SceneError(f"{where} = {x:g} is outside [{low:g}, {high:g}] ({what}); fix it")
+    return x
+
+
+def _time(value: object, where: str) -> datetime:
+    """An ISO 8601 date and time with its UTC offset (YAML may have read it as a datetime already)."""
+    example = "2026-06-21T14:00:00+02:00 (local time and its offset from UTC; Z for UTC)"
+    text = value.isoformat() if isinstance(value, (date, datetime)) else value
+    if isinstance(value, date) and not isinstance(value, datetime):
+        raise SceneError(f"{where} {text} is a date without a time of day; write e.g. {example}")
+    if isinstance(value, datetime):
+        t = value
+    elif isinstance(value, str):
+        try:
+            date.fromisoformat(value.strip())
+        except ValueError:
+            pass
+        else:
+            raise SceneError(f"{where} '{value}' is a date without a time of day; write e.g. {example}")
+        try:
+            t = datetime.fromisoformat(value.strip())
+        except ValueError:
+            raise SceneError(f"{where} '{one_line(value, 60)}' is not an ISO 8601 date and time; write "
+                             f"e.g. {example}") from None
+    else:
+        raise SceneError(f"{where} must be an ISO 8601 date and time, e.g. {example}; got {_shown(value)}")
+    if t.utcoffset() is None:
+        raise SceneError(f"{where} '{text}' has no UTC offset, so the sun's place is ambiguous; append the "
+                         "offset of the clock it was read on, e.g. +02:00 for CEST, -05:00 for EST, Z for UTC")
+    return t
+
+
+def _north(value: object, where: str) -> np.ndarray:
+    """The world direction of geographic north: horizontal (within a few degrees), normalised."""
+    what = "3 finite numbers, not all 0, horizontal (z about 0): the world direction of geographic north"
+    n = np.array([_number(x, where, what) for x in _list(value, where, "0, 1, 0")])
+    if n.shape != (3,) or not np.isfinite(n).all() or np.linalg.norm(n) == 0:
+        raise SceneError(f"{where} must be {what}; got {_shown(value)}")
+    tilt = np.degrees(np.arcsin(abs(n[2]) / np.linalg.norm(n)))
+    if tilt > NORTH_TILT_MAX_DEG:
+        raise SceneError(f"{where} = {_shown(value)} points {tilt:.1f} deg out of the horizontal plane "
+                         f"(at most {NORTH_TILT_MAX_DEG:g}); north is horizontal: give it z = 0")
+    n[2] = 0.0
+    return n / np.linalg.norm(n)
+
+
+def _sun_direction(value: object, where: str) -> np.ndarray:
+    what = "3 finite numbers, not all 0: the direction towards the sun, z > 0"
+    d = np.array([_number(x, where, what) for x in _list(value, where, "0.3, -0.4, 0.87")])
+    if d.shape != (3,) or not np.isfinite(d).all() or np.linalg.norm(d) == 0:
+        raise SceneError(f"{where} must be {what}; got {_shown(value)}")
+    if d[2] <= 0:
+        raise SceneError(f"{where} = {_shown(value)} points at or below the horizon; it points towards the sun "
+                         "(z > 0), the opposite of a directional emitter's direction")
+    return d / np.linalg.norm(d)
 
 
 def _photometry(value: object, where: str) -> Photometry:
@@ -258,7 +450,33 @@ def _photometry(value: object, where: str) -> Photometry:
         if not 0 < saturation <= 1:
             raise SceneError(f"{where} saturation = {saturation:g} must lie in (0, 1] (a fraction of the "
                              "largest encoded value, e.g. 0.99; 1 ignores only pixels at the maximum)")
-    return Photometry(encoding=encoding, exposure=exposure, reference_view=reference, saturation=saturation)
+    vignetting, profile = _vignetting(p["vignetting"], f"{where} vignetting") if "vignetting" in p else ("none", None)
+    return Photometry(encoding=encoding, exposure=exposure, reference_view=reference, saturation=saturation,
+                      vignetting=vignetting, vignetting_profile=profile)
+
+
+def _vignetting(value: object, where: str) -> tuple[str, tuple[float, float, float] | None]:
+    """``none`` | ``estimate`` | ``[a1, a2, a3]``: pixel = (1 + a1 r² + a2 r⁴ + a3 r⁶) · radiance."""
+    choices = ", ".join(f"{k} ({v})" for k, v in VIGNETTING.items())
+    if isinstance(value, str) and value in ("none", "estimate"):
+        return value, None
+    if not isinstance(value, list):
+        raise SceneError(f"{where} {_quoted(value)} unknown; use {choices}")
+    if len(value) != 3:
+        raise SceneError(f"{where} has {len(value)} coefficient(s); give 3, [a1, a2, a3] with pixel = "
+                         "(1 + a1 r^2 + a2 r^4 + a3 r^6) · radiance (r: distance from the principal point / "
+                         "half the image diagonal)")
+    a = np.array([_number(x, where, "[a1, a2, a3], 3 finite numbers") for x in value])
+    if not np.isfinite(a).all():
+        raise SceneError(f"{where} = {a.tolist()} must be finite")
+    r2 = np.linspace(0.0, 1.0, 1001)
+    falloff = 1 + a[0] * r2 + a[1] * r2 ** 2 + a[2] * r2 ** 3
+    if falloff.min() <= 0:
+        r = np.sqrt(r2[np.argmin(falloff)])
+        raise SceneError(f"{where} = {a.tolist()} makes 1 + a1 r^2 + a2 r^4 + a3 r^6 = {falloff.min():.3g} <= 0 "
+                         f"at r = {r:.2f} (r = 1 at the image corners); the lens passes some light everywhere: "
+                         "check the signs")
+    return "known", tuple(float(x) for x in a)
 
 
 def _unique_names(segments: tuple[Segment, ...], path: Path) -> None:
@@ -371,4 +589,5 @@ def _shown(value: object) -> str:
         return f"the string '{one_line(value, 60)}'"
     if isinstance(value, dict):
         return "a mapping"
-    return one_line(repr(value), 60)
+    text = " ".join(repr(value).split())       # not one_line: it would drop a list's "[...]" as a C++ location
+    return text if len(text) <= 60 else text[:57] + "..."
