@@ -55,7 +55,7 @@ class DifferentiableMethod(C.RenderingBaseline):
     ``bsdf.eval``, which is 0 on a Dirac lobe) and, on a segment mixing a mirror with a smooth
     kernel, biases the smooth weights' gradients (it differentiates the smooth kernels'
     value at the mirror direction); ``prb_dirac`` differentiates the sample weight there
-    instead (``tests/test_differentiable_gradients.py`` checks both against finite
+    instead (``tests/methods/test_differentiable_gradients.py`` checks both against finite
     differences).
 
     Limitations

@@ -112,7 +112,7 @@ def prior_config():
     """The ``lambertian_prior`` method's shipped options with ``refine: 0`` and ``cost: joint``:
     the one-pass prior that ``method.init=lambertian_prior`` starts from
     (:func:`methods._common.initial_guess`). Joint, because the fits it starts minimise the joint
-    cost: measured on the small street, all views, seeds 0-3 (tests/test_inversion.py), the
+    cost: measured on the small street, all views, seeds 0-3 (tests/methods/test_inversion.py), the
     kernel solve from the joint prior took 30, 30, 25, 45 evaluations, from the per-segment
     prior 62, 33, 27, 34 (flat guess: 31, 29, 28, 59), with the same errors (mean 0.0166 and
     0.0167)."""

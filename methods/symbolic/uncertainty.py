@@ -24,7 +24,7 @@ Standard errors: sandwich (default, ``method.std=sandwich``)
     ``r_p``, whose variance is ``σ²_img + Var_MC(γ_pᵀμ̂)``, and to second order through the
     products of the halves' noises, which dominate along the ill-posed directions where
     ``Jᵀγ_p`` is small) and the per-pixel misfit of the model that the estimate does not
-    absorb. Measured on the tiny two-segment scene (tests/test_std_calibration.py, 20 seeds,
+    absorb. Measured on the tiny two-segment scene (tests/methods/test_std_calibration.py, 20 seeds,
     z = (ρ̂ - ρ_ref)/std): RMS z 0.95, |z| < 2 for 96 %; the first-order plug-in
     ``M = 4Σ_p Jᵀγ_pγ_pᵀJ (σ²_img + ((a_p - b_p)ᵀμ̂)²/4)`` gave RMS z 1.33 (up to 1.6 for a
     parameter) and 90 %. Without halves (``gram: plain``, spp < 2) ``s_p = 2Jᵀγ_p r_p``: first
@@ -38,7 +38,7 @@ Standard errors: residual only (``method.std=residual``, Gauss-Newton / Laplace 
     ``Cov_c ≈ 2 σ²_c H_c⁻¹`` (``H_c ≈ 2JᵀJ``, so this is ``σ²_c (JᵀJ)⁻¹``): the ``M`` of
     independent, equal pixel noise ``σ²_c``, the image residual only. It ignores the Monte
     Carlo noise of the coefficients, which the estimate carries in full (RMS z 18 in
-    tests/test_std_calibration.py), and is 0 where the cross Gram's cost at ``ρ̂`` is <= 0.
+    tests/methods/test_std_calibration.py), and is 0 where the cross Gram's cost at ``ρ̂`` is <= 0.
 
 Standard errors of the per-segment fit (``method.cost=per_segment``)
     Its estimate solves estimating equations ``U(ρ̂) = 0`` that are no cost's gradient
@@ -46,7 +46,7 @@ Standard errors of the per-segment fit (``method.cost=per_segment``)
     ``Cov_c = J_c⁺ M_c J_c⁺ᵀ`` (:func:`estimating_uncertainty`, pseudo-inverse by SVD), with
     ``M_c`` from each pixel's score restricted to the parameters owning the pixel
     (:func:`score_meat` with ``owned``). Measured on the tiny diffuse scene, seeds 0-7: RMS z
-    0.84, |z| < 2 for 96 % (tests/test_per_segment.py).
+    0.84, |z| < 2 for 96 % (tests/methods/test_per_segment.py).
 
 Both formulas
     ``H_c`` is the exact Hessian of the (PSD-projected) cost at ``ρ̂``, symmetrised and

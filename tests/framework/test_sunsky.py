@@ -244,7 +244,7 @@ def test_cli_refuses_unknown_scale_with_one_line(tmp_path):
 
     root = make_tiny_scene(tmp_path / "s")
     edit_scene_yaml(root, lambda d: d["emitters"][1].update(scale="unknown"))
-    env = dict(os.environ, HYDRA_FULL_ERROR="0", PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    env = dict(os.environ, HYDRA_FULL_ERROR="0", PYTHONPATH=str(Path(__file__).resolve().parents[2]))
     proc = subprocess.run([sys.executable, "-m", "framework.run", f"scene.dir={root}", "cache.dir=null",
                            "render.spp=4", "observe.spp=8", "report=false", f"hydra.run.dir={tmp_path / 'run'}"],
                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)

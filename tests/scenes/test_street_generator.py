@@ -157,7 +157,7 @@ def test_bundled_street_block_is_up_to_date(tmp_path):
     assert len(_segments(out)) == MATERIALS[2]
     size = sum(p.stat().st_size for p in (BUNDLED_DIR / "street_block").rglob("*") if p.is_file())
     assert size < 2_000_000
-    conf = yaml.safe_load((Path(__file__).resolve().parents[1] / "framework/conf/scene/street_block.yaml").read_text())
+    conf = yaml.safe_load((Path(__file__).resolve().parents[2] / "framework/conf/scene/street_block.yaml").read_text())
     assert conf == {"name": "street_block", "dir": None, "views": "all"}
 
 

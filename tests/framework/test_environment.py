@@ -7,7 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 USER_SCRIPT = ("import mitsuba as mi; mi.set_variant('llvm_ad_rgb'); import drjit as dr; "
                "print(dr.minimum(mi.Float([1, 3]), mi.Float(2)))")
 

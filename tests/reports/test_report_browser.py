@@ -16,7 +16,7 @@ from reports import write_run_report
 from reports.__main__ import main
 from fakes import make_fake_run
 
-ARTIFACTS = Path(__file__).resolve().parents[1] / ".cache" / "test-artifacts"
+ARTIFACTS = Path(__file__).resolve().parents[2] / ".cache" / "test-artifacts"
 CHROMIUM_FLAGS = ("--headless=new", "--no-sandbox", "--disable-gpu", "--no-first-run",
                   "--disable-dev-shm-usage", "--hide-scrollbars")
 

@@ -198,7 +198,7 @@ def test_polynomial_matches_path_with_glossy():
     (MIS), and the block's light inter-reflects with the glossy ground.
 
     R = 16 repetitions of each at 32x32, 32 spp, independent seeds; image means and 2x2-quadrant
-    means per channel agree within 4 SE (as tests/test_polynomial_integrator.py, with 16
+    means per channel agree within 4 SE (as tests/methods/test_polynomial_integrator.py, with 16
     repetitions instead of 4 so that the SE itself is well estimated). Measured max |z| = 1.36
     over the 15 statistics; over seed offsets + 1000 k, k = 0-5: 1.3-3.1. Power: the glossy
     ground is a visible part of the image: the image mean at ρ_g = 0 is lower by 0.121 (of
@@ -245,7 +245,7 @@ REPEATS, SPP, STEP, RHO = 16, 64, 0.05, 0.3
 def glossy_gradients(tmp_path_factory):
     """``(problem, ad, fd)``: ``REPEATS`` independent AD and finite-difference estimates
     ``(REPEATS, P, C)`` of dε/dρ at ρ = 0.3 on the tiny scene with a glossy ground (one view),
-    as tests/test_differentiable_gradients.py: AD is the method's own pass (primal and adjoint
+    as tests/methods/test_differentiable_gradients.py: AD is the method's own pass (primal and adjoint
     at independent seeds); FD is ``2 (I_r - obs) · (I_c(ρ + h e_j) - I_c(ρ - h e_j)) / 2h``
     with common random numbers (seed ``c`` on both sides) and the residual from an independent
     seed ``r``. The expected image is a cubic in ρ (N_max = 3), so the central difference's own
