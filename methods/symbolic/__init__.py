@@ -7,18 +7,20 @@ the L2 cost (eq. 6, p = 2) becomes μᵀGμ - 2bᵀμ + yᵀy in the monomials �
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 
 import numpy as np
 
 from framework.config import method_defaults
 from framework.errors import ConfigError
+from framework.options import build
 from framework.registry import Method, MethodResult, register
 from methods._common import Trace, initial_guess
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.field import FieldOptions
 from methods.symbolic.fit import images_at
-from methods.symbolic.options import SymbolicOptions
+from methods.symbolic.options import SolverOptions, SymbolicOptions
 from methods.symbolic.outputs import method_result
 from methods.symbolic.refinement import render_pass, run_passes
 
@@ -60,17 +62,17 @@ class SymbolicMethod(Method):
 
     @classmethod
     def check_options(cls, options: SymbolicOptions) -> SymbolicOptions:
-        """The per-segment fit runs its own block sweeps: the joint solver's algorithm and starts
-        would not be used, so they are refused rather than ignored."""
+        """The per-segment fit runs its own block sweeps (SQP from the guess, stopped by
+        ``solver.xtol_rel``): a joint-solver option set away from its shipped value would not be
+        used, so it is refused rather than ignored."""
         if options.cost == "per_segment":
-            if options.solver.algorithm != "SQP":
-                raise ConfigError(f"method.solver.algorithm={options.solver.algorithm} is not used by "
-                                  "method.cost=per_segment (its block sweeps are SQP): leave it at SQP, or "
-                                  "use method.cost=joint")
-            if options.solver.starts not in ("auto", 1):
-                raise ConfigError(f"method.solver.starts={options.solver.starts} is not used by "
-                                  "method.cost=per_segment (one start, the guess): leave it at auto, or use "
-                                  "method.cost=joint")
+            shipped = _shipped_solver()
+            for key in JOINT_SOLVER_ONLY:
+                value = getattr(options.solver, key)
+                if value != getattr(shipped, key):
+                    raise ConfigError(f"method.solver.{key}={value} is not used by method.cost=per_segment (its "
+                                      "block sweeps are SQP from the guess, stopped by method.solver.xtol_rel): "
+                                      f"leave it at {getattr(shipped, key)}, or use method.cost=joint")
         return options
 
     def parameters(self, problem):
@@ -99,6 +101,16 @@ class SymbolicMethod(Method):
         result = render_pass(sub, params, x0, self.options, seed=seed)
         basis = MonomialBasis(len(params), problem.settings.max_bounces, result.codes)
         return images_at(result, basis, rho[[index[(p.segment, p.kernel)] for p in params]], problem.cameras)
+
+
+#: ``method.solver`` options the per-segment fit does not use
+JOINT_SOLVER_ONLY = ("algorithm", "starts", "max_eval", "ftol_rel", "precondition")
+
+
+@functools.lru_cache(maxsize=1)
+def _shipped_solver() -> SolverOptions:
+    """``method.solver`` as symbolic.yaml ships it (every symbolic preset derives from it)."""
+    return build(SolverOptions, method_defaults("symbolic").solver, section="method.solver")
 
 
 def _lambertian_prior(problem) -> MethodResult:

@@ -24,7 +24,9 @@ class SolverOptions:
     algorithm: str = option(
         "`SQP`: Newton steps on the exact Hessian of the polynomial cost, each an exact quadratic "
         "program under the bounds and Σρ ≤ 1 (quadprog); the others are nlopt's algorithms (all take "
-        "the per-segment Σρ ≤ 1 constraints)", choice("SQP", "LD_SLSQP", "LD_MMA", "LD_CCSAQ"))
+        "the per-segment Σρ ≤ 1 constraints). The joint cost only, like `starts`, `max_eval`, `ftol_rel` "
+        "and `precondition`: with `method.cost=per_segment` they are refused away from their defaults",
+        choice("SQP", "LD_SLSQP", "LD_MMA", "LD_CCSAQ"))
     starts: int | str = option(
         "starts per channel and parameter block: the initial guess, then seeded random feasible "
         "points; `auto`: 4 for blocks of at most 32 parameters, 1 above (where measured, the random "
@@ -35,8 +37,7 @@ class SolverOptions:
         "nlopt's relative tolerance on the (preconditioned) weights; `SQP` stops when no weight steps "
         "more than this; the per-segment sweeps stop when no weight moves more than this", number(0.0))
     ftol_rel: float = option(
-        "relative tolerance on the cost's decrease (the joint cost; the per-segment sweeps do not use "
-        "it)", number(0.0))
+        "relative tolerance on the cost's decrease (the joint cost)", number(0.0))
     precondition: bool = option(
         "nlopt only: solve in coordinates where the cost's Hessian is about the identity (3-5 times "
         "fewer evaluations)", flag())

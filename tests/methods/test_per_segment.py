@@ -185,13 +185,18 @@ def test_per_segment_removes_the_lambertian_bias_on_the_street(tmp_path):
 
 
 def test_per_segment_errors():
-    """A bad ``method.cost``, and the residual std with the per-segment fit: one ConfigError
-    each, naming the option."""
+    """A bad ``method.cost``, the residual std with the per-segment fit, and a joint-solver option
+    the per-segment fit would not use: one ConfigError each, naming the option."""
     from framework.config import method_defaults
     from methods.symbolic import SymbolicMethod
     from omegaconf import open_dict
     for bad, match in (({"cost": "pixelwise"}, "method.cost"),
-                       ({"cost": "per_segment", "std": "residual"}, "method.std=residual")):
+                       ({"cost": "per_segment", "std": "residual"}, "method.std=residual"),
+                       ({"cost": "per_segment", "solver": {**method_defaults("symbolic").solver, "max_eval": 10}},
+                        r"^method.solver.max_eval=10 is not used by method.cost=per_segment"),
+                       ({"cost": "per_segment", "solver": {**method_defaults("symbolic").solver,
+                                                           "algorithm": "LD_SLSQP"}},
+                        r"^method.solver.algorithm=LD_SLSQP is not used by method.cost=per_segment")):
         cfg = method_defaults("symbolic")
         with open_dict(cfg):
             cfg.update(bad)
