@@ -8,7 +8,6 @@ faces) are lines ``warning: ...`` on stderr. On success it prints a short summar
 from __future__ import annotations
 
 import argparse
-import logging
 import sys
 
 import framework  # noqa: F401  (a usable libLLVM for Dr.Jit before Mitsuba loads)
@@ -46,8 +45,6 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
-    logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s", stream=sys.stderr)
-    logging.addLevelName(logging.WARNING, "warning")
     kernels = {}
     try:
         for item in args.kernels:
@@ -64,6 +61,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    for line in done.warnings:
+        print(f"warning: {line}", file=sys.stderr)
     print(f"{done.folder}: {len(done.segments)} segments, {done.triangles} triangles, {done.views} views, "
           f"origin [{', '.join(f'{x:.3f}' for x in done.origin)}]")
     return 0

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import fnmatch
 import hashlib
-import logging
 import os
 import re
 import shutil
@@ -30,8 +29,6 @@ from framework.convert.ply import labels_file, read_ply
 from framework.errors import SceneError, UserError
 from framework.scene.colmap import read_model
 from framework.scene.write import write_colmap, write_mesh, write_scene_yaml
-
-log = logging.getLogger("framework.convert")
 
 #: suffix -> (format, the groupings it offers, its default grouping)
 FORMATS = {
@@ -57,7 +54,7 @@ class Conversion:
     triangles: int
     dropped: int                            # degenerate faces and polygons dropped
     views: int
-    warnings: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)   # one line each; the command line prints them
 
 
 def convert(source: str | os.PathLike, out_dir: str | os.PathLike, *, sparse: str | os.PathLike,
@@ -95,6 +92,8 @@ def convert(source: str | os.PathLike, out_dir: str | os.PathLike, *, sparse: st
     Returns
     -------
     Conversion
+        Its ``warnings`` (materials without faces, degenerate faces dropped, unused PLY labels)
+        are for the caller to show; the command line prints them as ``warning: ...`` lines.
 
     Raises
     ------
@@ -118,8 +117,8 @@ def convert(source: str | os.PathLike, out_dir: str | os.PathLike, *, sparse: st
     warnings: list[str] = []
 
     src, facts = _read(source, fmt, group)
-    warnings += src.warnings
     parts, dropped = triangulate(src)
+    warnings += src.warnings
     if dropped:
         warnings.append(f"{source}: dropped {dropped} degenerate face(s) or polygon(s) (fewer than 3 distinct "
                         "vertices, or no area)")
@@ -153,8 +152,6 @@ def convert(source: str | os.PathLike, out_dir: str | os.PathLike, *, sparse: st
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
-    for w in warnings:
-        log.warning("%s", w)
     return Conversion(out_dir, origin, segment_kernels, int(sum(len(p.faces) for p in parts)), dropped,
                       len(model.cameras), warnings)
 

@@ -97,14 +97,14 @@ def _read(path: Path):
     if not lists or len(face[lists[0]]) == 0:
         raise SceneError(f"{path}: no faces (an empty PLY, or a point cloud); export a mesh with faces")
     ints = [k for k, a in face.items() if k not in lists and np.asarray(a).dtype.kind in "iu"
-            and np.asarray(a).ndim == 1]
+            and (np.asarray(a).ndim == 1 or np.asarray(a).shape[1:] == (1,))]
     key = LABEL if LABEL in ints else (ints[0] if len(ints) == 1 else None)
     if key is None:
         what = f"several ({', '.join(ints)})" if ints else "none"
         raise SceneError(f"{path}: the face element needs one integer label property (found {what}); name it "
                          f"'{LABEL}' (property int {LABEL})")
     v = raw["vertex"]["data"]
-    vertices = np.stack([np.asarray(v[c], np.float64) for c in "xyz"], axis=1)
+    vertices = np.stack([np.asarray(v[c], np.float64).ravel() for c in "xyz"], axis=1)
     faces = face[lists[0]]
     if isinstance(faces, dict):                       # trimesh's layout for fixed-length lists
         faces = faces.get("f1", faces)
@@ -114,7 +114,7 @@ def _read(path: Path):
         raise SceneError(f"{path}: face indices out of range (0..{len(vertices) - 1}); re-export the mesh")
     if not np.isfinite(vertices).all():
         raise SceneError(f"{path}: vertices with NaN/Inf coordinates; clean the mesh")
-    return faces, np.asarray(face[key], np.int64), vertices
+    return faces, np.asarray(face[key], np.int64).ravel(), vertices
 
 
 def _table(path: Path) -> dict[int, str]:
