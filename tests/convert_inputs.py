@@ -42,13 +42,14 @@ def write_delivery(root: Path, *, shift=(0.0, 0.0, 0.0)) -> dict[str, Path]:
     return {"sparse": root / "sparse", "emitters": root / "emitters.yaml"}
 
 
-def obj_text(parts: dict[str, list[list[list[float]]]], *, key: str = "usemtl") -> str:
-    """An OBJ of ``parts`` (name -> polygons of local points), in survey coordinates."""
+def obj_text(parts: dict[str, list[list[list[float]]]], *, key: str = "usemtl", origin=ORIGIN) -> str:
+    """An OBJ of ``parts`` (name -> polygons of local points), in survey coordinates (local ones
+    with ``origin=(0, 0, 0)``)."""
     lines, faces, n = [], [], 0
     for name, polys in parts.items():
         faces.append(f"{key} {name}")
         for poly in polys:
-            lines += ["v " + " ".join(f"{c:.3f}" for c in np.asarray(p) + ORIGIN) for p in poly]
+            lines += ["v " + " ".join(f"{c:.3f}" for c in np.asarray(p) + origin) for p in poly]
             faces.append("f " + " ".join(str(n + k + 1) for k in range(len(poly))))
             n += len(poly)
     return "\n".join(lines + faces) + "\n"
