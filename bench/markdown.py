@@ -357,6 +357,7 @@ def render(machine: dict, command: str, sizes, stored: dict) -> str:
         "defaults": lambda: section_defaults(data["defaults"]),
         "field": lambda: section_field(data["field"]),
         "glossy": lambda: glossy_markdown(data["glossy"]),
+        "geometry": lambda: section_geometry(data["geometry"]),
     }
     for name, part in parts.items():
         if name in data:
@@ -414,3 +415,25 @@ def section_megapixel(r: dict) -> list[str]:
              yes(r["ratio"] <= RATIO_TARGET), f(r["solve_s"], 2), r["n_monomials"], f(r["maxrss_mib"], 0)]]
     return lines + table(["view", "spp", "pass (s)", "render (s)", "pass / render", f"<= {RATIO_TARGET}",
                           "solve (s)", "monomials", "peak RSS (MiB)"], body) + [""]
+
+
+def section_geometry(r: dict) -> list[str]:
+    """Section "geometry": convert, load and pass time against the triangle count (:mod:`bench.geometry`)."""
+    from bench.geometry import TARGET_CONVERT_S, TARGET_PASS_RATIO
+    rows = r["rows"]
+    if not rows:
+        return []
+    base = rows[0]["pass_s"]
+    lines = ["## 8. Geometry as a survey delivers it", "",
+             f"city_block's street tessellated into about N triangles (every quad a grid of equal cells), in survey "
+             f"coordinates, converted by `python -m framework.convert` from an OBJ and from a binary labelled PLY "
+             f"(the blind-view check included), the OBJ's folder loaded (`load_scene`), and the polynomial pass "
+             f"(`method=symbolic`) of {r['view']} ({r['size']}, {r['spp']} spp) timed as section 1 "
+             f"(median of {r['reps']}). Targets: convert 2M triangles in under {TARGET_CONVERT_S:g} s; "
+             f"pass within {TARGET_PASS_RATIO:g}x the pass on the smallest mesh.", ""]
+    body = [[x["triangles"], f(x["obj_mib"], 1), f(x["convert_obj_s"], 2), f(x["convert_ply_s"], 2), f(x["load_s"], 2),
+             f(x["pass_s"], 3), f(x["pass_s"] / base, 2),
+             yes(max(x["convert_obj_s"], x["convert_ply_s"]) < TARGET_CONVERT_S and x["pass_s"] / base <= TARGET_PASS_RATIO)]
+            for x in rows]
+    return lines + table(["triangles", "OBJ (MiB)", "convert OBJ (s)", "convert PLY (s)", "load (s)", "pass (s)",
+                          "pass / smallest", "targets"], body) + [""]

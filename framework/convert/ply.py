@@ -92,7 +92,7 @@ def _read(path: Path):
     except Exception as exc:  # trimesh raises many kinds on a bad header or truncated data
         raise SceneError(f"{path}: cannot read the PLY ({str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__}); "
                          "re-export it") from None
-    face = raw.get("face", {}).get("data", {}) if "face" in raw else {}
+    face = _columns(raw["face"]["data"]) if "face" in raw else {}
     lists = [k for k in ("vertex_indices", "vertex_index") if k in face]
     if not lists or len(face[lists[0]]) == 0:
         raise SceneError(f"{path}: no faces (an empty PLY, or a point cloud); export a mesh with faces")
@@ -103,11 +103,11 @@ def _read(path: Path):
         what = f"several ({', '.join(ints)})" if ints else "none"
         raise SceneError(f"{path}: the face element needs one integer label property (found {what}); name it "
                          f"'{LABEL}' (property int {LABEL})")
-    v = raw["vertex"]["data"]
+    v = _columns(raw["vertex"]["data"])
     vertices = np.stack([np.asarray(v[c], np.float64).ravel() for c in "xyz"], axis=1)
     faces = face[lists[0]]
-    if isinstance(faces, dict):                       # trimesh's layout for fixed-length lists
-        faces = faces.get("f1", faces)
+    if isinstance(faces, np.ndarray) and faces.dtype.names:    # binary, one list length: (count, indices)
+        faces = faces[faces.dtype.names[-1]]
     faces = np.asarray(faces) if not (isinstance(faces, np.ndarray) and faces.dtype == object) else faces
     flat = np.concatenate([np.asarray(f).ravel() for f in faces]) if faces.dtype == object else faces.ravel()
     if len(flat) and (flat.min() < 0 or flat.max() >= len(vertices)):
@@ -115,6 +115,13 @@ def _read(path: Path):
     if not np.isfinite(vertices).all():
         raise SceneError(f"{path}: vertices with NaN/Inf coordinates; clean the mesh")
     return faces, np.asarray(face[key], np.int64).ravel(), vertices
+
+
+def _columns(data) -> dict:
+    """trimesh's element data (a dict of arrays for ASCII, a structured array for binary) as a dict."""
+    if isinstance(data, np.ndarray) and data.dtype.names:
+        return {name: data[name] for name in data.dtype.names}
+    return dict(data)
 
 
 def _table(path: Path) -> dict[int, str]:
