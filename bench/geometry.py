@@ -9,7 +9,8 @@ coordinates, ``label`` per face, ``street.labels.yaml``). Each is converted with
 model and photographs (rendered at :data:`VIEW` pixels from the hand-built folder). Then the
 converted OBJ folder is loaded (:func:`framework.scene.load_scene`, Open3D's PLY reader) and the
 symbolic method's polynomial pass of its first view is timed as section 1 times it (median of
-``reps`` after a warm-up). The target (issue 29): 2M triangles convert in under a minute, and
+``reps`` after a warm-up), and beside it a plain Mitsuba ``path`` render of the same view at the
+same spp (section 1's reference): what ray tracing alone costs on the larger mesh. The target (issue 29): 2M triangles convert in under a minute, and
 their pass costs at most 1.5x the pass on 20k triangles.
 """
 from __future__ import annotations
@@ -21,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from bench.render_ratio import _pass_fn, _timed, build_problem
+from bench.render_ratio import _pass_fn, _render_fn, _timed, build_problem
 from framework.config import compose
 from framework.convert import convert
 from framework.scene import load_scene
@@ -111,11 +112,12 @@ def run(sizes, root: Path, log=print) -> dict:
         row["load_s"], _ = _timed(lambda: load_scene(folder), sizes.ratio_reps)
         problem, method = build_problem(compose(["method=symbolic", "scene=city_block", f"scene.dir={folder}", "cache.dir=null",
                                                  *sizes.extra]))
-        pass_fn, _ = _pass_fn(problem, method, sizes.geometry_spp)
+        pass_fn, x0 = _pass_fn(problem, method, sizes.geometry_spp)
         row["pass_s"], _ = _timed(pass_fn, sizes.ratio_reps)
+        row["render_s"], _ = _timed(_render_fn(problem, sizes.geometry_spp, x0), sizes.ratio_reps)
         rows.append(row)
         log(f"[geometry] {tris} triangles: convert OBJ {row['convert_obj_s']:.1f} s, PLY {row['convert_ply_s']:.1f} s, "
-            f"load {row['load_s']:.2f} s, pass {row['pass_s']:.2f} s")
+            f"load {row['load_s']:.2f} s, pass {row['pass_s']:.2f} s, path render {row['render_s']:.2f} s")
     cam = problem.cameras[0]
     return {"rows": rows, "view": cam.name, "size": f"{cam.width}x{cam.height}", "spp": sizes.geometry_spp,
             "reps": sizes.ratio_reps, "segments": len(problem.scene.segments)}

@@ -423,17 +423,19 @@ def section_geometry(r: dict) -> list[str]:
     rows = r["rows"]
     if not rows:
         return []
-    base = rows[0]["pass_s"]
+    base, base_render = rows[0]["pass_s"], rows[0].get("render_s")
     lines = ["## 8. Geometry as a survey delivers it", "",
              f"city_block's street tessellated into about N triangles (every quad a grid of equal cells), in survey "
              f"coordinates, converted by `python -m framework.convert` from an OBJ and from a binary labelled PLY "
              f"(the blind-view check included), the OBJ's folder loaded (`load_scene`), and the polynomial pass "
              f"(`method=symbolic`) of {r['view']} ({r['size']}, {r['spp']} spp) timed as section 1 "
-             f"(median of {r['reps']}). Targets: convert 2M triangles in under {TARGET_CONVERT_S:g} s; "
+             f"(median of {r['reps']}), and a plain Mitsuba `path` render of the view at the same spp (what ray tracing "
+             f"alone costs as the mesh grows). Targets: convert 2M triangles in under {TARGET_CONVERT_S:g} s; "
              f"pass within {TARGET_PASS_RATIO:g}x the pass on the smallest mesh.", ""]
     body = [[x["triangles"], f(x["obj_mib"], 1), f(x["convert_obj_s"], 2), f(x["convert_ply_s"], 2), f(x["load_s"], 2),
-             f(x["pass_s"], 3), f(x["pass_s"] / base, 2),
+             f(x["pass_s"], 3), f(x["pass_s"] / base, 2), f(x.get("render_s"), 3),
+             f(x["render_s"] / base_render, 2) if base_render else "",
              yes(max(x["convert_obj_s"], x["convert_ply_s"]) < TARGET_CONVERT_S and x["pass_s"] / base <= TARGET_PASS_RATIO)]
             for x in rows]
     return lines + table(["triangles", "OBJ (MiB)", "convert OBJ (s)", "convert PLY (s)", "load (s)", "pass (s)",
-                          "pass / smallest", "targets"], body) + [""]
+                          "pass / smallest", "path render (s)", "render / smallest", "targets"], body) + [""]

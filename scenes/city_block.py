@@ -11,7 +11,8 @@ buildings' street facades have ``Window`` s in holes of the wall (inner rings) a
 notch of its outer ring (a non-convex polygon).
 
 Survey frame: the local frame shifted by :data:`ORIGIN` (Lambert-93-like easting and northing,
-altitude 35 m): CityJSON 2.0 with ``transform`` (scale 1 mm), its ``referenceSystem``
+altitude 35 m): CityJSON 2.0 with ``transform`` (scale 1 mm, translate the street's lowest
+corner in survey coordinates), its ``referenceSystem``
 EPSG:2154, and the COLMAP model of four views in the same frame.
 
 The builder writes into ``scenes/city_block/``:
@@ -218,9 +219,10 @@ def _landmarks() -> list:
 def write_cityjson(path: Path) -> Path:
     """``street.city.json``: CityJSON 2.0, integer millimetres with ``transform``, survey frame."""
     vertices: dict[tuple[int, int, int], int] = {}
+    low = np.min([p for _, _, rings in surfaces() for ring in rings for p in ring], axis=0)
 
-    def index(p) -> int:
-        key = tuple(int(round(c / SCALE)) for c in p)
+    def index(p) -> int:                # integer millimetres from the street's lowest corner
+        key = tuple(int(round(c / SCALE)) for c in np.asarray(p) - low)
         return vertices.setdefault(key, len(vertices))
 
     objects: dict[str, dict] = {}
@@ -240,7 +242,7 @@ def write_cityjson(path: Path) -> Path:
             semantics["values"] = [o["values"]]
             geom = {"type": "Solid", "lod": BUILDINGS[obj][5], "boundaries": [o["surfaces"]], "semantics": semantics}
             city[obj] = {"type": "Building", "attributes": {"measuredHeight": BUILDINGS[obj][4]}, "geometry": [geom]}
-    translate = [float(x) for x in ORIGIN]
+    translate = [float(x) for x in np.asarray(ORIGIN) + low]
     doc = {"type": "CityJSON", "version": "2.0",
            "transform": {"scale": [SCALE] * 3, "translate": translate},
            "metadata": {"referenceSystem": "https://www.opengis.net/def/crs/EPSG/0/2154",
