@@ -429,7 +429,7 @@ def section_geometry(r: dict) -> list[str]:
              f"coordinates, converted by `python -m framework.convert` from an OBJ and from a binary labelled PLY "
              f"(the blind-view check included), the OBJ's folder loaded (`load_scene`), and the polynomial pass "
              f"(`method=symbolic`) of {r['view']} ({r['size']}, {r['spp']} spp) timed as section 1 "
-             f"(median of {r['reps']}), and a plain Mitsuba `path` render of the view at the same spp (what ray tracing "
+             f"(the least of {r['reps']} runs after a warm-up: the machine is shared), and a plain Mitsuba `path` render of the view at the same spp (what ray tracing "
              f"alone costs as the mesh grows). Targets: convert 2M triangles in under {TARGET_CONVERT_S:g} s; "
              f"pass within {TARGET_PASS_RATIO:g}x the pass on the smallest mesh.", ""]
     body = [[x["triangles"], f(x["obj_mib"], 1), f(x["convert_obj_s"], 2), f(x["convert_ply_s"], 2), f(x["load_s"], 2),

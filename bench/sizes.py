@@ -65,7 +65,9 @@ class Sizes:
     geometry_triangles : tuple of int
         Triangle counts of the "geometry" section's tessellated street (convert, load, pass).
     geometry_spp : int
-        ``render.spp`` of its timed polynomial pass (``ratio_reps`` repetitions).
+        ``render.spp`` of its timed polynomial pass and path render.
+    geometry_reps : int
+        Timed repetitions of the load, the pass and the render (the least is kept).
     """
 
     name: str = "default"
@@ -97,6 +99,7 @@ class Sizes:
     field_extra: tuple = field(default_factory=tuple)
     geometry_triangles: tuple = (20_000, 200_000, 2_000_000)
     geometry_spp: int = 16
+    geometry_reps: int = 5
 
 
 DEFAULT = Sizes()
@@ -107,4 +110,4 @@ QUICK = Sizes(name="quick", ratio_spps=(4,), ratio_reps=1, mem_views=(1, 2), mem
               extra=("method.solver.starts=1",),
               mega_spp=2, glossy_spp=4, defaults_extra=("render.spp=4", "observe.spp=16", "method.refine=1"),
               field_extra=("render.spp=4", "method.refine=0", "method.irls.iterations=2"),
-              geometry_triangles=(2_000, 20_000), geometry_spp=4)
+              geometry_triangles=(2_000, 20_000), geometry_spp=4, geometry_reps=1)

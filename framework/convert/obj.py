@@ -84,7 +84,6 @@ def read_obj(path: Path, group: str) -> Source:
                 part.triangles.append(np.array([idx]))
             else:
                 part.polygons.append(Polygon([np.array(idx)]))
-    source.parts = {k: v for k, v in source.parts.items()}
     return source
 
 
