@@ -144,3 +144,16 @@ def test_scene_yaml_origin_checked(tmp_path):
     path.write_text(yaml.safe_dump(desc))
     with pytest.raises(SceneError, match=r"origin must be 3 finite numbers \[x, y, z\]"):
         load_scene(done.folder, observations=False)
+
+
+@pytest.mark.parametrize("origin, shown", [([652340.0, 6862275.0, 35.0], "652340.000, 6862275.000, 35.000"),
+                                           (None, "none (the scene's own frame)")])
+def test_run_report_names_the_origin(origin, shown):
+    """results.json's ``origin`` is in the run report's overview."""
+    from reports.doc import Doc
+    from reports.run import _section_overview
+
+    doc = Doc("run")
+    _section_overview(doc, {"scene": "street", "method": "symbolic", "channels": ["R", "G", "B"], "renders": 1,
+                            "image_rmse": 0.01, "origin": origin, "settings": {}})
+    assert f"| Origin (survey coordinates of the scene's 0, 0, 0) | {shown} |" in doc.render_md()

@@ -40,9 +40,13 @@ def folders(tmp_path_factory):
 
 
 def _estimate(folder, seed: int):
+    from framework.results import results_dict
+
     problem = make_problem(folder, None, f"seed={seed}")
     result = run_symbolic(problem)
     names = [(p.segment_name, p.kernel) for p in problem.parameters]
+    origin = results_dict(problem, result, method="symbolic", settings={}, views=[], relit=[])["origin"]
+    assert origin == list(city_block.ORIGIN)            # results.json says which origin
     return names, np.asarray(result.estimate, float), np.asarray(result.std, float)
 
 
