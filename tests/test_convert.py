@@ -157,3 +157,44 @@ def test_run_report_names_the_origin(origin, shown):
     _section_overview(doc, {"scene": "street", "method": "symbolic", "channels": ["R", "G", "B"], "renders": 1,
                             "image_rmse": 0.01, "origin": origin, "settings": {}})
     assert f"| Origin (survey coordinates of the scene's 0, 0, 0) | {shown} |" in doc.render_md()
+
+
+def test_cityjson_1_1_multisolid_and_materials(tmp_path):
+    """A CityJSON 1.1 building as a MultiSolid (one box) with an appearance material per surface:
+    ``--group material`` names segments by material, ``semantic`` by surface type."""
+    import json
+
+    corners = [[-10, -10, 0], [10, -10, 0], [10, 10, 0], [-10, 10, 0]]
+    verts = [[int(x) * 1000 for x in np.add(c, [0, 0, z])] for z in (0, 8) for c in corners]
+    box = [[[0, 3, 2, 1]], [[4, 5, 6, 7]], [[0, 1, 5, 4]], [[1, 2, 6, 5]], [[2, 3, 7, 6]], [[3, 0, 4, 7]]]
+    geom = {"type": "MultiSolid", "lod": "2", "boundaries": [[box]],
+            "semantics": {"surfaces": [{"type": "GroundSurface"}, {"type": "RoofSurface"}, {"type": "WallSurface"}],
+                          "values": [[[0, 1, 2, 2, 2, 2]]]},
+            "material": {"colour": {"values": [[[1, 0, 1, 1, 1, 1]]]}}}
+    doc = {"type": "CityJSON", "version": "1.1", "transform": {"scale": [0.001] * 3, "translate": ORIGIN.tolist()},
+           "appearance": {"materials": [{"name": "tiles"}, {"name": "render"}]},
+           "CityObjects": {"house": {"type": "Building", "geometry": [geom]}}, "vertices": verts}
+    source = tmp_path / "house.city.json"
+    source.write_text(json.dumps(doc))
+    d = write_delivery(tmp_path / "delivery")
+    semantic = convert(source, tmp_path / "a", sparse=d["sparse"], emitters=d["emitters"], check_views=False)
+    assert list(semantic.segments) == ["house/GroundSurface", "house/RoofSurface", "house/WallSurface"]
+    material = convert(source, tmp_path / "b", sparse=d["sparse"], emitters=d["emitters"], group="material",
+                       check_views=False)
+    assert list(material.segments) == ["render", "tiles"]
+    assert _areas(material.folder) == pytest.approx({"tiles": 400.0, "render": 400.0 + 4 * 160.0}, rel=1e-6)
+
+
+def test_gltf_nodes(tmp_path):
+    """``--group object`` on a GLB: one segment per node, named after it."""
+    import trimesh
+
+    scene = trimesh.Scene()
+    for name, quad in (("kerb", GROUND), ("house", WALL)):
+        v = (np.array(quad, float) + ORIGIN) @ np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]]).T
+        scene.add_geometry(trimesh.Trimesh(v, [[0, 1, 2], [0, 2, 3]], process=False), node_name=name,
+                           geom_name=f"{name}_mesh")
+    source = tmp_path / "corner.glb"
+    source.write_bytes(scene.export(file_type="glb"))
+    done = _convert(tmp_path, source, group="object")
+    assert sorted(done.segments) == ["house", "kerb"]
