@@ -168,3 +168,14 @@ def _labelled_ply(root, table: dict) -> object:
     (root / "corner.ply").write_text("\n".join(head + body) + "\n")
     (root / "corner.labels.yaml").write_text(yaml.safe_dump(table))
     return root / "corner.ply"
+
+
+def test_photograph_of_the_wrong_size_named_in_images(tmp_path, capsys):
+    """--images is checked as the loader checks images/; the message names the given folder."""
+    from framework.images import write_exr
+
+    (tmp_path / "photos").mkdir()
+    write_exr(tmp_path / "photos" / "corner.exr", np.zeros((8, 8, 3), np.float32), ("R", "G", "B"))
+    message = _error(tmp_path, capsys, corner_obj(tmp_path), "--images", str(tmp_path / "photos"),
+                     match="corner.exr: image is 8x8, its camera is 16x16")
+    assert message.startswith(f"error: {tmp_path / 'photos' / 'corner.exr'}"), message

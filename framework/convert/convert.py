@@ -145,7 +145,9 @@ def convert(source: str | os.PathLike, out_dir: str | os.PathLike, *, sparse: st
         write_scene_yaml(staging / "scene.yaml", scene, _comment(source, digest, fmt, group, origin))
         _write_readme(staging, source, digest, fmt, group, origin, facts, parts, dropped, sparse)
         if check_views:
-            _check(staging, out_dir, source, sparse, origin, emitters_path, observations=images is not None)
+            given = {"images": images, "masks": masks}
+            _check(staging, out_dir, source, sparse, origin, emitters_path, observations=images is not None,
+                   copied={staging / k: Path(v).resolve() for k, v in given.items() if v is not None})
         if out_dir.exists():
             out_dir.rmdir()
         staging.rename(out_dir)
@@ -336,14 +338,20 @@ def _write_readme(staging: Path, source: Path, digest: str, fmt: str, group: str
 # ----------------------------------------------------------------------------------------------
 
 def _check(staging: Path, out_dir: Path, source: Path, sparse: Path, origin: np.ndarray, emitters_path: Path,
-           *, observations: bool) -> None:
-    """Load the staged folder (as a run would) and check that some view sees some segment."""
+           *, observations: bool, copied: dict[Path, Path]) -> None:
+    """Load the staged folder (as a run would) and check that some view sees some segment.
+
+    Messages name the user's files: the emitters file for an emitter, the ``--images`` and
+    ``--masks`` folders for the copies (``copied``: staged folder -> given folder), ``out_dir``
+    for the rest."""
     from framework.render import backend
     from framework.render.checks import check_lit_and_seen
     from framework.scene import load_scene
 
     def renamed(exc: Exception) -> str:
         text = str(exc).replace(str(staging / "scene.yaml"), str(emitters_path)) if "emitter" in str(exc) else str(exc)
+        for staged, given in copied.items():
+            text = text.replace(str(staged), str(given))
         return text.replace(str(staging), str(out_dir))
 
     try:
