@@ -424,7 +424,7 @@ def section_geometry(r: dict) -> list[str]:
     if not rows:
         return []
     base, base_render = rows[0]["pass_s"], rows[0].get("render_s")
-    lines = ["## 8. Geometry as a survey delivers it", "",
+    lines = ["## 9. Geometry as a survey delivers it", "",
              f"city_block's street tessellated into about N triangles (every quad a grid of equal cells), in survey "
              f"coordinates, converted by `python -m framework.convert` from an OBJ and from a binary labelled PLY "
              f"(the blind-view check included), the OBJ's folder loaded (`load_scene`), and the polynomial pass "
