@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from framework.scene.write import pinhole_camera, write_colmap, write_scene_yaml
 
@@ -90,3 +91,17 @@ def corner_cityjson(root: Path, *, version: str = "2.0", transform: bool = True,
     path = root / "corner.city.json"
     path.write_text(json.dumps(doc))
     return path
+
+
+def labelled_ply(root: Path, table: dict) -> Path:
+    """The corner as an ASCII PLY (double coordinates) with a face property ``label`` (ground 0,
+    wall 1) and the label table ``table`` beside it."""
+    verts = np.array(GROUND + WALL, float) + ORIGIN
+    faces = [([0, 1, 2, 3], 0), ([4, 5, 6, 7], 1)]
+    head = ["ply", "format ascii 1.0", f"element vertex {len(verts)}", "property double x", "property double y",
+            "property double z", f"element face {len(faces)}", "property list uchar int vertex_indices",
+            "property int label", "end_header"]
+    body = [" ".join(f"{c:.3f}" for c in v) for v in verts] + [f"{len(f)} {' '.join(map(str, f))} {lab}" for f, lab in faces]
+    (root / "corner.ply").write_text("\n".join(head + body) + "\n")
+    (root / "corner.labels.yaml").write_text(yaml.safe_dump(table))
+    return root / "corner.ply"

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 import yaml
 
-from convert_inputs import GROUND, ORIGIN, WALL, camera_local, corner_cityjson, corner_obj, obj_text, write_delivery
+from convert_inputs import (GROUND, ORIGIN, WALL, camera_local, corner_cityjson, corner_obj, labelled_ply, obj_text,
+                            write_delivery)
 from framework.convert import convert
 from framework.errors import SceneError
 from framework.scene import load_scene
@@ -110,9 +111,7 @@ def test_gltf_materials_y_up(tmp_path):
 
 
 def test_labelled_ply(tmp_path):
-    from test_convert_errors import _labelled_ply
-
-    done = _convert(tmp_path, _labelled_ply(tmp_path, {0: "ground", 1: "wall"}))
+    done = _convert(tmp_path, labelled_ply(tmp_path, {0: "ground", 1: "wall"}))
     assert _areas(done.folder) == pytest.approx({"ground": 400.0, "wall": 160.0}, rel=1e-6)
     np.testing.assert_array_equal(done.origin, ORIGIN)
 

@@ -4,13 +4,11 @@ nothing written (the output folder, and no staging folder beside it); warnings a
 Run in-process through :func:`framework.convert.__main__.main` (argparse and all)."""
 from __future__ import annotations
 
-import json
 
 import numpy as np
-import pytest
 import yaml
 
-from convert_inputs import GROUND, ORIGIN, WALL, corner_cityjson, corner_obj, obj_text, write_delivery
+from convert_inputs import GROUND, WALL, corner_cityjson, corner_obj, labelled_ply, obj_text, write_delivery
 from framework.convert.__main__ import main
 
 
@@ -106,18 +104,18 @@ def test_cameras_far_from_the_geometry(tmp_path, capsys):
 
 
 def test_ply_label_no_face_uses_is_a_warning(tmp_path, capsys):
-    source = _labelled_ply(tmp_path, {0: "ground", 1: "wall", 7: "roof"})
+    source = labelled_ply(tmp_path, {0: "ground", 1: "wall", 7: "roof"})
     warnings = _warnings(tmp_path, capsys, source)
     assert warnings == [f"warning: {tmp_path / 'corner.labels.yaml'}: label 7 (roof) is used by no face of "
                         f"{source}; it gets no segment"]
 
 
 def test_ply_face_label_without_a_name(tmp_path, capsys):
-    _error(tmp_path, capsys, _labelled_ply(tmp_path, {0: "ground"}), match="face label 1 of")
+    _error(tmp_path, capsys, labelled_ply(tmp_path, {0: "ground"}), match="face label 1 of")
 
 
 def test_ply_without_label_table(tmp_path, capsys):
-    source = _labelled_ply(tmp_path, {0: "ground", 1: "wall"})
+    source = labelled_ply(tmp_path, {0: "ground", 1: "wall"})
     (tmp_path / "corner.labels.yaml").unlink()
     _error(tmp_path, capsys, source, match="corner.labels.yaml: missing")
 
@@ -155,19 +153,6 @@ def test_bad_emitters_named_in_their_file(tmp_path, capsys):
     assert err[0].startswith(f"error: {d['emitters']}: emitter 0 (constant) radiance") and "negative" in err[0]
     assert not (tmp_path / "out").exists()
 
-
-def _labelled_ply(root, table: dict) -> object:
-    """The corner as an ASCII PLY (double coordinates) with a face property ``label`` (ground 0,
-    wall 1) and the label table ``table`` beside it."""
-    verts = np.array(GROUND + WALL, float) + ORIGIN
-    faces = [([0, 1, 2, 3], 0), ([4, 5, 6, 7], 1)]
-    head = ["ply", "format ascii 1.0", f"element vertex {len(verts)}", "property double x", "property double y",
-            "property double z", f"element face {len(faces)}", "property list uchar int vertex_indices",
-            "property int label", "end_header"]
-    body = [" ".join(f"{c:.3f}" for c in v) for v in verts] + [f"{len(f)} {' '.join(map(str, f))} {lab}" for f, lab in faces]
-    (root / "corner.ply").write_text("\n".join(head + body) + "\n")
-    (root / "corner.labels.yaml").write_text(yaml.safe_dump(table))
-    return root / "corner.ply"
 
 
 def test_photograph_of_the_wrong_size_named_in_images(tmp_path, capsys):
