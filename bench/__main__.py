@@ -19,14 +19,15 @@ import sys
 import time
 from pathlib import Path
 
-from bench import accuracy, compare, field, glossy, materials, megapixel, memory, paper, render_ratio
+from bench import accuracy, compare, field, geometry, glossy, materials, megapixel, memory, paper, render_ratio
 from bench.common import ROOT
 from bench.machine import describe
 from bench.markdown import README, readme_block, render, with_readme_block
 from bench.sizes import DEFAULT, QUICK
 from reports import write_comparison
 
-SECTIONS = ("ratio", "megapixel", "memory", "compare", "paper", "materials", "defaults", "field", "glossy")
+SECTIONS = ("ratio", "megapixel", "memory", "compare", "paper", "materials", "defaults", "field", "glossy",
+            "geometry")
 RESULTS = ROOT / "bench" / "results"
 
 
@@ -87,6 +88,8 @@ def measure(name: str, sizes, root: Path, resume: bool = False):
         return accuracy.run(sizes, root / "defaults", log)
     if name == "field":
         return field.run(sizes, root / "field", log)
+    if name == "geometry":
+        return geometry.run(sizes, root / "geometry", log)
     return glossy.run(sizes, root / "glossy", log)
 
 

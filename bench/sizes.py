@@ -62,6 +62,12 @@ class Sizes:
     defaults_extra, field_extra : tuple of str
         Overrides added to the runs of the "defaults" and "field" sections (the quick bench
         makes them small; the real one runs the shipped settings).
+    geometry_triangles : tuple of int
+        Triangle counts of the "geometry" section's tessellated street (convert, load, pass).
+    geometry_spp : int
+        ``render.spp`` of its timed polynomial pass and path render.
+    geometry_reps : int
+        Timed repetitions of the load, the pass and the render (the least is kept).
     """
 
     name: str = "default"
@@ -91,6 +97,9 @@ class Sizes:
     glossy_spp: int = 256
     defaults_extra: tuple = field(default_factory=tuple)
     field_extra: tuple = field(default_factory=tuple)
+    geometry_triangles: tuple = (20_000, 200_000, 2_000_000)
+    geometry_spp: int = 16
+    geometry_reps: int = 5
 
 
 DEFAULT = Sizes()
@@ -100,4 +109,5 @@ QUICK = Sizes(name="quick", ratio_spps=(4,), ratio_reps=1, mem_views=(1, 2), mem
               cmp_budget_all=14, cmp_budget_all_differentiable=14, cmp_all_image=40, all_views=2, mat_buildings=(1, 2), mat_default_buildings=(1,), mat_image=32, mat_timeout_s=300.0,
               extra=("method.solver.starts=1",),
               mega_spp=2, glossy_spp=4, defaults_extra=("render.spp=4", "observe.spp=16", "method.refine=1"),
-              field_extra=("render.spp=4", "method.refine=0", "method.irls.iterations=2"))
+              field_extra=("render.spp=4", "method.refine=0", "method.irls.iterations=2"),
+              geometry_triangles=(2_000, 20_000), geometry_spp=4, geometry_reps=1)

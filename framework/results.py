@@ -206,6 +206,7 @@ def results_dict(problem: Problem, result: MethodResult, *, method: str, setting
     return {
         "method": method,
         "scene": problem.scene.name,
+        "origin": None if problem.scene.origin is None else list(problem.scene.origin),
         "channels": list(problem.scene.channels),
         "parameters": parameter_rows(problem, result),
         "timings_s": {k: float(v) for k, v in result.timings_s.items()},

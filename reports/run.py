@@ -60,6 +60,8 @@ def _section_overview(doc: Doc, res: dict) -> None:
     settings = res.get("settings") if isinstance(res.get("settings"), dict) else {}
     rows = [("Scene", str(res["scene"])), ("Method", str(res["method"])),
             ("Channels", ", ".join(map(str, res["channels"]))),
+            ("Origin (survey coordinates of the scene's 0, 0, 0)",
+             "none (the scene's own frame)" if res.get("origin") is None else ", ".join(f"{x:.3f}" for x in res["origin"])),
             ("Renders (full ray-tracing passes)", fmt_num(res.get("renders"), digits=0)),
             ("Image RMSE", fmt_num(res.get("image_rmse"), digits=5))]
     rows += [(k, _short(settings[k])) for k in KEY_SETTINGS if k in settings]

@@ -12,7 +12,7 @@ import sys
 from functools import partial
 from pathlib import Path
 
-from scenes import BUNDLED_DIR, cornell_box, furnace, plane_sky, street_block, urban_canyon
+from scenes import BUNDLED_DIR, city_block, cornell_box, furnace, plane_sky, street_block, urban_canyon
 from scenes import urban_canyon_field, urban_canyon_glossy
 from scenes.preview import write_preview
 
@@ -25,6 +25,7 @@ BUILDERS = {
     "street_block": partial(street_block.build, buildings=2, seed=0),
     "urban_canyon_glossy": urban_canyon_glossy.build,
     "urban_canyon_field": urban_canyon_field.build,
+    "city_block": city_block.build,
 }
 
 

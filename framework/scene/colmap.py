@@ -71,13 +71,15 @@ class _ImageLine:
     name: str
 
 
-def read_model(root: Path) -> ColmapModel:
+def read_model(root: Path, *, sparse: Path | None = None) -> ColmapModel:
     """Read and check the COLMAP model ``root/sparse``.
 
     Parameters
     ----------
     root : Path
         The scene folder.
+    sparse : Path, optional
+        The model's folder, when it is not ``root/sparse`` (the converter reads a delivered one).
 
     Returns
     -------
@@ -88,7 +90,7 @@ def read_model(root: Path) -> ColmapModel:
     SceneError
         One line naming the file (and line) and the fix.
     """
-    sparse = root / "sparse"
+    sparse = root / "sparse" if sparse is None else Path(sparse)
     files = _model_files(sparse)
     lines = _check_text(files) if files["images"].suffix == ".txt" else None
     rec = _reconstruction(sparse)
@@ -101,7 +103,7 @@ def read_model(root: Path) -> ColmapModel:
     pose_file = files.get("frames", files["images"])
     if lines is not None and "frames" in files:
         _check_poses_agree(rec, lines, files)
-    source = pose_file.relative_to(root).as_posix()
+    source = pose_file.relative_to(root).as_posix() if pose_file.is_relative_to(root) else pose_file.as_posix()
     log.info("%s: camera poses read from %s", root.name, source)
     return ColmapModel(cameras, files, source)
 

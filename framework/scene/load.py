@@ -36,7 +36,7 @@ __all__ = ["image_file", "load_scene"]     # image_file: where a view's observed
 _STDERR_LOCK = threading.Lock()
 
 
-def load_scene(directory: str | os.PathLike) -> Scene:
+def load_scene(directory: str | os.PathLike, *, observations: bool = True) -> Scene:
     """Load and check a scene folder (``docs/scene-format.md``).
 
     Parameters
@@ -44,6 +44,10 @@ def load_scene(directory: str | os.PathLike) -> Scene:
     directory : path-like
         Folder holding ``scene.yaml``, ``sparse/`` and optionally ``images/``; the meshes may
         lie anywhere ``scene.yaml`` points to.
+    observations : bool, default True
+        False skips the check that the scene has observations (``images/`` or a reference for
+        every kernel): for a folder checked before its photographs or references are added
+        (:mod:`framework.convert`).
 
     Returns
     -------
@@ -65,7 +69,7 @@ def load_scene(directory: str | os.PathLike) -> Scene:
     model = read_model(root)
     _check_reference_view(spec, model)
     photos = read_photos(root, model.cameras, spec.channels, spec.photometry)
-    if photos is None and not all(s.reference is not None and set(s.reference) == set(s.kernels)
+    if observations and photos is None and not all(s.reference is not None and set(s.reference) == set(s.kernels)
                                   for s in spec.segments):
         raise SceneError(f"{root}: no images/ folder and not every segment has a reference for each "
                          "kernel; add images/<view> (.exr, .png or .jpg) or references to scene.yaml")
@@ -74,7 +78,8 @@ def load_scene(directory: str | os.PathLike) -> Scene:
                  segments=spec.segments, meshes=meshes, emitters=emitters, cameras=model.cameras,
                  images=None if photos is None else photos.images, content_hash=_content_hash(inputs),
                  pose_source=model.pose_source, weights=None if photos is None else photos.weights,
-                 noise=None if photos is None else photos.noise, photometry=spec.photometry)
+                 noise=None if photos is None else photos.noise, photometry=spec.photometry,
+                 origin=spec.origin)
 
 
 def _check_reference_view(spec: SceneSpec, model) -> None:

@@ -163,6 +163,9 @@ class Scene:
     #: 8/16-bit encoding, in linear units (0 for an EXR view); None when no view is integer-coded
     noise: dict[str, np.ndarray] | None = field(default=None, compare=False)
     photometry: Photometry = field(default_factory=Photometry)
+    #: scene.yaml ``origin``: the survey coordinates (a national grid, CityJSON's) of the local
+    #: (0, 0, 0) the meshes and cameras are given in; None when the scene names none
+    origin: tuple[float, float, float] | None = field(default=None, compare=False)
 
     def parameters(self, *, kernels: tuple[str, ...] | None = None):
         """The unknowns (segment, kernel) in segment order; ``kernels`` (canonical names,

@@ -20,7 +20,8 @@ from framework.errors import SceneError
 from framework.scene.model import CHANNELS, Photometry, Segment
 
 # The keys of each mapping, in the order the docs list them: True for a required key.
-TOP_KEYS = {"name": False, "channels": False, "segments": True, "emitters": True, "photometry": False}
+TOP_KEYS = {"name": False, "channels": False, "origin": False, "segments": True, "emitters": True,
+            "photometry": False}
 SEGMENT_KEYS = {"name": True, "meshes": True, "kernels": False, "reference": False, "known": False}
 EMITTER_KEYS = {
     "constant": {"type": True, "radiance": True, "scale": False},
@@ -93,6 +94,7 @@ class SceneSpec:
     segments: tuple[Segment, ...]
     emitters: tuple[EmitterSpec, ...]
     photometry: Photometry = field(default_factory=Photometry)
+    origin: tuple[float, float, float] | None = None   # where the local frame's (0, 0, 0) lies in the survey's
 
 
 def one_line(text: object, limit: int = 160) -> str:
@@ -144,7 +146,8 @@ def read_scene_yaml(root: Path) -> SceneSpec:
         raise SceneError(f"{path}: no emitters; the illumination must be known: list at least one")
     name = _text(desc["name"], f"{path}: name") if "name" in desc else None
     photometry = _photometry(desc["photometry"], f"{path}: photometry") if "photometry" in desc else Photometry()
-    return SceneSpec(path, name, channels, segments, emitters, photometry)
+    origin = _origin(desc["origin"], f"{path}: origin") if "origin" in desc else None
+    return SceneSpec(path, name, channels, segments, emitters, photometry, origin)
 
 
 class _StrictLoader(yaml.SafeLoader):
@@ -574,6 +577,15 @@ def _direction(value: object, where: str) -> np.ndarray:
     if d.shape != (3,) or not np.isfinite(d).all() or np.linalg.norm(d) == 0:
         raise SceneError(f"{where} must be {what}; got {_shown(value)}")
     return d / np.linalg.norm(d)
+
+
+def _origin(value: object, where: str) -> tuple[float, float, float]:
+    """``origin: [x, y, z]``: 3 finite numbers, the survey coordinates of the local (0, 0, 0)."""
+    what = "3 finite numbers [x, y, z] (the survey coordinates of the scene's 0, 0, 0)"
+    o = np.array([_number(x, where, what) for x in _list(value, where, "652340.0, 6862275.0, 35.0")])
+    if o.shape != (3,) or not np.isfinite(o).all():
+        raise SceneError(f"{where} must be {what}; got {_shown(value)}")
+    return tuple(float(x) for x in o)
 
 
 def _quoted(value: object) -> str:

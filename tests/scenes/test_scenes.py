@@ -23,7 +23,7 @@ from framework.scene import load_scene
 SYNTHETIC = ["urban_canyon", "urban_canyon_mono", "cornell_box", "plane_sky", "furnace", "street_block"]
 #: scenes with photographs (images/): their builders render for minutes, so the byte-exact
 #: generator test skips them; tests/scenes/test_field_scene.py and tests/methods/test_glossy.py rebuild them small
-PHOTOGRAPHED = ["urban_canyon_field", "urban_canyon_glossy"]
+PHOTOGRAPHED = ["urban_canyon_field", "urban_canyon_glossy", "city_block"]
 NAMES = SYNTHETIC + PHOTOGRAPHED
 CONF = Path(__file__).resolve().parents[2] / "framework" / "conf" / "scene"
 
