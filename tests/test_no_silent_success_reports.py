@@ -52,6 +52,7 @@ def test_run_records_the_scene_hash(tmp_path):
     assert results["settings"]["scene_hash"] == load_scene(scene).content_hash
     # 17: Dr.Jit's compilation is reported apart, and is part of the total
     assert 0.0 <= results["timings_s"]["compile"] <= results["timings_s"]["total"]
+    assert results["timings_s"]["imports"] >= 0.0          # before the clock: not part of total
 
 
 def _table_values(key: str) -> list[str]:
@@ -73,20 +74,33 @@ def test_cli_md_lists_every_method_and_scene():
     assert sorted(re.findall(r"`([^`]+)`", listed)) == sorted(BUILDERS)
 
 
+def _row(text: str, method: str) -> list[str]:
+    """The cells of ``method``'s row of the comparison's summary table."""
+    line = next(ln for ln in text.splitlines() if ln.startswith(f"| {method} | 2 |"))
+    return [c.strip() for c in line.strip("|").split("|")]
+
+
 def test_time_ratio_leaves_out_compilation(tmp_path):
-    """The first symbolic run pays 2.5 s of compilation (3.5 s total, 1.0 s of work), the second
-    none (1.0 s): against a method taking 1.2 s, the ratio of totals is ×0.533 (1.2 / 2.25), the
-    ratio without compile ×1.2; the table shows both and says what compile is."""
-    for seed, (total, compile_s) in enumerate(((3.5, 2.5), (1.0, 0.0))):
+    """The first symbolic run pays 2.5 s of compilation and 0.25 s of observations (3.75 s total,
+    1.0 s of work), the second 0.25 s of compilation (1.25 s total, 1.0 s of work): against a
+    method taking 1.25 s with neither, the ratio of totals is ×0.5 (1.25 / 2.5), the ratio of the
+    work ×1.25; the table shows both and says what they are. Numbers read back from the table
+    within 1e-9 relative (the printed ones are rounded)."""
+    for seed, (total, compile_s, observe) in enumerate(((3.75, 2.5, 0.25), (1.25, 0.25, 0.0))):
         _edit(make_fake_run(tmp_path / "sweep" / f"s{seed}", seed=seed),
-              lambda d, t=total, c=compile_s: d["timings_s"].update(total=t, compile=c))
+              lambda d, t=total, c=compile_s, o=observe: d["timings_s"].update(total=t, compile=c, observe=o))
         _edit(make_fake_run(tmp_path / "sweep" / f"i{seed}", method="iterative", seed=seed),
-              lambda d: d["timings_s"].update(total=1.2, compile=0.0))
+              lambda d: d["timings_s"].update(total=1.25, compile=0.0, observe=0.0))
     text = write_comparison([tmp_path / "sweep"])[0].read_text()
-    assert ("| symbolic | 2 | 0, 1 | 0.0300 ± 0.0141 | 2.250 ± 1.768 | 1.250 ± 1.768 | 1.000 ± 0.000 | "
-            "1.0 ± 0.0 | ×1 | ×1 | ×1 |") in text
-    assert "| ×0.533 | ×1.2 | ×50 |" in text
-    assert "| Without compile / symbolic |" in text and "Compile: Dr.Jit's kernel compilation" in text
+    assert ("| Total time (s) | Compile (s) | Work (s) | Renders | Time / symbolic | Work / symbolic | "
+            "Renders / symbolic |") in text
+    symbolic, iterative = _row(text, "symbolic"), _row(text, "iterative")
+    assert float(symbolic[4].split(" ± ")[0]) == pytest.approx(2.5, rel=1e-9)
+    assert float(symbolic[5].split(" ± ")[0]) == pytest.approx(1.375, rel=1e-9)
+    assert float(symbolic[6].split(" ± ")[0]) == pytest.approx(1.0, rel=1e-9)
+    assert float(iterative[8].lstrip("×")) == pytest.approx(0.5, rel=1e-9)
+    assert float(iterative[9].lstrip("×")) == pytest.approx(1.25, rel=1e-9)
+    assert "Compile: Dr.Jit's kernel compilation" in text and "Work: the total less compile" in text
 
 
 @pytest.mark.parametrize("key", ["method", "scene"])
