@@ -37,13 +37,22 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
     atomic_write(path, lambda f: f.write(data))
 
 
+def current_umask() -> int:
+    """The process's umask (read by setting it and setting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def atomic_write(path: Path, write) -> None:
     """Call ``write(f)`` on a temporary file in ``path``'s folder, then rename it to ``path``: an
-    interrupted write never leaves a partial ``path``."""
+    interrupted write never leaves a partial ``path``. The file gets the mode a plain ``open``
+    would give it (0666 less the umask; ``mkstemp``'s own is 0600)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        os.chmod(fd, 0o666 & ~current_umask())
         with os.fdopen(fd, "wb") as f:
             write(f)
         os.replace(tmp, path)

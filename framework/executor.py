@@ -161,6 +161,36 @@ def _connect(address: str, timeout_s: float):
                                     ) from None
 
 
+#: the schemes of a scheduler address the run accepts (distributed's TCP and TLS comms)
+ADDRESS_SCHEMES = ("tcp", "tls")
+
+
+def check_address(address) -> None:
+    """``executor.address`` is ``null`` or ``tcp://host:port`` (``tls://`` too), port 1-65535.
+
+    Checked before anything starts: distributed raises ``ValueError: missing port number`` or
+    an unknown-scheme error only once the run is under way.
+
+    Raises
+    ------
+    framework.errors.ConfigError
+        Naming the address and the form to write.
+    """
+    if address is None:
+        return
+    text = str(address)
+    form = "write tcp://host:port (the scheduler's address, port 8786 by default), or executor.address=null"
+    scheme, sep, rest = text.partition("://")
+    if not sep:
+        raise ConfigError(f"executor.address={text} is not a scheduler address: {form}")
+    if scheme not in ADDRESS_SCHEMES:
+        raise ConfigError(f"executor.address={text}: the scheme {scheme}:// is not one a Dask scheduler "
+                          f"listens on ({', '.join(s + '://' for s in ADDRESS_SCHEMES)}): {form}")
+    host, colon, port = rest.rstrip("/").rpartition(":")
+    if not colon or not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ConfigError(f"executor.address={text} lacks a host and a port number (1-65535): {form}")
+
+
 def make_executor(cfg) -> SerialExecutor:
     """The executor of the run's ``executor`` config group (None or missing: serial).
 
@@ -183,5 +213,6 @@ def make_executor(cfg) -> SerialExecutor:
     timeout = cfg.get("connect_timeout_s", CONNECT_TIMEOUT_S)
     if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not timeout > 0:
         raise ConfigError(f"executor.connect_timeout_s={timeout} is out of range: use a number of seconds > 0")
+    check_address(cfg.get("address"))
     return DaskExecutor(cfg.get("address"), n_workers=n_workers, threads_per_worker=threads,
                         connect_timeout_s=timeout)

@@ -17,11 +17,15 @@ from omegaconf import DictConfig, OmegaConf
 from framework.cache import Cache
 from framework.config import RunSettings, requested_views, scene_dir
 from framework.errors import ConfigError
+from framework.executor import check_address
+from framework.kernels import canonical
 from framework.observe import observed_images
 from framework.registry import Method, Problem, get_method, refuse_survey_unknowns
 from framework.render import backend
+from framework.render.jit_timing import CompileTimer
 from framework.render.mitsuba_scene import MitsubaScene
-from framework.results import results_dict, write_relit_images, write_results, write_view_images
+from framework.results import (check_output_names, results_dict, write_relit_images, write_results,
+                               write_view_images)
 from framework.scene import load_scene
 
 log = logging.getLogger(__name__)
@@ -47,6 +51,7 @@ def check_config(cfg: DictConfig) -> RunSettings:
     settings = RunSettings.from_config(cfg)
     get_method(str(cfg.method.name)).options_from(cfg.method)
     requested_views(cfg)
+    check_address((settings.executor or {}).get("address"))
     cache, root = Cache(settings.cache_dir), scene_dir(cfg).resolve()
     if cache.dir is not None and cache.dir.is_relative_to(root):
         raise ConfigError(f"cache.dir={cache.dir} is inside the scene folder {root}, "
@@ -69,17 +74,43 @@ def _check_samples(scene, cameras, settings: RunSettings) -> None:
 
 def _check_kernels_present(scene, kernels: tuple[str, ...] | None) -> None:
     """``method.kernels`` selects at least one weight of the scene (else the method has nothing
-    to estimate and fails deep in the solve)."""
-    if kernels is not None and not scene.parameters(kernels=kernels):
-        present = sorted({k for s in scene.segments for k in s.kernels})
+    to estimate and fails deep in the solve), and every kernel it lists is on some segment (a
+    kernel listed but absent, ``glossy(0.3)`` for the scene's ``glossy(0.2)``, would otherwise be
+    dropped without a word and its light go into the other kernels)."""
+    if kernels is None:
+        return
+    present = sorted({canonical(k) for s in scene.segments for k in s.kernels})
+    if not scene.parameters(kernels=kernels):
         raise ConfigError(f"method.kernels={list(kernels)} selects no weight of scene {scene.name}, whose "
                           f"kernels are {', '.join(present)}: list at least one of them")
+    absent = [k for k in kernels if k not in present]
+    if absent:
+        raise ConfigError(f"method.kernels lists {', '.join(absent)}, which no segment of scene {scene.name} "
+                          f"has (its kernels: {', '.join(present)}): list only the scene's kernels, or use all")
 
 
-def prepare(cfg: DictConfig) -> tuple[Problem, Method, float]:
+def _usable_cameras(scene, cameras) -> tuple[list, dict[str, str]]:
+    """The selected views that constrain some parameter, and why each other one is left out.
+
+    One rule for synthetic observations and photographs
+    (:func:`framework.render.checks.check_lit_and_seen`): a view with no usable pixel, whose
+    usable pixels see only sky, or whose segments no light reaches is left out with a warning
+    (results.json ``views_left_out``); a run where that is every view is a SceneError.
+    """
+    from framework.render.checks import check_views, view_problems
+    weights = None if scene.weights is None else {c.name: scene.weights[c.name] for c in cameras}
+    found = check_views(scene, cameras, weights=weights)
+    left_out = view_problems(found, weights)
+    return [c for c in cameras if c.name not in left_out], left_out
+
+
+def prepare(cfg: DictConfig, run_dir: str | Path | None = None) -> tuple[Problem, Method, float]:
     """The problem and the method of a composed configuration, and the seconds spent rendering
     observations (0 when cached): the settings checked, the scene loaded, the variant set, the
-    views selected, the observations read or rendered. ConfigError/SceneError on bad input."""
+    views selected (those that constrain no parameter left out, :func:`_usable_cameras`), the
+    names of the files the run will write into ``run_dir`` checked
+    (:func:`framework.results.check_output_names`), the observations read or rendered.
+    ConfigError/SceneError on bad input."""
     settings = check_config(cfg)
     Cache(settings.cache_dir).check_writable()     # before anything is loaded
     method = get_method(str(cfg.method.name))(cfg.method)
@@ -89,10 +120,13 @@ def prepare(cfg: DictConfig) -> tuple[Problem, Method, float]:
     cameras = select_cameras(scene, cfg)
     _check_samples(scene, cameras, settings)
     _check_kernels_present(scene, getattr(method.options, "kernels", None))
-    observed, t_observe = observed_images(scene, cameras, settings, cache=Cache(settings.cache_dir))
+    if run_dir is not None:
+        check_output_names(run_dir, [c.name for c in cameras])
+    cameras, left_out = _usable_cameras(scene, cameras)
+    observed, t_observe = observed_images(scene, cameras, settings, cache=Cache(settings.cache_dir), check=False)
     weights = None if scene.weights is None else {c.name: scene.weights[c.name] for c in cameras}
     problem = Problem(scene=scene, cameras=cameras, observed=observed, parameters=scene.parameters(),
-                      settings=settings, weights=weights)
+                      settings=settings, weights=weights, views_left_out=left_out)
     method.check_problem(problem)        # what the method cannot do with this scene: before any run folder
     return problem, method, t_observe
 
@@ -104,20 +138,59 @@ def run_experiment(cfg: DictConfig, run_dir: str | Path, *,
     ``write_report(run_dir, results)`` writes the run's report (the command line passes
     :func:`reports.write_run_report` when ``report=true``); results.json is written last.
     """
+    t_imports = import_libraries(cfg)
     t0 = time.perf_counter()
     run_dir = Path(run_dir)
-    problem, method, t_observe = prepare(cfg)
+    jit = CompileTimer().__enter__()      # Dr.Jit's compilation, inside total, reported apart
+    try:
+        problem, method, t_observe = prepare(cfg, run_dir)
+        result, segment_maps = _solve(cfg, problem, method)
+    finally:
+        jit.__exit__(None, None, None)
+    result.timings_s["imports"] = t_imports
+    return _write_run(cfg, run_dir, problem, result, segment_maps, t_observe, t0, jit.seconds, write_report)
+
+
+def import_libraries(cfg: DictConfig) -> float:
+    """Import the libraries a run needs (Mitsuba, Open3D, pycolmap, the method's module) before
+    the run's clock starts, and return the seconds it took (0 once imported).
+
+    The first run of a process would otherwise count them (about 2.6 s: Open3D 1.3, Mitsuba 0.4,
+    the methods and SciPy 1) in its total, and the later runs of a sweep not: a sweep's first
+    method would look slower than it is. Results.json ``timings_s.imports``, outside ``total``.
+    """
+    t = time.perf_counter()
+    backend.point_at_libllvm()              # before Dr.Jit's first import (libLLVM 15 aborts it)
+    import mitsuba  # noqa: F401
+    import open3d  # noqa: F401
+    import pycolmap  # noqa: F401
+    try:
+        get_method(str(cfg.method.name))
+    except ConfigError:
+        pass                                # reported by prepare, with the other settings
+    return time.perf_counter() - t
+
+
+def _solve(cfg: DictConfig, problem: Problem, method: Method):
+    """The method's result and the segment map of each view (the rendering part of a run)."""
     scene, cameras, settings = problem.scene, problem.cameras, problem.settings
     log.info("method %s on %s (%d view(s), %d parameters)", cfg.method.name, scene.name,
              len(cameras), len(problem.parameters))
     result = method.run(problem)
     if result.renders > settings.budget_renders:
         raise RuntimeError(f"{cfg.method.name} spent {result.renders} renders, budget {settings.budget_renders}")
+    return result, _segment_maps(problem.scene, problem.cameras)
 
-    segment_maps = _segment_maps(scene, cameras)
+
+def _write_run(cfg, run_dir: Path, problem: Problem, result, segment_maps: dict, t_observe: float, t0: float,
+               compile_s: float, write_report) -> dict:
+    """The run folder's images, report and (last) results.json; the results dict."""
+    scene, cameras, settings = problem.scene, problem.cameras, problem.settings
+    result.timings_s["compile"] = compile_s
     result.timings_s.setdefault("observe", t_observe)
     result.timings_s["total"] = time.perf_counter() - t0
-    summary = {"scene_dir": str(scene.root), "views": [c.name for c in cameras], "variant": settings.variant,
+    summary = {"scene_dir": str(scene.root), "scene_hash": scene.content_hash, "views": [c.name for c in cameras],
+               "variant": settings.variant,
                "seed": settings.seed, "spp": settings.spp, "max_bounces": settings.max_bounces,
                "tail_bounces": settings.tail_bounces,
                "budget_renders": settings.budget_renders, "executor": str(settings.executor.get("name")),

@@ -35,7 +35,7 @@ def inversion_seed(seed: int, counter: int = 0) -> int:
     return (2 * (int(seed) * 1_000_003 + int(counter))) % _SEED_SPACE
 
 
-def observed_images(scene: Scene, cameras: list[Camera], settings, *, cache: Cache
+def observed_images(scene: Scene, cameras: list[Camera], settings, *, cache: Cache, check: bool = True
                     ) -> tuple[dict[str, np.ndarray], float]:
     """Observed (H, W, C) images of ``cameras`` and the seconds spent rendering them (0 if cached).
 
@@ -46,9 +46,11 @@ def observed_images(scene: Scene, cameras: list[Camera], settings, *, cache: Cac
     The views are checked first (:func:`framework.render.checks.check_views`, paths of any
     length), observed images or not: every method renders them next, and a view set that sees
     no lit segment is a :class:`~framework.errors.SceneError` here rather than a Dr.Jit failure
-    there.
+    there. ``check=False`` skips them (the caller checked the views, as
+    :func:`framework.experiment.prepare` does with the scene's pixel weights).
     """
-    check_views(scene, cameras)
+    if check:
+        check_views(scene, cameras)
     if scene.images is not None:
         return {c.name: scene.images[c.name] for c in cameras}, 0.0
     obs = settings.observe

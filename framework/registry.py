@@ -37,6 +37,9 @@ class Problem:
     #: camera name -> (H, W) pixel weights of the scene (0: ignore the pixel: masked, saturated,
     #: outside the delivered image); None: every pixel counts
     weights: dict[str, np.ndarray] | None = None
+    #: selected views left out because they constrain no parameter (no usable pixel, only sky,
+    #: unlit), name -> why; results.json ``views_left_out``
+    views_left_out: dict[str, str] = field(default_factory=dict)
 
     @property
     def seed(self) -> int:

@@ -7,7 +7,7 @@ import os
 import re
 import shutil
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 import numpy as np
 
@@ -64,11 +64,15 @@ class RunFolder:
         Raises
         ------
         ConfigError
-            If ``path`` is a file, lies in the scene folder ``scene_root``, or holds anything
+            If a part of ``path`` (or of the files Hydra writes in it) is longer than the file
+            system allows (:func:`check_path_length`), if ``path`` is a file, lies in the scene folder ``scene_root``, or holds anything
             else (a scene, an earlier run, other files); the message names ``key``, the setting
             that chose the folder.
         """
         path = Path(os.path.abspath(path))      # as Hydra names it (runtime.output_dir)
+        shown = str(path) if len(str(path)) <= 80 else f"{str(path)[:60]}...{str(path)[-16:]}"
+        check_path_length(path / ".hydra" / "overrides.yaml", f"run folder {shown} ({key})",
+                          f"choose a shorter {key}")
         where = f"run folder {path} ({key})"
         if _inside(path, Path(scene_root)):
             raise ConfigError(f"{where} is inside the scene folder {Path(scene_root).resolve()}, "
@@ -155,13 +159,94 @@ def parameter_rows(problem: Problem, result: MethodResult) -> list[dict]:
     return rows
 
 
+def used_pixels(problem: Problem, result: MethodResult, name: str) -> np.ndarray | None:
+    """``(H, W)`` bool: the pixels of view ``name`` the fit used, i.e. of non-zero weight in the
+    scene (masks, saturated and black pixels of photographs left out) and in the method's final
+    fit (``MethodResult.pixel_weights``: boundary pixels, robust weights of exactly 0); None when
+    every pixel counts."""
+    used = None
+    for weights in ((problem.weights or {}).get(name), (result.pixel_weights or {}).get(name)):
+        if weights is not None:
+            w = np.asarray(weights) > 0
+            used = w if used is None else used & w
+    return used
+
+
 def image_rmse(problem: Problem, result: MethodResult) -> float | None:
-    """RMSE over every pixel and channel of every view with a reconstruction."""
+    """RMSE over the pixels the fit used (:func:`used_pixels`) and every channel of every view
+    with a reconstruction: a masked pixel, whose observation is 0, does not count against the
+    reconstruction. None when no view has a reconstruction or no pixel was used."""
     sq, n = 0.0, 0
     for name, rec in result.reconstructions.items():
         d = rec.astype(float) - problem.observed[name]
+        used = used_pixels(problem, result, name)
+        if used is not None:
+            d = d[used]
         sq, n = sq + float((d * d).sum()), n + d.size
     return float(np.sqrt(sq / n)) if n else None
+
+
+#: The longest names a run derives from an image name ``<name>``: ``images/<name>.reconstruction.exr``
+#: and, in the report, ``report_files/view<NNN>_<name>_reconstruction.png``.
+IMAGE_SUFFIX = ".reconstruction.exr"
+REPORT_NAME_EXTRA = len("view000_") + len("_reconstruction.png")
+NAME_MAX, PATH_MAX = 255, 4096            # Linux's; the file system's own where it says
+
+
+def fs_limits(path: Path) -> tuple[int, int]:
+    """``(NAME_MAX, PATH_MAX)`` in bytes of the file system holding ``path`` (its nearest
+    existing folder), Linux's 255 and 4096 where it does not say."""
+    folder = Path(os.path.abspath(path))
+    while not os.path.isdir(folder) and folder != folder.parent:     # isdir: False on ENAMETOOLONG
+        folder = folder.parent
+    limits = []
+    for key, default in (("PC_NAME_MAX", NAME_MAX), ("PC_PATH_MAX", PATH_MAX)):
+        try:
+            limits.append(int(os.pathconf(folder, key)) or default)
+        except (OSError, ValueError):
+            limits.append(default)
+    return limits[0], limits[1]
+
+
+def check_path_length(path: Path, what: str, fix: str) -> None:
+    """ConfigError when a part of ``path`` is longer than the file system's NAME_MAX bytes or
+    the whole longer than its PATH_MAX (checked before anything is written: the OS refuses
+    such a name only once a file is created)."""
+    name_max, path_max = fs_limits(path)
+    path = Path(os.path.abspath(path))
+    for part in path.parts:
+        size = len(os.fsencode(part))
+        if size > name_max:
+            shown = part if len(part) <= 40 else part[:37] + "..."
+            raise ConfigError(f"{what}: its part '{shown}' is {size} bytes, more than the {name_max} this "
+                              f"file system allows in one name: {fix}")
+    size = len(os.fsencode(str(path)))
+    if size >= path_max:
+        raise ConfigError(f"{what} is {size} bytes long, more than the {path_max - 1} this file system "
+                          f"allows in a path: {fix}")
+
+
+def check_output_names(run_dir: Path, names) -> None:
+    """Every file the run will write for the image ``names`` fits the file system's limits
+    (:func:`check_path_length`), checked before the work starts: a 249-byte COLMAP image name
+    would otherwise fail only when the images are written, after every rendering.
+
+    Raises
+    ------
+    ConfigError
+        Naming the image and the file, with the fix.
+    """
+    run_dir = Path(os.path.abspath(run_dir))
+    name_max, _ = fs_limits(run_dir)
+    for name, rel in image_paths(names).items():
+        fix = "rename the image in the COLMAP model, or leave it out (views=...)"
+        if len(os.fsencode(PurePosixPath(rel).name)) + REPORT_NAME_EXTRA > name_max:
+            raise ConfigError(f"image name '{name[:40]}...' ({len(os.fsencode(name))} bytes) is too long for the "
+                              f"files the run names after it (images/<name>{IMAGE_SUFFIX}, "
+                              f"report_files/view000_<name>_reconstruction.png): the file system allows "
+                              f"{name_max} bytes per name, so at most {name_max - REPORT_NAME_EXTRA}; {fix}")
+        check_path_length(run_dir / f"{rel}{IMAGE_SUFFIX}", f"the run's file {rel}{IMAGE_SUFFIX} for image "
+                          f"'{name[:40]}'", fix + ", or choose a shorter run folder (hydra.run.dir)")
 
 
 def write_view_images(run_dir: Path, problem: Problem, result: MethodResult, segment_maps: dict) -> list[dict]:
@@ -219,6 +304,7 @@ def results_dict(problem: Problem, result: MethodResult, *, method: str, setting
         "segments": [s.name for s in problem.scene.segments],
         "views": views,
         "relit": relit,
+        "views_left_out": [{"name": n, "reason": why} for n, why in problem.views_left_out.items()],
         **result.extras,
     }
 

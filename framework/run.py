@@ -49,6 +49,44 @@ OTHER_CONFIG_FLAGS = ("config_name", "config_path", "config_dir")
 
 _claimed: RunFolder | None = None      # the run folder preflight checked, before Hydra started
 _interrupted = False                   # set on Ctrl-C, whatever exception a library turns it into
+_created_cache: Path | None = None     # the topmost cache folder this run created (removed on failure)
+
+
+def _missing_top(path: Path | None) -> Path | None:
+    """The topmost missing folder of ``path`` (what creating it would create), None if it exists."""
+    if path is None:
+        return None
+    path, top = Path(path).expanduser().absolute(), None
+    while not path.exists() and path != path.parent:
+        path, top = path.parent, path
+    return top
+
+
+def _check_cache(cache_dir) -> None:
+    """:meth:`Cache.check_writable`, remembering the folder it creates, if any."""
+    global _created_cache
+    top = _missing_top(Cache(cache_dir).dir)
+    Cache(cache_dir).check_writable()
+    if top is not None and _created_cache is None:
+        _created_cache = top
+
+
+def _discard_cache() -> None:
+    """After a failed run: remove the cache folder it created, if nothing but empty folders is
+    in it (a cache entry written meanwhile, by this run or another, stays)."""
+    global _created_cache
+    top, _created_cache = _created_cache, None
+    if top is None or not top.is_dir():
+        return
+    for folder in sorted((p for p in top.rglob("*") if p.is_dir()), key=lambda p: len(p.parts), reverse=True):
+        try:
+            folder.rmdir()
+        except OSError:
+            pass
+    try:
+        top.rmdir()
+    except OSError:
+        pass
 
 
 def _on_sigint(signum, frame) -> None:
@@ -154,7 +192,7 @@ def preflight(argv: list[str]) -> list[str]:
     except OmegaConfBaseException:         # ${hydra:...} resolves only in Hydra: claimed in main
         return argv
     _claimed = RunFolder.claim(run_dir, scene_root=scene_dir(cfg))
-    Cache(settings.cache_dir).check_writable()   # after the claim: it may create a folder in it
+    _check_cache(settings.cache_dir)             # after the claim: it may create a folder in it
     return [a for a in argv if not a.startswith("hydra.run.dir=")] + [f"hydra.run.dir={_quoted(_claimed.path)}"]
 
 
@@ -171,16 +209,26 @@ def _run_folder(cfg: DictConfig, run_dir: Path) -> RunFolder:
 
 @hydra.main(version_base=None, config_path="conf", config_name="config")
 def main(cfg: DictConfig) -> None:
+    global _created_cache
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     folder = None
     try:
         folder = _run_folder(cfg, run_dir)
+        if _created_cache is None:           # a sweep job, or a run folder only Hydra names
+            _check_cache(check_config(cfg).cache_dir)
         run_experiment(cfg, run_dir, write_report=write_run_report if cfg.get("report", True) else None)
+        _created_cache = None                # a finished run's cache stays
     except UserError as exc:
+        if _interrupted:                     # Ctrl-C that a library reported as an error
+            if folder is not None:
+                folder.discard()
+            _discard_cache()
+            raise KeyboardInterrupt from None
         print(f"error: {exc}", file=sys.stderr)
         log.error("%s", exc)
         if folder is not None:
             folder.discard()                 # no partial output; nothing that was there before
+        _discard_cache()
         if HydraConfig.get().mode.name == "RUN":
             sys.exit(2)                      # in a sweep, the next job still runs
     except BaseException as exc:
@@ -188,6 +236,7 @@ def main(cfg: DictConfig) -> None:
             raise                            # a bug: a traceback, the folder kept to look into
         if folder is not None:
             folder.discard()
+        _discard_cache()
         raise KeyboardInterrupt from None
 
 
@@ -198,13 +247,23 @@ def cli(argv: list[str] | None = None) -> None:
         sys.argv[1:] = preflight(sys.argv[1:] if argv is None else argv)
         main()
     except UserError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        sys.exit(2)
+        if not _interrupted:
+            _discard_cache()
+            print(f"error: {exc}", file=sys.stderr)
+            sys.exit(2)
+        _interrupted_exit()
     except KeyboardInterrupt:
-        if _claimed is not None:
-            _claimed.discard()               # interrupted before main: what Hydra wrote
-        print("interrupted", file=sys.stderr)
-        sys.exit(130)
+        _interrupted_exit()
+
+
+def _interrupted_exit() -> None:
+    """Ctrl-C (also one a library reported as an error): ``interrupted``, status 130, what the
+    run wrote removed."""
+    _discard_cache()
+    if _claimed is not None:
+        _claimed.discard()                   # interrupted before main: what Hydra wrote
+    print("interrupted", file=sys.stderr)
+    sys.exit(130)
 
 
 if __name__ == "__main__":

@@ -123,6 +123,21 @@ def _total_time(res) -> float | None:
     return finite_or_none(t.get("total")) if isinstance(t, dict) else None
 
 
+def _compile_time(res) -> float | None:
+    """Seconds of Dr.Jit kernel compilation inside the run's total (``timings_s.compile``)."""
+    t = res.get("timings_s")
+    return finite_or_none(t.get("compile")) if isinstance(t, dict) else None
+
+
+def _work_time(res) -> float | None:
+    """Total time less Dr.Jit's kernel compilation, which the first run of a process pays for
+    every kernel (later runs find them compiled), and less rendering the synthetic observations,
+    which the first run of a sweep pays for all (the others read them from the cache)."""
+    total, t = _total_time(res), res.get("timings_s")
+    observe = finite_or_none(t.get("observe")) if isinstance(t, dict) else None
+    return None if total is None else total - (_compile_time(res) or 0.0) - (observe or 0.0)
+
+
 def _renders(res) -> float | None:
     """Render count of a run."""
     return finite_or_none(res.get("renders"))
@@ -137,18 +152,32 @@ def _ratio(value, base) -> str:
 
 def _section_summary(doc: Doc, scene: _Scene) -> None:
     """Per method: runs, seeds, mean |error|, time and renders with ratios to the baseline."""
-    base_t = scene.stat(BASELINE, _total_time)[0] if BASELINE in scene.methods else None
-    base_r = scene.stat(BASELINE, _renders)[0] if BASELINE in scene.methods else None
+    compiled = any(_compile_time(r) is not None for m in scene.methods for _, r in scene.by_method[m])
+    base = {name: scene.stat(BASELINE, getter)[0] if BASELINE in scene.methods else None
+            for name, getter in (("total", _total_time), ("work", _work_time), ("renders", _renders))}
     rows = []
     for m in scene.methods:
         runs = scene.by_method[m]
         seeds = ", ".join(str(seed_of(r)) for _, r in runs)
         t, r, e = scene.stat(m, _total_time), scene.stat(m, _renders), scene.stat(m, mean_abs_error)
-        rows.append([m, str(len(runs)), seeds, fmt_pm(*e), fmt_pm(*t, digits=3),
-                     fmt_pm(*r, digits=1), _ratio(t[0], base_t), _ratio(r[0], base_r)])
-    doc.table(["Method", "Runs", "Seeds", "Mean |error|", "Total time (s)", "Renders",
-               f"Time / {BASELINE}", f"Renders / {BASELINE}"], rows, left=3,
-              caption="Mean ± sample std over runs (seeds).")
+        w = scene.stat(m, _work_time)
+        rows.append([m, str(len(runs)), seeds, fmt_pm(*e), fmt_pm(*t, digits=3)]
+                    + ([fmt_pm(*scene.stat(m, _compile_time), digits=3), fmt_pm(*w, digits=3)] if compiled else [])
+                    + [fmt_pm(*r, digits=1), _ratio(t[0], base["total"])]
+                    + ([_ratio(w[0], base["work"])] if compiled else []) + [_ratio(r[0], base["renders"])])
+    caption = "Mean ± sample std over runs (seeds)."
+    if compiled:
+        caption += (" Compile: Dr.Jit's kernel compilation inside the total (timings_s.compile): the first "
+                    "run of a process compiles every kernel it launches, the later runs of a sweep find most "
+                    "of them compiled, so the total charges that warm-up to whichever method ran first; "
+                    "a method that compiles new kernels at every evaluation pays it each time, and it is "
+                    "counted there too. Work: the total less compile and less rendering the synthetic "
+                    "observations (timings_s.observe, paid by the first run of a sweep, read from the cache "
+                    "by the others). Both ratios are shown: of the totals and of the work.")
+    doc.table(["Method", "Runs", "Seeds", "Mean |error|", "Total time (s)"]
+              + (["Compile (s)", "Work (s)"] if compiled else [])
+              + ["Renders", f"Time / {BASELINE}"] + ([f"Work / {BASELINE}"] if compiled else [])
+              + [f"Renders / {BASELINE}"], rows, left=3, caption=caption)
 
 
 def _section_errors(doc: Doc, scene: _Scene) -> None:
@@ -252,6 +281,33 @@ def _scene_key(res) -> str:
     return f"{res['scene']}, {n} view{'s' if n != 1 else ''}" if n else str(res["scene"])
 
 
+def _scene_identity(res) -> str:
+    """What tells two scenes of one name apart: the scene's content hash (``settings.scene_hash``),
+    else its folder (``settings.scene_dir``, runs written before the hash was recorded)."""
+    s = res.get("settings") or {}
+    return str(s.get("scene_hash") or s.get("scene_dir") or "")
+
+
+def group_by_scene(runs) -> tuple[dict[str, list], list[str]]:
+    """The runs grouped by scene (content hash) and view set, each group under its title, and one
+    note per name that several different scenes share. Runs of different scene folders that
+    share a ``name:`` are never pooled as one scene: their titles get ``[<hash>]``."""
+    groups: dict[tuple[str, str], list] = defaultdict(list)
+    for run in runs:
+        groups[(_scene_key(run[1]), _scene_identity(run[1]))].append(run)
+    shared = defaultdict(list)
+    for key, identity in groups:
+        shared[key].append(identity)
+    titled, notes = {}, []
+    for (key, identity), members in groups.items():
+        titled[f"{key} [{identity[:16]}]" if len(shared[key]) > 1 else key] = members
+    for key, identities in sorted(shared.items()):
+        if len(identities) > 1:
+            notes.append(f"{len(identities)} different scenes share the name {key} (content hashes or folders "
+                         f"{', '.join(sorted(i[:16] for i in identities))}): compared apart, as {key} [<hash>].")
+    return titled, notes
+
+
 def load_runs(dirs) -> list[tuple[Path, dict]]:
     """Find and load every run under ``dirs``; raises ReportError before anything is written."""
     return [(d, load_results(d)) for d in find_run_dirs(dirs)]
@@ -284,11 +340,11 @@ def write_comparison(dirs, *, out=None) -> tuple[Path, Path]:
     for run_dir, _ in runs:
         if not (run_dir / "report.html").is_file():
             write_run_report(run_dir)
-    by_scene = defaultdict(list)
-    for run in runs:
-        by_scene[_scene_key(run[1])].append(run)
+    by_scene, notes = group_by_scene(runs)
     doc = Doc("Comparison of runs")
     doc.para(f"{len(runs)} runs, {len(by_scene)} scene(s); baseline for ratios: {BASELINE}.")
+    for note in notes:
+        doc.para(note)
     with staged(out, (FILES_DIR, "comparison.md", "comparison.html")) as tmp:
         files = tmp / FILES_DIR              # figures, moved into out/ with the documents
         files.mkdir()

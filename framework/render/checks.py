@@ -35,11 +35,12 @@ COARSE_STRIDE = 16        # lit check: every 16th seen pixel first, all of them 
 FILM_COPIES = 4
 
 
-def check_views(scene: Scene, cameras: list[Camera], *, max_depth: int = -1) -> dict[str, tuple[int, bool]]:
+def check_views(scene: Scene, cameras: list[Camera], *, max_depth: int = -1, weights: dict | None = None
+                ) -> dict[str, tuple[int, bool]]:
     """:func:`check_camera_poses`, then :func:`check_lit_and_seen` (whose result it returns):
     every check a run needs on its views before anything is rendered."""
     check_camera_poses(scene, cameras)
-    return check_lit_and_seen(scene, cameras, max_depth=max_depth)
+    return check_lit_and_seen(scene, cameras, max_depth=max_depth, weights=weights)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -95,16 +96,19 @@ def _pose_file(scene: Scene) -> Path:
 # ------------------------------------------------------------------------------------------------
 # Light and visibility
 # ------------------------------------------------------------------------------------------------
-def check_lit_and_seen(scene: Scene, cameras: list[Camera], *, max_depth: int = -1
-                       ) -> dict[str, tuple[int, bool]]:
+def check_lit_and_seen(scene: Scene, cameras: list[Camera], *, max_depth: int = -1,
+                       weights: dict | None = None) -> dict[str, tuple[int, bool]]:
     """Raise :class:`SceneError` when no parameter can be observed from ``cameras``.
 
-    A view *sees* a segment through the centre of a pixel (:meth:`MitsubaScene.segment_map`);
-    it is *lit* when one path-traced sample along such a ray (``path`` with ``max_depth``, every
-    kernel weight ``1/K`` of its segment, fixed seed) carries light. A pixel's value depends on
-    ρ only through paths whose first hit is a segment, so when no view is lit every parameter
-    is unobservable. One view that sees nothing, or only unlit segments, only logs a warning:
-    the other views still constrain the parameters.
+    A view *sees* a segment through the centre of a usable pixel (:meth:`MitsubaScene.segment_map`,
+    and a non-zero ``weights`` entry where the scene has pixel weights: masks, saturated or black
+    pixels of its photographs); it is *lit* when one path-traced sample along such a ray (``path``
+    with ``max_depth``, every kernel weight ``1/K`` of its segment, fixed seed) carries light. A
+    pixel's value depends on ρ only through paths whose first hit is a segment, so when no view
+    is lit every parameter is unobservable. The same rule holds for synthetic observations and
+    photographs: a view with no usable pixel, or whose usable pixels see only sky, or whose seen
+    segments no light reaches, constrains no parameter (:func:`view_problems` says why), and
+    when that is every view the run has nothing to fit.
 
     Parameters
     ----------
@@ -114,17 +118,19 @@ def check_lit_and_seen(scene: Scene, cameras: list[Camera], *, max_depth: int = 
         Mitsuba ``max_depth`` of the paths, -1 unbounded: pass the inversion's own depth
         (``render.max_bounces + render.tail_bounces + 1``), since light that needs more
         reflections reaches none of its renders.
+    weights : dict, optional
+        view name -> ``(H, W)`` pixel weights (0: unusable); None: every pixel usable.
 
     Returns
     -------
     dict
-        view name -> (pixels that see a segment, whether light reaches them).
+        view name -> (usable pixels that see a segment, whether light reaches them).
 
     Raises
     ------
     SceneError
-        When every emitter is black, when no view sees a segment, or when light reaches no
-        segment any view sees.
+        When every emitter is black, when no view has a usable pixel, when no view sees a
+        segment, or when light reaches no segment any view sees.
 
     Notes
     -----
@@ -136,20 +142,41 @@ def check_lit_and_seen(scene: Scene, cameras: list[Camera], *, max_depth: int = 
     params = scene.parameters()
     ms.set_weights(np.array([[1.0 / len(scene.segments[p.segment].kernels)] * len(scene.channels)
                              for p in params]), params)
-    found = {cam.name: _seen_and_lit(ms, i) for i, cam in enumerate(cameras)}
-    blind = [name for name, (seen, _) in found.items() if seen == 0]
+    weights = weights or {}
+    found = {cam.name: _seen_and_lit(ms, i, weights.get(cam.name)) for i, cam in enumerate(cameras)}
+    unusable = [c.name for c in cameras if c.name in weights and not np.any(np.asarray(weights[c.name]) > 0)]
+    blind = [name for name, (seen, _) in found.items() if seen == 0 and name not in unusable]
     dark = [name for name, (seen, lit) in found.items() if seen and not lit]
-    if len(blind) == len(found):
-        raise SceneError(f"no selected view sees any segment ({', '.join(blind)} see only sky or nothing): "
-                         f"fix their poses in {_sparse(scene)} or select other views (views=...)")
-    if len(blind) + len(dark) == len(found):
+    if len(unusable) == len(found):
+        raise SceneError(f"no selected view has a usable pixel ({', '.join(unusable)}: every pixel masked, "
+                         "saturated or black): nothing to fit; fix the photographs or masks, or select other "
+                         "views (views=...)")
+    if len(blind) + len(unusable) == len(found):
+        raise SceneError(f"no selected view sees any segment ({', '.join(blind)} see only sky or nothing"
+                         f"{' in their usable pixels' if weights else ''}): fix their poses in {_sparse(scene)} "
+                         "or select other views (views=...)")
+    if len(blind) + len(dark) + len(unusable) == len(found):
         raise SceneError(f"no light reaches the segments seen by {', '.join(dark)}: {_light_hint(scene, max_depth)}")
-    for name in blind:
-        log.warning("view %s sees no segment (only sky or nothing): it constrains no parameter; "
-                    "check its pose or leave it out of views", name)
-    for name in dark:
-        log.warning("view %s: no light reaches the segments it sees: it constrains no parameter", name)
+    for name, why in view_problems(found, weights).items():
+        log.warning("view %s %s: it constrains no parameter and is left out of the fit; %s", name, why,
+                    "check its pose or leave it out of views" if "sees no segment" in why else
+                    "check it or leave it out of views")
     return found
+
+
+def view_problems(found: dict[str, tuple[int, bool]], weights: dict | None = None) -> dict[str, str]:
+    """view name -> why it constrains no parameter, for the views of ``found``
+    (:func:`check_lit_and_seen`'s result) that do not; the others are absent."""
+    weights = weights or {}
+    out = {}
+    for name, (seen, lit) in found.items():
+        if name in weights and not np.any(np.asarray(weights[name]) > 0):
+            out[name] = "has no usable pixel (every pixel masked, saturated or black)"
+        elif seen == 0:
+            out[name] = "sees no segment (only sky or nothing)" + (" in its usable pixels" if name in weights else "")
+        elif not lit:
+            out[name] = "gets no light on the segments it sees"
+    return out
 
 
 def _check_some_emitter_shines(scene: Scene) -> None:
@@ -165,13 +192,17 @@ def _check_some_emitter_shines(scene: Scene) -> None:
                          "irradiance and envmap scale is 0); give one a positive value")
 
 
-def _seen_and_lit(ms: MitsubaScene, view: int) -> tuple[int, bool]:
-    """(pixels of ``view`` whose centre sees a segment, whether a path sample from one carries light).
+def _seen_and_lit(ms: MitsubaScene, view: int, weights=None) -> tuple[int, bool]:
+    """(usable pixels of ``view`` whose centre sees a segment, whether a path sample from one
+    carries light); ``weights``: the view's ``(H, W)`` pixel weights (0: unusable), or None.
 
     Every :data:`COARSE_STRIDE`-th seen pixel first: in a lit view that settles it at a fraction
     of the cost; only a view none of those lit is traced in full.
     """
-    seen = np.flatnonzero(ms.segment_map(view).ravel() >= 0)
+    seen_map = ms.segment_map(view).ravel() >= 0
+    if weights is not None:
+        seen_map &= np.asarray(weights).ravel() > 0
+    seen = np.flatnonzero(seen_map)
     lit = len(seen) > 0 and (_any_lit(ms, view, seen[::COARSE_STRIDE]) or _any_lit(ms, view, seen))
     return len(seen), bool(lit)
 

@@ -139,7 +139,7 @@ def _camera(rec, image, cameras_file: Path) -> Camera:
     differs (:attr:`Camera.distortion`)."""
     c = rec.cameras[image.camera_id]
     model = c.model.name
-    what = f"{cameras_file}: camera {image.camera_id} (of image {image.name})"
+    what = f"{cameras_file}: camera {image.camera_id} ({_images_of(rec, image.camera_id)})"
     if model not in ACCEPTED_MODELS:
         kind = "a fisheye model" if model in FISHEYE_MODELS else "a model the loader does not resample"
         raise SceneError(f"{what} is {model}, {kind}; undistort the images to a pinhole camera (colmap "
@@ -159,10 +159,73 @@ def _camera(rec, image, cameras_file: Path) -> Camera:
     cx, cy = float(c.principal_point_x), float(c.principal_point_y)
     square = abs(fx - fy) <= SQUARE_TOLERANCE * fx
     coefficients = params[len(MODEL_PARAMS[model]) - len(_distortion_names(model)):]
+    _check_distortion(c, model, coefficients, what)
     if square and not any(coefficients):
         return Camera(image.name, int(c.width), int(c.height), float(fx), cx, cy, T)
     f = float(pinhole_for(c).focal_length_x)
     return Camera(image.name, int(c.width), int(c.height), f, cx, cy, T, distortion=(model, params))
+
+
+def article(word: str) -> str:
+    """``a`` or ``an`` before a model name read letter by letter or as a word (an OPENCV, a RADIAL)."""
+    return "an" if word[:1].upper() in "AEIOU" else "a"
+
+
+def _images_of(rec, camera_id: int, *, shown: int = 5) -> str:
+    """``of image a.png`` or ``of images a.png, b.png, ... and N more (M images)``: every image
+    that uses camera ``camera_id`` (a fix of the camera concerns them all)."""
+    names = sorted(im.name for im in rec.images.values() if im.camera_id == camera_id)
+    if len(names) == 1:
+        return f"of image {names[0]}"
+    more = f" and {len(names) - shown} more ({len(names)} images)" if len(names) > shown else ""
+    return f"of images {', '.join(names[:shown])}{more}"
+
+
+#: samples of the undistorted radius when checking that a radial distortion does not fold
+FOLD_SAMPLES = 4096
+
+
+def _check_distortion(c, model: str, coefficients: tuple[float, ...], what: str) -> None:
+    """A radial distortion must not fold the image: r -> r (1 + k1 r^2 + k2 r^4) must increase
+    over every radius the image covers (normalised, from the principal point to its farthest
+    corner), or two directions land on one pixel and the resampling reads from the wrong places.
+    A principal point outside the image is logged as a warning. The tangential terms of OPENCV
+    (p1, p2) are left out of the fold check.
+
+    Raises
+    ------
+    SceneError
+        Naming the camera and every image that uses it (``what``).
+    """
+    if model not in ("SIMPLE_RADIAL", "RADIAL", "OPENCV"):
+        return
+    k1 = coefficients[0]
+    k2 = coefficients[1] if model in ("RADIAL", "OPENCV") else 0.0
+    fx, fy = float(c.focal_length_x), float(c.focal_length_y)
+    cx, cy, w, h = float(c.principal_point_x), float(c.principal_point_y), float(c.width), float(c.height)
+    if not (0 <= cx <= w and 0 <= cy <= h):
+        log.warning("%s: principal point (%g, %g) lies outside the %gx%g image; check the calibration",
+                    what, cx, cy, w, h)
+    reach = max(np.hypot((x - cx) / fx, (y - cy) / fy) for x in (0.0, w) for y in (0.0, h))
+    # the distorted radius d(r) = r (1 + k1 r^2 + k2 r^4) must rise until it reaches ``reach``
+    r = np.linspace(0.0, 1.0, FOLD_SAMPLES)
+    top = 1.0
+    while True:
+        rr = r * top
+        d = rr * (1 + k1 * rr**2 + k2 * rr**4)
+        slope = 1 + 3 * k1 * rr**2 + 5 * k2 * rr**4
+        falls = np.flatnonzero(slope <= 0)
+        end = falls[0] if falls.size else None
+        if end is not None or d[-1] >= reach or top > 1e3:
+            break
+        top *= 4
+    highest = d[:end].max() if end is not None else d.max()
+    if end is not None and highest < reach:
+        names = ", ".join(f"{n}={x:g}" for n, x in zip(("k1", "k2") if k2 else ("k",), (k1, k2)))
+        raise SceneError(f"{what}: its {model} distortion ({names}) folds the image: the distorted radius "
+                         f"stops growing at {highest:.3g} (normalised), short of the {reach:.3g} of the "
+                         "image's farthest corner, so pixels there map to two directions; fix the "
+                         "calibration (the sign or size of the coefficients)")
 
 
 def _distortion_names(model: str) -> tuple[str, ...]:
@@ -224,7 +287,7 @@ def _camera_ids(path: Path) -> dict[int, int]:
             raise SceneError(f"{path}: line {n}: camera {cid} is already defined on line {ids[cid]}; "
                              "give each camera its own CAMERA_ID")
         if expected and len(f) - 4 != len(expected):
-            raise SceneError(f"{path}: line {n}: a {f[1]} camera has {len(expected)} parameters "
+            raise SceneError(f"{path}: line {n}: {article(f[1])} {f[1]} camera has {len(expected)} parameters "
                              f"({' '.join(expected)}), this line {len(f) - 4}; fix the line")
         ids[cid] = n
     return ids

@@ -4,7 +4,10 @@ decoded to linear radiance on the scene's pinhole cameras (``docs/scene-format.m
 
 For the COLMAP image ``name`` the loader reads ``images/<name>`` as delivered (``.exr``: linear
 radiance; ``.png``: 8 or 16 bit; ``.jpg``/``.jpeg``), else ``images/<stem>.exr`` (the original
-rule), and the optional mask ``masks/<name>.png`` (COLMAP's naming; 0 = ignore the pixel).
+rule), and the optional mask ``masks/<name>.png`` (COLMAP's naming; 0 = ignore the pixel) or
+``masks/<stem>.png`` (the name with its extension replaced by ``.png``: ``masks/corner_001.png``
+for ``corner_001.png``); both at once is an error. Files in ``images/`` and ``masks/`` that no
+view reads are listed in a warning (a misspelt mask would otherwise be ignored without a word).
 
 Decoding: Pillow reads PNG and JPEG, except 16-bit colour PNGs, which Pillow reduces to 8 bits:
 those are read with Mitsuba's ``Bitmap`` (libpng), which keeps the 16 bits. Codes become
@@ -24,6 +27,7 @@ and is not modelled.
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
@@ -35,6 +39,8 @@ from framework.scene.exr import read_exr_checked
 from framework.scene.model import Camera, Photometry
 from framework.scene.schema import one_line
 from framework.scene.undistort import Resampling
+
+log = logging.getLogger(__name__)
 
 #: the image formats read, by file extension (lower case)
 SUFFIXES = {".exr": "OpenEXR", ".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}
@@ -73,9 +79,40 @@ def image_file(root: Path, camera_name: str) -> Path:
     return root / "images" / PurePosixPath(camera_name).with_suffix(".exr")
 
 
-def mask_file(root: Path, camera_name: str) -> Path:
-    """The optional mask of a COLMAP image, COLMAP's naming: ``masks/<name>.png``."""
-    return root / "masks" / f"{camera_name}.png"
+def mask_file(root: Path, camera_name: str) -> Path | None:
+    """The mask of a COLMAP image, or None: COLMAP's naming ``masks/<name>.png``
+    (``masks/corner_001.png.png``), or the plain one, the image's name with its extension
+    replaced by ``.png`` (``masks/corner_001.png``; ``masks/left/top_000.png``).
+
+    Raises
+    ------
+    SceneError
+        When both files exist: which one was meant cannot be told.
+    """
+    colmap = root / "masks" / f"{camera_name}.png"
+    plain = root / "masks" / PurePosixPath(camera_name).with_suffix(".png")
+    found = [p for p in dict.fromkeys((colmap, plain)) if p.is_file()]
+    if len(found) == 2:
+        raise SceneError(f"{colmap} and {plain}: two masks for image {camera_name} (COLMAP's name "
+                         "<image>.png and the plain one); keep one, delete the other")
+    return found[0] if found else None
+
+
+def _warn_unused(root: Path, files: list[Path]) -> None:
+    """Log a warning naming every file in ``images/`` and ``masks/`` no view reads (hidden files
+    aside): a mask or image under a name the loader does not look for is otherwise ignored."""
+    read = {p.resolve() for p in files}
+    for folder in ("images", "masks"):
+        if not (root / folder).is_dir():
+            continue
+        unused = sorted(p.relative_to(root).as_posix() for p in (root / folder).rglob("*")
+                        if p.is_file() and not p.name.startswith(".") and p.resolve() not in read)
+        if unused:
+            shown = ", ".join(unused[:8]) + (f", ... ({len(unused)} files)" if len(unused) > 8 else "")
+            what = ("masks/<image name>.png or masks/<image stem>.png" if folder == "masks"
+                    else "images/<image name> or images/<image stem>.exr")
+            log.warning("%s: %s not read by any view of the COLMAP model (a view reads %s); "
+                        "rename or remove %s", root, shown, what, "it" if len(unused) == 1 else "them")
 
 
 def read_photos(root: Path, cameras: tuple[Camera, ...], channels: tuple[str, ...],
@@ -114,7 +151,7 @@ def read_photos(root: Path, cameras: tuple[Camera, ...], channels: tuple[str, ..
         files.append(path)
         usable = decoded.usable
         mask = mask_file(root, c.name)
-        if mask.is_file():
+        if mask is not None:
             usable = usable & _read_mask(mask, image=path, shape=usable.shape)
             files.append(mask)
         std = decoded.std
@@ -130,6 +167,7 @@ def read_photos(root: Path, cameras: tuple[Camera, ...], channels: tuple[str, ..
         weights[c.name] = ok.astype(np.float32)
         if std is not None:
             noise[c.name] = np.where(ok[..., None], std, 0.0).astype(np.float32)
+    _warn_unused(root, files)
     if noise:
         noise = {c.name: noise.get(c.name, np.zeros_like(images[c.name])) for c in cameras}
     all_usable = all(w.all() for w in weights.values())

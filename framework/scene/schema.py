@@ -528,6 +528,9 @@ def _names(value: object, where: str, example: str, *, empty: str) -> tuple[str,
 
 
 def _text(value: object, where: str) -> str:
+    if isinstance(value, str) and value and not value.strip():
+        raise SceneError(f"{where} must be a non-empty string; got a blank string ({len(value)} "
+                         f"whitespace character{'s' if len(value) > 1 else ''}, {value!r}): give it a name")
     if not isinstance(value, str) or not value.strip():
         raise SceneError(f"{where} must be a non-empty string; got {_shown(value)} (quote it if it "
                          "looks like a number)")

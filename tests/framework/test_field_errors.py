@@ -46,10 +46,10 @@ def test_fisheye_camera(tiny_scene):
     ("FULL_OPENCV 16 16 13.8 13.8 8 8 0 0 0 0 0 0 0 0",
      r"camera 2 \(of image view_1.png\) is FULL_OPENCV, a model the loader does not resample; undistort"),
     ("FOV 16 16 13.8 13.8 8 8 0.1", r"camera 2 \(of image view_1.png\) is FOV, a fisheye model"),
-    ("OPENCV 16 16 13.8 13.8 8 8 0.1 0.01", r"line 5: a OPENCV camera has 8 parameters \(fx fy cx cy k1 k2 "
+    ("OPENCV 16 16 13.8 13.8 8 8 0.1 0.01", r"line 5: an OPENCV camera has 8 parameters \(fx fy cx cy k1 k2 "
                                             r"p1 p2\), this line 6; fix the line"),
     ("SIMPLE_RADIAL 16 16 13.8 8 8", r"line 5: a SIMPLE_RADIAL camera has 4 parameters \(f cx cy k\), this line 3"),
-    ("OPENCV_FISHEYE 16 16 13.8", r"line 5: a OPENCV_FISHEYE camera has 8 parameters"),
+    ("OPENCV_FISHEYE 16 16 13.8", r"line 5: an OPENCV_FISHEYE camera has 8 parameters"),
     ("PINHOLE_FISH 16 16 1 2 3 4", r"line 5: camera model 'PINHOLE_FISH' is not a COLMAP model; use "
                                    r"SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV$"),
 ])
