@@ -29,7 +29,7 @@ import numpy as np
 
 from framework.errors import SceneError
 from framework.scene.model import Camera
-from framework.scene.schema import one_line
+from framework.scene.values import one_line
 from framework.scene.undistort import DISTORTED_MODELS, PINHOLE_MODELS, pinhole_for
 
 log = logging.getLogger(__name__)

@@ -27,7 +27,9 @@ from framework.scene.colmap import read_model
 from framework.scene.exr import read_exr_checked
 from framework.scene.model import Emitter, Mesh, Scene
 from framework.scene.photos import image_file, read_photos
-from framework.scene.schema import EmitterSpec, SceneSpec, one_line, read_scene_yaml
+from framework.scene.emitter_schema import EmitterSpec
+from framework.scene.schema import SceneSpec, read_scene_yaml
+from framework.scene.values import one_line
 
 __all__ = ["image_file", "load_scene"]     # image_file: where a view's observed image is read
 

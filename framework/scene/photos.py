@@ -37,7 +37,7 @@ from framework.errors import SceneError
 from framework.images import srgb_decode
 from framework.scene.exr import read_exr_checked
 from framework.scene.model import Camera, Photometry
-from framework.scene.schema import one_line
+from framework.scene.values import one_line
 from framework.scene.undistort import Resampling
 
 log = logging.getLogger(__name__)
