@@ -18,7 +18,8 @@ class LambertianPriorMethod(SymbolicMethod):
     (always ``guess``: it is itself the prior) and the default ``cost: per_segment``: a
     diffuse-only model cannot reproduce mirrors and glossy segments, and the joint cost lets
     their misfit move the albedos they light (measured on urban_canyon's default view: the
-    asphalt 0.015 off joint, 0.002 per segment; :mod:`methods.symbolic.per_segment`).
+    asphalt far closer per segment than joint, BENCHMARKS.md "Accurate by default";
+    :mod:`methods.symbolic.per_segment`).
     ``method.cost=joint`` is the paper's cost (eq. 6), which the benchmark's Table 1 uses.
     """
 

@@ -7,8 +7,8 @@ Why
     windows are mirrors), the joint minimum spends every weight on that misfit wherever the
     polynomial lets it reach, interreflections included: on urban_canyon's default view the
     asphalt's ρ_d also lights the walls, whose pixels outnumber the street's nine to one, and the
-    joint Lambertian fit puts it 0.015 above the truth where the asphalt's own pixels say 0.0004
-    (BENCHMARKS, section "Accurate by default").
+    joint Lambertian fit puts it above the truth where the asphalt's own pixels do not (measured in
+    BENCHMARKS.md, section "Accurate by default").
 
 Estimating equations
     Each parameter block ``m`` owns pixels: a segment's kernel weights the pixels whose centre
