@@ -346,3 +346,28 @@ def ad_and_fd_gradients(problem, *, spp: int, rho: float, repeats: int, step: fl
             fd[s, j] = np.sum(residual * diff, axis=(0, 1)) / (2 * step)
     ledger.close()
     return ad, fd
+
+
+# ------------------------------------------------------------------------------------------------
+# The command line
+# ------------------------------------------------------------------------------------------------
+def cli(args, cwd, env=None, **kwargs):
+    """``python -m framework.run *args`` in ``cwd`` with this checkout first on the path (Hydra's
+    full error off, ``env`` added to the environment); the completed process."""
+    import os
+    import subprocess
+    import sys
+
+    import framework.run
+    env = dict(os.environ, HYDRA_FULL_ERROR="0", PYTHONPATH=str(Path(framework.run.__file__).parents[1]),
+               **(env or {}))
+    return subprocess.run([sys.executable, "-m", "framework.run", *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=300, **kwargs)
+
+
+def error_line(proc) -> str:
+    """The one line a refused run prints on stderr (its exit status 2 checked)."""
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1, proc.stderr[-2000:]
+    return lines[0]

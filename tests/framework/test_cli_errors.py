@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 import pytest
-from factory import make_tiny_scene, snapshot
+from factory import cli, error_line, make_tiny_scene, snapshot
 
 import framework.run
 from framework.config import compose
@@ -109,26 +109,15 @@ def test_scene_dependent_errors(tmp_path):
         prepare(compose([*base, "method.kernels=[specular]"]))
 
 
-def _cli(args, cwd, **kwargs):
-    env = dict(os.environ, HYDRA_FULL_ERROR="0", PYTHONPATH=str(Path(framework.run.__file__).parents[1]))
-    return subprocess.run([sys.executable, "-m", "framework.run", *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=300, **kwargs)
-
-
-def _error_line(proc) -> str:
-    assert proc.returncode == 2, proc.stderr[-2000:]
-    lines = [line for line in proc.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1, proc.stderr[-2000:]
-    return lines[0]
 
 
 @pytest.mark.parametrize("override", ["views=[]", "method=nonsense", "scene.dir=/tmp/ü"])
 def test_cli_prints_one_line(override, tiny_scene, tmp_path):
     """The command line itself: the preflight line, status 2, no run folder at all."""
     message = dict(SETTING_ERRORS)[override]
-    proc = _cli([f"scene.dir={tiny_scene}", f"cache.dir={tmp_path / 'c'}", *TINY,
+    proc = cli([f"scene.dir={tiny_scene}", f"cache.dir={tmp_path / 'c'}", *TINY,
                  f"hydra.run.dir={tmp_path / 'run'}", override], tmp_path)
-    assert _error_line(proc) == f"error: {message}"
+    assert error_line(proc) == f"error: {message}"
     assert not (tmp_path / "run").exists()
 
 
@@ -143,8 +132,8 @@ def test_cli_failed_run_keeps_foreign_file(tmp_path):
     scene = _broken_scene(tmp_path / "broken")
     (tmp_path / "u").mkdir()
     (tmp_path / "u" / "keep").write_text("mine")
-    proc = _cli([f"scene.dir={scene}", f"hydra.run.dir={tmp_path / 'u'}", *TINY], tmp_path)
-    assert _error_line(proc) == (f"error: run folder {tmp_path / 'u'} (hydra.run.dir) already holds files "
+    proc = cli([f"scene.dir={scene}", f"hydra.run.dir={tmp_path / 'u'}", *TINY], tmp_path)
+    assert error_line(proc) == (f"error: run folder {tmp_path / 'u'} (hydra.run.dir) already holds files "
                                  "(keep): choose a new or empty folder, so that this run's files cannot mix "
                                  "with others")
     assert sorted(p.name for p in (tmp_path / "u").iterdir()) == ["keep"]
@@ -154,8 +143,8 @@ def test_cli_failed_run_keeps_foreign_file(tmp_path):
 def test_cli_scene_folder_as_run_folder(tiny_scene, tmp_path):
     """``scene.dir=. hydra.run.dir=.`` inside a scene folder: refused, the scene untouched."""
     before = snapshot(tiny_scene)
-    proc = _cli(["scene.dir=.", "hydra.run.dir=.", f"cache.dir={tmp_path / 'c'}", *TINY], tiny_scene)
-    assert _error_line(proc) == (f"error: run folder {tiny_scene} (hydra.run.dir) is inside the scene folder "
+    proc = cli(["scene.dir=.", "hydra.run.dir=.", f"cache.dir={tmp_path / 'c'}", *TINY], tiny_scene)
+    assert error_line(proc) == (f"error: run folder {tiny_scene} (hydra.run.dir) is inside the scene folder "
                                  f"{tiny_scene}, which runs never write to: choose a run folder outside it")
     assert snapshot(tiny_scene) == before
 
@@ -164,8 +153,8 @@ def test_cli_earlier_run_refused(tiny_scene, tmp_path):
     """A folder holding an earlier run's results.json is not reused: that run stays as it was."""
     (tmp_path / "old").mkdir()
     (tmp_path / "old" / "results.json").write_text("{}")
-    proc = _cli([f"scene.dir={tiny_scene}", f"hydra.run.dir={tmp_path / 'old'}", *TINY], tmp_path)
-    assert _error_line(proc).startswith(f"error: run folder {tmp_path / 'old'} (hydra.run.dir) holds an "
+    proc = cli([f"scene.dir={tiny_scene}", f"hydra.run.dir={tmp_path / 'old'}", *TINY], tmp_path)
+    assert error_line(proc).startswith(f"error: run folder {tmp_path / 'old'} (hydra.run.dir) holds an "
                                         "earlier run (results.json): choose a new or empty folder")
     assert [p.name for p in (tmp_path / "old").iterdir()] == ["results.json"]
 
@@ -174,8 +163,8 @@ def test_cli_failed_run_in_empty_folder(tmp_path):
     """A run that fails in a folder that existed (empty) removes what it wrote, not the folder."""
     scene = _broken_scene(tmp_path / "broken")
     (tmp_path / "empty").mkdir()
-    proc = _cli([f"scene.dir={scene}", f"hydra.run.dir={tmp_path / 'empty'}", *TINY], tmp_path)
-    assert _error_line(proc).endswith("mesh file missing; fix the path in scene.yaml")
+    proc = cli([f"scene.dir={scene}", f"hydra.run.dir={tmp_path / 'empty'}", *TINY], tmp_path)
+    assert error_line(proc).endswith("mesh file missing; fix the path in scene.yaml")
     assert list((tmp_path / "empty").iterdir()) == []
 
 

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from factory import (compose_config, edit_scene_yaml, make_field_scene, make_tiny_scene, scene_error_message,
-                     write_png8)
+from factory import (cli, compose_config, edit_scene_yaml, error_line, make_field_scene, make_tiny_scene,
+                     scene_error_message, write_png8)
 
 import framework.run
 from framework.errors import ConfigError, SceneError
@@ -28,18 +28,6 @@ TINY = ["render.spp=4", "observe.spp=8", "report=false"]
 GREY = 120          # an 8-bit code well inside the usable range (not black, not saturated)
 
 
-def _cli(args, cwd, env=None, **kwargs):
-    env = dict(os.environ, HYDRA_FULL_ERROR="0", PYTHONPATH=str(Path(framework.run.__file__).parents[1]),
-               **(env or {}))
-    return subprocess.run([sys.executable, "-m", "framework.run", *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=300, **kwargs)
-
-
-def _error_line(proc) -> str:
-    assert proc.returncode == 2, proc.stderr[-2000:]
-    lines = [line for line in proc.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1, proc.stderr[-2000:]
-    return lines[0]
 
 
 def _photos(root: Path, codes: dict[str, int]) -> None:
@@ -85,7 +73,7 @@ def test_view_without_usable_pixel_is_left_out(tiny_scene, tmp_path, caplog):
     assert problem.views_left_out == {"view_0.png": "has no usable pixel (every pixel masked, saturated or black)"}
     assert ("view view_0.png has no usable pixel (every pixel masked, saturated or black): it constrains no "
             "parameter and is left out of the fit") in caplog.text
-    proc = _cli([f"scene.dir={tiny_scene}", *TINY, f"hydra.run.dir={tmp_path / 'run'}", "cache.dir=null"], tmp_path)
+    proc = cli([f"scene.dir={tiny_scene}", *TINY, f"hydra.run.dir={tmp_path / 'run'}", "cache.dir=null"], tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
     results = json.loads((tmp_path / "run/results.json").read_text())
     assert results["views_left_out"] == [{"name": "view_0.png", "reason": "has no usable pixel (every pixel "
@@ -227,9 +215,9 @@ def test_image_rmse_counts_used_pixels_only():
     ("tcp://localhost", "executor.address=tcp://localhost lacks a host and a port number (1-65535)"),
 ])
 def test_executor_address_form(tiny_scene, tmp_path, address, message):
-    proc = _cli([f"scene.dir={tiny_scene}", *TINY, "executor=dask", f"executor.address={address}",
+    proc = cli([f"scene.dir={tiny_scene}", *TINY, "executor=dask", f"executor.address={address}",
                  f"hydra.run.dir={tmp_path / 'run'}", "cache.dir=null"], tmp_path)
-    assert _error_line(proc).startswith(f"error: {message}")
+    assert error_line(proc).startswith(f"error: {message}")
     assert not (tmp_path / "run").exists()
 
 
@@ -237,13 +225,13 @@ def test_run_folder_name_too_long(tiny_scene, tmp_path):
     """A part of 300 bytes: one line, and no folder created (was: three chained tracebacks and
     an empty parent folder)."""
     run_dir = tmp_path / "parent" / ("x" * 300)
-    proc = _cli([f"scene.dir={tiny_scene}", *TINY, f"hydra.run.dir={run_dir}", "cache.dir=null"], tmp_path)
-    assert _error_line(proc).endswith(f"(hydra.run.dir): its part '{'x' * 37}...' is 300 bytes, more than the 255 "
+    proc = cli([f"scene.dir={tiny_scene}", *TINY, f"hydra.run.dir={run_dir}", "cache.dir=null"], tmp_path)
+    assert error_line(proc).endswith(f"(hydra.run.dir): its part '{'x' * 37}...' is 300 bytes, more than the 255 "
                                       "this file system allows in one name: choose a shorter hydra.run.dir")
     assert not (tmp_path / "parent").exists()
     deep = tmp_path / "/".join(["d" * 200] * 21)                  # 4200 bytes > PATH_MAX
-    proc = _cli([f"scene.dir={tiny_scene}", *TINY, f"hydra.run.dir={deep}", "cache.dir=null"], tmp_path)
-    assert "this file system allows in a path: choose a shorter hydra.run.dir" in _error_line(proc)
+    proc = cli([f"scene.dir={tiny_scene}", *TINY, f"hydra.run.dir={deep}", "cache.dir=null"], tmp_path)
+    assert "this file system allows in a path: choose a shorter hydra.run.dir" in error_line(proc)
     assert not (tmp_path / ("d" * 200)).exists()
 
 
@@ -254,8 +242,8 @@ def test_image_name_too_long(tmp_path):
     root = make_tiny_scene(tmp_path / "long", n_views=1)
     images = root / "sparse/images.txt"
     images.write_text(images.read_text().replace("view_0.png", name))
-    proc = _cli([f"scene.dir={root}", *TINY, f"hydra.run.dir={tmp_path / 'run'}", "cache.dir=null"], tmp_path)
-    assert _error_line(proc).startswith(f"error: image name '{name[:40]}...' (249 bytes) is too long for the files "
+    proc = cli([f"scene.dir={root}", *TINY, f"hydra.run.dir={tmp_path / 'run'}", "cache.dir=null"], tmp_path)
+    assert error_line(proc).startswith(f"error: image name '{name[:40]}...' (249 bytes) is too long for the files "
                                         "the run names after it")
     assert not (tmp_path / "run").exists()
 
@@ -311,11 +299,11 @@ def test_failed_run_removes_the_cache_folder_it_created(tmp_path):
     root = make_tiny_scene(tmp_path / "broken")
     (root / "meshes/block.ply").unlink()
     cache = tmp_path / "new" / "cache"
-    proc = _cli([f"scene.dir={root}", *TINY, f"hydra.run.dir={tmp_path / 'run'}", f"cache.dir={cache}"], tmp_path)
-    assert _error_line(proc).endswith("mesh file missing; fix the path in scene.yaml")
+    proc = cli([f"scene.dir={root}", *TINY, f"hydra.run.dir={tmp_path / 'run'}", f"cache.dir={cache}"], tmp_path)
+    assert error_line(proc).endswith("mesh file missing; fix the path in scene.yaml")
     assert not (tmp_path / "new").exists() and not (tmp_path / "run").exists()
     (tmp_path / "mine").mkdir()
-    proc = _cli([f"scene.dir={root}", *TINY, f"hydra.run.dir={tmp_path / 'run'}", f"cache.dir={tmp_path / 'mine'}"],
+    proc = cli([f"scene.dir={root}", *TINY, f"hydra.run.dir={tmp_path / 'run'}", f"cache.dir={tmp_path / 'mine'}"],
                 tmp_path)
     assert proc.returncode == 2 and (tmp_path / "mine").is_dir()
 
