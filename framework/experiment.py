@@ -23,7 +23,7 @@ from framework.observe import observed_images
 from framework.registry import Method, Problem, get_method, refuse_survey_unknowns
 from framework.render import backend
 from framework.render.jit_timing import CompileTimer
-from framework.render.mitsuba_scene import MitsubaScene
+from framework.render.mitsuba_scene import segment_maps as view_segment_maps
 from framework.results import (check_output_names, results_dict, write_relit_images, write_results,
                                write_view_images)
 from framework.scene import load_scene
@@ -179,7 +179,7 @@ def _solve(cfg: DictConfig, problem: Problem, method: Method):
     result = method.run(problem)
     if result.renders > settings.budget_renders:
         raise RuntimeError(f"{cfg.method.name} spent {result.renders} renders, budget {settings.budget_renders}")
-    return result, _segment_maps(problem.scene, problem.cameras)
+    return result, view_segment_maps(problem.scene, problem.cameras)
 
 
 def _write_run(cfg, run_dir: Path, problem: Problem, result, segment_maps: dict, t_observe: float, t0: float,
@@ -209,6 +209,4 @@ def _write_run(cfg, run_dir: Path, problem: Problem, result, segment_maps: dict,
     return results
 
 
-def _segment_maps(scene, cameras) -> dict:
-    ms = MitsubaScene(scene, cameras, spp=1)
-    return {c.name: ms.segment_map(i) for i, c in enumerate(cameras)}
+

@@ -193,3 +193,10 @@ class MitsubaScene:
         uniq, inverse = np.unique(ids, return_inverse=True)
         seg = np.array([table.get(int(u), -1) for u in uniq], dtype=np.int32)[inverse]
         return seg.reshape(cam.height, cam.width)
+
+
+def segment_maps(scene, cameras) -> dict[str, np.ndarray]:
+    """View name -> ``(H, W)`` int32 segment seen through each pixel centre (-1: sky or emitter
+    only), for every camera of ``cameras`` (:meth:`MitsubaScene.segment_map`)."""
+    ms = MitsubaScene(scene, list(cameras), spp=1)
+    return {c.name: ms.segment_map(i) for i, c in enumerate(cameras)}

@@ -228,11 +228,11 @@ def _boundary_width(value: int | str, problem) -> int:
 def segment_boundaries(problem, width: int) -> dict[str, np.ndarray]:
     """View name -> ``(H·W,)`` bool: pixels within ``width`` pixels (a square) of a pixel whose
     centre sees another segment (or the sky)."""
-    from framework.render.mitsuba_scene import MitsubaScene
-    ms = MitsubaScene(problem.scene, list(problem.cameras), spp=1)
+    from framework.render.mitsuba_scene import segment_maps
+    maps = segment_maps(problem.scene, problem.cameras)
     out = {}
-    for i, cam in enumerate(problem.cameras):
-        seg = ms.segment_map(i)
+    for cam in problem.cameras:
+        seg = maps[cam.name]
         edge = np.zeros(seg.shape, bool)
         edge[:, 1:] |= seg[:, 1:] != seg[:, :-1]
         edge[:, :-1] |= seg[:, 1:] != seg[:, :-1]

@@ -55,6 +55,9 @@ class Fit:
     irls_rounds : int or None
     irls_stopped : str or None
         The field path's robust rounds and why they stopped.
+    clusters : dict or None
+        ``std_method`` ``cluster``: the clusters' side and the residuals' correlation length
+        (:func:`~methods.symbolic.clusters.view_clusters`).
     """
 
     estimate: np.ndarray
@@ -77,6 +80,7 @@ class Fit:
     robust_weights: dict | None = None
     irls_rounds: int | None = None
     irls_stopped: str | None = None
+    clusters: dict | None = None
 
     def replace(self, **changes) -> Fit:
         return dataclasses.replace(self, **changes)

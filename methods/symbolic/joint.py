@@ -14,6 +14,7 @@ import numpy as np
 
 from framework.executor import make_executor
 from framework.memory import release_freed_memory
+from methods.symbolic.clusters import view_clusters
 from methods.symbolic.fit import Fit, full
 from methods.symbolic.options import SymbolicOptions
 from methods.symbolic.solve import check_solve_memory, solve_polynomial
@@ -39,7 +40,7 @@ def fit_joint(system, basis, params, x0: np.ndarray, problem, options: SymbolicO
         ``psd``, ``std`` and ``solver.*`` are read.
     views : callable or None
         ``views()`` gives ``(coefficients, y, weights or None)`` per view: the per-pixel terms of
-        the ``sandwich`` std (None: the ``residual`` std).
+        the ``sandwich`` and ``cluster`` std (None: the ``residual`` std).
     groups : list of list of int
         The parameter indices sharing a Σρ <= 1 constraint.
     """
@@ -68,7 +69,12 @@ def fit_joint(system, basis, params, x0: np.ndarray, problem, options: SymbolicO
                            seed=int(problem.seed), executor=_block_executor(problem.settings.executor))
     t_unc = time.perf_counter()
     release_freed_memory()       # the restriction's and the solve's temporaries
-    meat = score_meat(sub_basis, sol.estimate, views(), columns, basis.codes) if method == "sandwich" else None
+    clusters, about = None, None
+    if method == "cluster":
+        rho = np.nan_to_num(full(observable, sol.estimate))
+        clusters, about = view_clusters(problem, views(), basis, rho)
+    meat = (score_meat(sub_basis, sol.estimate, views(), columns, basis.codes, clusters=clusters)
+            if method in ("sandwich", "cluster") else None)
     unc = parameter_uncertainty(sub_system, sub_basis, sol.estimate, meat=meat)
     estimate, std = full(observable, sol.estimate), full(observable, unc.std)
     return Fit(estimate=estimate, std=std, observable=observable, evaluated_at=np.nan_to_num(estimate),
@@ -76,7 +82,7 @@ def fit_joint(system, basis, params, x0: np.ndarray, problem, options: SymbolicO
                correlation=correlation_extra(params, observable, unc), sigma2=[float(v) for v in unc.sigma2],
                std_method=method,
                stages_s={"psd": t_psd, "solver": sol.solve_s, "uncertainty": time.perf_counter() - t_unc},
-               psd_skipped=sub_system.psd_skipped)
+               psd_skipped=sub_system.psd_skipped, clusters=about)
 
 
 def _block_executor(executor: dict):

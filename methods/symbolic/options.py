@@ -83,7 +83,11 @@ class SymbolicOptions(StartOptions):
         "the standard error reported: `sandwich` covers the image noise and the Monte Carlo noise of "
         "the polynomial's coefficients (H⁺MH⁺, M from every pixel's term of the cost gradient, with "
         "the two half-sample passes); `residual` counts the image residual only (too small along "
-        "weakly constrained directions); see results.md", choice("sandwich", "residual"))
+        "weakly constrained directions); `cluster`: the sandwich with the scores summed within "
+        "squares of neighbouring pixels of one segment in one view, sized from the residuals' measured "
+        "autocorrelation (results.json `std_clusters`), so that misfit shared by neighbouring pixels "
+        "(resampled or compressed photographs, misregistration) counts once; see results.md",
+        choice("sandwich", "residual", "cluster"))
     refine: int = option(
         "cap on further passes, each re-rendered at the previous estimate (one render each): the "
         "tail's linearisation and the kernel selection move to the estimate", number(0, 8, integer=True))
@@ -117,6 +121,6 @@ class SymbolicOptions(StartOptions):
     relight: RelightOptions = option("relit images")
 
     def __post_init__(self):
-        if self.cost == "per_segment" and self.std == "residual":
-            raise ConfigError("method.std=residual is the joint cost's formula: with method.cost=per_segment "
+        if self.cost == "per_segment" and self.std in ("residual", "cluster"):
+            raise ConfigError(f"method.std={self.std} is the joint cost's formula: with method.cost=per_segment "
                               "use method.std=sandwich, or method.cost=joint")

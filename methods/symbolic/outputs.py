@@ -33,6 +33,8 @@ def method_result(passes: Passes, problem, params, guess: np.ndarray, options: S
               "executor": str(problem.settings.executor.get("name", "serial")),
               "solve_stages_s": stages, "refine_moves": passes.moves, "refine_stopped": passes.stopped,
               "cost": options.cost}
+    if fit.clusters is not None:
+        extras["std_clusters"] = fit.clusters
     if fit.per_segment is not None:
         extras["per_segment"] = fit.per_segment
     if passes.field.active:

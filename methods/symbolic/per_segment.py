@@ -64,11 +64,11 @@ def ownership(problem, params) -> list[sp.csr_matrix]:
     """Per view (``problem.cameras`` order) the ``(pixels, D)`` 0/1 matrix: pixel ``p`` is owned
     by parameter ``j`` (its segment is seen through the pixel's centre, or ``j`` is the gain of
     the pixel's view)."""
-    from framework.render.mitsuba_scene import MitsubaScene
-    ms = MitsubaScene(problem.scene, problem.cameras, spp=1)
+    from framework.render.mitsuba_scene import segment_maps
+    maps = segment_maps(problem.scene, problem.cameras)
     out = []
-    for i, cam in enumerate(problem.cameras):
-        seen = ms.segment_map(i).ravel()
+    for cam in problem.cameras:
+        seen = maps[cam.name].ravel()
         columns = [seen == p.segment if p.segment >= 0 else
                    np.full(seen.shape, p.segment_name == GAIN_PREFIX + cam.name) for p in params]
         out.append(sp.csr_matrix(np.stack(columns, axis=1).astype(np.float64)))

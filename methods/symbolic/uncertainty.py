@@ -70,6 +70,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from methods.symbolic.basis import MonomialBasis
+from methods.symbolic.clusters import cr1_factor
 from methods.symbolic.gram import GramSystem, principal, row_blocks
 from methods.symbolic.solve import hessian
 
@@ -180,7 +181,7 @@ def restrict_system(system: GramSystem, basis: MonomialBasis, keep: np.ndarray
 
 
 def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray, codes: np.ndarray, *,
-               owned: list | None = None) -> np.ndarray:
+               owned: list | None = None, clusters: list | None = None) -> np.ndarray:
     """``(C, D, D)`` sandwich meat ``M_c = Σ_p (s_p - s̄)(s_p - s̄)ᵀ`` over every pixel of every view.
 
     ``s_p`` is pixel ``p``'s term of the gradient of the (cross-Gram) cost at ``rho``:
@@ -188,7 +189,8 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
     ``a_p``, ``b_p`` (at even spp, with ``γ_p = (a_p + b_p)/2``, ``d_p = (a_p - b_p)/2`` and
     ``r_p = γ_pᵀμ - y_p``: ``s_p = 2Jᵀ(γ_p r_p - d_p d_pᵀμ)``). Without halves (``b`` None)
     ``s_p = 2Jᵀa_p r_p``. ``s̄`` is their mean (0 at an interior
-    minimum of the unprojected cost).
+    minimum of the unprojected cost). With ``clusters`` the scores are summed within each cluster
+    first (the cluster-robust meat, :mod:`methods.symbolic.clusters`, with its CR1 correction).
 
     Parameters
     ----------
@@ -213,6 +215,9 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
         Per view a ``(n, D)`` sparse 0/1 matrix: each pixel's score kept on the parameters that
         own the pixel only (the per-segment fit's estimating equations,
         :mod:`methods.symbolic.per_segment`); None keeps every parameter (the joint cost).
+    clusters : list, optional
+        Per view the ``(n,)`` cluster id of each pixel (:func:`~methods.symbolic.clusters.cluster_ids`);
+        None: every pixel its own cluster (the pixel sandwich).
 
     Returns
     -------
@@ -226,23 +231,38 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
         mu[c, columns] = basis.evaluate(rho[:, c])
         Jc = basis.jacobian_sparse(rho[:, c]).tocoo()
         J.append(sp.csr_matrix((Jc.data, (columns[Jc.row], Jc.col)), shape=(len(codes), D)))
-    outer, total, n = np.zeros((C, D, D)), np.zeros((C, D)), 0
+    outer, total, n, groups = np.zeros((C, D, D)), np.zeros((C, D)), 0, 0
     for v, (view, y_view, *weights) in enumerate(views):
         n += view.n_rows
         start = 0
+        ids = None if clusters is None else np.asarray(clusters[v])
+        n_groups = view.n_rows if ids is None else int(ids.max()) + 1
+        groups += n_groups
+        sums = [None] * C           # the view's cluster sums of the scores, per channel
         # a tiled view: one block in memory at a time
         for coeffs, y, w_pix in row_blocks(view, y_view, weights[0] if weights else None):
             own = None if owned is None else owned[v][start:start + coeffs.n_rows]
+            for c, s in enumerate(_scores(coeffs, y, w_pix, mu, J, codes, own)):
+                total[c] += np.asarray(s.sum(axis=0)).ravel()
+                if ids is None:
+                    outer[c] += (s.T @ s).toarray()
+                    continue
+                rows = ids[start:start + coeffs.n_rows]
+                member = sp.csr_matrix((np.ones(len(rows)), (rows, np.arange(len(rows)))),
+                                       shape=(n_groups, len(rows)))
+                sums[c] = member @ s if sums[c] is None else sums[c] + member @ s
             start += coeffs.n_rows
-            _add_scores(outer, total, coeffs, y, w_pix, mu, J, codes, own)
-    return outer - np.einsum("ci,cj->cij", total, total) / max(n, 1)
+        for c in range(C):
+            if sums[c] is not None:
+                outer[c] += (sums[c].T @ sums[c]).toarray()
+    meat = outer - np.einsum("ci,cj->cij", total, total) / max(groups, 1)
+    return meat if clusters is None else cr1_factor(groups, n, D) * meat
 
 
-def _add_scores(outer, total, coeffs, y, w_pix, mu, J, codes, own=None) -> None:
-    """One block's pixels added to :func:`score_meat`'s ``outer`` (Σ s sᵀ) and ``total`` (Σ s)."""
-    C = len(coeffs.a)
+def _scores(coeffs, y, w_pix, mu, J, codes, own=None):
+    """Per channel, the ``(n, D)`` sparse scores ``s_p`` of one block's pixels (:func:`score_meat`)."""
     at = np.searchsorted(codes, coeffs.codes)                # the block's columns in ``codes``
-    for c in range(C):
+    for c in range(len(coeffs.a)):
         mu_v, J_v = mu[c, at], J[c][at]
         # sparse scores: a pixel's paths touch a few of the D parameters, so sᵀs costs
         # Σ_p nnz(s_p)² instead of pixels × D² (dense)
@@ -258,8 +278,7 @@ def _add_scores(outer, total, coeffs, y, w_pix, mu, J, codes, own=None) -> None:
             s = sp.diags(w_pix) @ s
         if own is not None:              # estimating equations: a pixel scores its owners only
             s = s.multiply(own).tocsr()
-        outer[c] += (s.T @ s).toarray()
-        total[c] += np.asarray(s.sum(axis=0)).ravel()
+        yield s.tocsr()
 
 
 def parameter_uncertainty(system: GramSystem, basis: MonomialBasis, rho: np.ndarray, *,
