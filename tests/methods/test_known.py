@@ -214,3 +214,12 @@ def test_known_guess_leaves_room_for_the_free_kernels():
               Parameter(2, 1, "wall", "diffuse")]
     x = known_guess(np.array([[0.5], [0.5], [0.5]]), params, scene)
     np.testing.assert_allclose(x, [[0.8], [0.2], [0.5]])
+
+
+def test_report_shows_a_known_weight_as_known():
+    """The run report's parameter table reads "known" in the Observable column of a known weight."""
+    from reports.run import parameter_rows
+    row = {"segment": "panel", "kernel": "diffuse", "estimate": [0.5], "reference": [0.5], "error": [0.0],
+           "std": [0.0], "observable": True, "ill_determined": False}
+    _, rows, _ = parameter_rows({"channels": ["Y"], "parameters": [dict(row, known=True), dict(row, segment="wall")]})
+    assert [r[2] for r in rows] == ["known", "yes"]
