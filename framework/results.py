@@ -155,8 +155,16 @@ def parameter_rows(problem: Problem, result: MethodResult) -> list[dict]:
             row["observable"] = observable
         if ill is not None:
             row["ill_determined"] = bool(ill[p.index])
+        if _known(problem.scene, p):
+            row["known"] = True          # held at scene.yaml's value: estimate = it, std 0
         rows.append(row)
     return rows
+
+
+def _known(scene, p) -> bool:
+    """Whether parameter ``p`` is a weight scene.yaml holds fixed (its segment's ``known``)."""
+    known = getattr(scene.segments[p.segment], "known", None) if 0 <= p.segment < len(scene.segments) else None
+    return bool(known) and p.kernel in known
 
 
 def used_pixels(problem: Problem, result: MethodResult, name: str) -> np.ndarray | None:

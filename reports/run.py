@@ -97,7 +97,7 @@ def parameter_rows(res: dict) -> tuple[list, list, list | None]:
                (kernel_label(p["kernel"]), kernel_label(p["kernel"], html=True))]
         previous = obj
         if has_obs:
-            row.append("no" if p.get("observable") is False else
+            row.append("known" if p.get("known") else "no" if p.get("observable") is False else
                        "ill-determined" if p.get("ill_determined") else "yes")
         cols = [as_list(p.get(k), nc) for k in ("reference", "estimate", "error", "std")]
         for c in range(nc):

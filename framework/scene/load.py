@@ -71,8 +71,9 @@ def load_scene(directory: str | os.PathLike, *, observations: bool = True) -> Sc
     model = read_model(root)
     _check_reference_view(spec, model)
     photos = read_photos(root, model.cameras, spec.channels, spec.photometry)
-    if observations and photos is None and not all(s.reference is not None and set(s.reference) == set(s.kernels)
-                                  for s in spec.segments):
+    # a known weight is its own reference (Scene.reference)
+    if observations and photos is None and not all(set(s.reference or {}) | set(s.known or {}) == set(s.kernels)
+                                                   for s in spec.segments):
         raise SceneError(f"{root}: no images/ folder and not every segment has a reference for each "
                          "kernel; add images/<view> (.exr, .png or .jpg) or references to scene.yaml")
     inputs = _inputs(root, spec, meshes, model.files, photos.files if photos is not None else ())

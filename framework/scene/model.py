@@ -182,12 +182,16 @@ class Scene:
 
         A kernel the parameter list leaves out of a segment does not change the others'
         references: the Lambertian setting compares ρ_d with the true ρ_d (paper Table 1).
+        A ``known`` weight is its own reference where ``reference`` does not give it (the
+        schema checks that they agree where both do).
         """
         ref = np.full((len(parameters), len(self.channels)), np.nan)
         for i, p in enumerate(parameters):
-            r = self.segments[p.segment].reference
-            if r is not None and p.kernel in r:
-                ref[i] = r[p.kernel]
+            seg = self.segments[p.segment]
+            for given in (seg.reference, seg.known):
+                if given is not None and p.kernel in given:
+                    ref[i] = given[p.kernel]
+                    break
         return ref
 
     def camera(self, name: str) -> Camera:

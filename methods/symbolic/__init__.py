@@ -20,6 +20,7 @@ from methods._common import Trace, initial_guess
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.field import FieldOptions
 from methods.symbolic.fit import images_at
+from methods.symbolic.known import known_guess, warn_unseen
 from methods.symbolic.options import SolverOptions, SymbolicOptions
 from methods.symbolic.outputs import method_result
 from methods.symbolic.refinement import render_pass, run_passes
@@ -49,6 +50,12 @@ class SymbolicMethod(Method):
     formula of ``std`` (``std_method``), the correlation of the observable parameters, and which
     parameters are ill-determined (std above 0.05 or NaN); docs/results.md lists every extra.
 
+    Known weights (scene.yaml ``known``, a calibration panel; :mod:`methods.symbolic.known`): the
+    pass renders them as variables at their values, the solve substitutes the values (they are
+    not parameters of the solve); they are reported with their value, std 0, ``"known": true``.
+    A known kernel outside ``method.kernels`` (``lambertian_prior``: a known specular) is left
+    out like that method's other kernels (weight 0 in its model).
+
     Limitations: kernel BRDFs only (paper section 4.3). The solve costs O(nnz(G)) per evaluation
     and O(D²) memory per Hessian. The PSD projection is exact on each connected component of G
     of at most :data:`~methods.symbolic.gram.PSD_BLOCK_LIMIT` monomials; larger components are
@@ -58,6 +65,8 @@ class SymbolicMethod(Method):
     """
 
     Options = SymbolicOptions
+    #: a segment's ``known`` weights are substituted in the solve (:mod:`methods.symbolic.known`)
+    survey = frozenset({"known"})
     kernels: tuple[str, ...] | None = None     # fixed by subclasses (lambertian_prior)
 
     @classmethod
@@ -80,12 +89,14 @@ class SymbolicMethod(Method):
 
     def check_problem(self, problem) -> None:
         FieldOptions.resolve(self.options, problem, boundaries=False)   # a reference view outside the views
+        warn_unseen(problem, self.parameters(problem))                  # a known segment no view sees
 
     def run(self, problem) -> MethodResult:
         t0 = time.perf_counter()
         params = self.parameters(problem)
         sub = dataclasses.replace(problem, parameters=params)
         x0, renders = initial_guess(self.options, sub, prior=_lambertian_prior)
+        x0 = known_guess(x0, params, problem.scene)           # a known weight starts at its value
         trace = Trace(t0)
         trace.record(renders, x0)
         passes = run_passes(sub, params, x0, self.options, renders=renders, trace=trace)
@@ -98,6 +109,7 @@ class SymbolicMethod(Method):
         index = {(p.segment, p.kernel): p.index for p in problem.parameters}
         sub = dataclasses.replace(problem, parameters=params)
         x0, _ = initial_guess(self.options, sub, prior=_lambertian_prior)
+        x0 = known_guess(x0, params, problem.scene)
         result = render_pass(sub, params, x0, self.options, seed=seed)
         basis = MonomialBasis(len(params), problem.settings.max_bounces, result.codes)
         return images_at(result, basis, rho[[index[(p.segment, p.kernel)] for p in params]], problem.cameras)

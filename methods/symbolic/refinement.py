@@ -21,6 +21,7 @@ from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.field import FieldOptions, fit_field
 from methods.symbolic.fit import Fit, images_at
 from methods.symbolic.joint import fit_joint
+from methods.symbolic.known import fit_with_known
 from methods.symbolic.options import SymbolicOptions
 from methods.symbolic.per_segment import fit_per_segment
 from methods.symbolic.polynomial_pass import polynomial_pass
@@ -107,11 +108,14 @@ def fit_pass(result, params, x0: np.ndarray, problem, options: SymbolicOptions, 
 
 def solve_system(system, basis, params, x0: np.ndarray, problem, options: SymbolicOptions, *, views,
                  groups) -> Fit:
-    """The fit of a summed system by the cost ``options.cost`` names."""
-    if options.cost == "per_segment":
-        return fit_per_segment(system, basis, params, x0, problem, views=views, groups=groups,
-                               xtol=options.solver.xtol_rel, psd=options.psd)
-    return fit_joint(system, basis, params, x0, problem, options, views=views, groups=groups)
+    """The fit of a summed system by the cost ``options.cost`` names, the known weights of the
+    scene substituted (:func:`~methods.symbolic.known.fit_with_known`)."""
+    def solve(system, basis, params, x0, problem, *, views, groups):
+        if options.cost == "per_segment":
+            return fit_per_segment(system, basis, params, x0, problem, views=views, groups=groups,
+                                   xtol=options.solver.xtol_rel, psd=options.psd)
+        return fit_joint(system, basis, params, x0, problem, options, views=views, groups=groups)
+    return fit_with_known(solve, system, basis, params, x0, problem, views=views, groups=groups)
 
 
 def carried(previous: Fit, fit: Fit) -> Fit:

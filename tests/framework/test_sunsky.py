@@ -213,9 +213,6 @@ REFUSED = [
     (lambda d: d["emitters"].append(dict(PARIS, sky_scale="unknown")),
      r"scene.yaml: emitter 2 \(sunsky\) sky_scale: unknown is not supported by method=symbolic yet; "
      r"give sky_scale as a number$"),
-    (lambda d: d["segments"][1].update(known={"diffuse": [0.3, 0.6, 0.5]}),
-     r"scene.yaml: segment 'block' known \(diffuse\) is not supported by method=symbolic yet; remove known "
-     r"\(give the values as the segment's reference to compare the estimates with them\)$"),
     (lambda d: d.update(photometry={"vignetting": "estimate"}),
      r"scene.yaml: photometry vignetting: estimate is not supported by method=symbolic yet; correct the "
      r"photographs for the lens falloff and set vignetting: none$"),
@@ -224,10 +221,11 @@ REFUSED = [
 ]
 
 
-@pytest.mark.parametrize("edit, match", REFUSED, ids=["scale", "sky_scale", "known", "estimate", "profile"])
+@pytest.mark.parametrize("edit, match", REFUSED, ids=["scale", "sky_scale", "estimate", "profile"])
 def test_methods_refuse_what_they_do_not_estimate_yet(tmp_path, edit, match):
     """Until estimation lands, a run refuses (before rendering anything) rather than take the
-    unknowns as absent."""
+    unknowns as absent (``known`` is estimated by the symbolic family and refused by the
+    baselines: tests/methods/test_known.py)."""
     root = make_tiny_scene(tmp_path / "s")
     edit_scene_yaml(root, edit)
     with pytest.raises(ConfigError, match=match) as info:
