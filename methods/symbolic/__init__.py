@@ -36,8 +36,9 @@ class SymbolicMethod(Method):
     ``method.cost=per_segment``), with no more rendering. By default the pass also traces
     ``render.tail_bounces`` reflections beyond N_max weighted by the guesses, and further passes
     are rendered at the estimate until it stops moving (:mod:`methods.symbolic.refinement`).
-    Field photographs (pixel weights, per-view exposure gains, robust reweighting) are fitted
-    from the same stored coefficients (:mod:`methods.symbolic.field`).
+    Field photographs (pixel weights, per-view exposure gains, a lens's vignetting, robust
+    reweighting) are fitted from the same stored coefficients (:mod:`methods.symbolic.field`,
+    :mod:`methods.symbolic.vignetting`).
 
     Options: :class:`~methods.symbolic.options.SymbolicOptions` (defaults in
     ``framework/conf/method/symbolic.yaml``; docs/cli.md's table is generated from it). Uses
@@ -59,6 +60,8 @@ class SymbolicMethod(Method):
 
     Options = SymbolicOptions
     kernels: tuple[str, ...] | None = None     # fixed by subclasses (lambertian_prior)
+    #: scene.yaml's ``photometry: vignetting`` is applied or estimated (:mod:`methods.symbolic.vignetting`)
+    survey = frozenset({"vignetting"})
 
     @classmethod
     def check_options(cls, options: SymbolicOptions) -> SymbolicOptions:
