@@ -1,6 +1,6 @@
-"""Field photographs in the symbolic fit: pixel weights, per-view exposure gains, robust IRLS.
+"""Field photographs in the symbolic fit: pixel weights, per-view exposure gains, vignetting, robust IRLS.
 
-All three act on the per-pixel coefficients the polynomial pass stored, never on a new render.
+All four act on the per-pixel coefficients the polynomial pass stored, never on a new render.
 
 Pixel weights
     A view's Gram system is rebuilt from its coefficients with weights ``w_p``
@@ -16,6 +16,11 @@ Per-view exposure (``photometry: exposure: per_view``)
     multiplied by ``h_v`` (:func:`with_gain`): the gains are solved jointly with ρ, exactly,
     and their standard errors come from the same sandwich as ρ's. The reference view's gains
     are 1 and fix the scale, which the data cannot (``g·L(ρ)`` = ``(g/s)·L(sρ)`` at first order).
+
+Vignetting (``photometry: vignetting``)
+    A known lens falloff multiplies each pixel's coefficients by its factor; an estimated one
+    adds three parameters per COLMAP camera, appended after the gains
+    (:mod:`methods.symbolic.vignetting`).
 
 Robust weights (``method.robust``)
     Iteratively reweighted least squares: after each solve, the residuals ``r_{p,c}`` of every
@@ -263,7 +268,6 @@ class _View:
     y: np.ndarray                # (n, C)
     scene_w: np.ndarray | None   # (n,)
     gain: int | None             # index of its gain parameter
-    lens: object = None          # its Camera when vignetting is applied
     robust_w: np.ndarray | None = None
 
     @property

@@ -95,8 +95,9 @@ def _coefficients(rng, n_rows, *, halves=True):
     D, N = 2, 2
     keys = np.array([0, 1, 2, 1 + 3 * 1, 1 + 3 * 2, 2 + 3 * 2])
     codes = np.unique(multiset_codes(keys, D, N))
-    mats = lambda: [sp.csr_matrix(rng.uniform(0, 1, (n_rows, len(codes))) * (rng.uniform(size=(n_rows, len(codes))) < 0.7))  # noqa: E731
-                    for _ in range(3)]
+    def mats():
+        shape = (n_rows, len(codes))
+        return [sp.csr_matrix(rng.uniform(0, 1, shape) * (rng.uniform(size=shape) < 0.7)) for _ in range(3)]
     return ViewCoefficients(mats(), mats() if halves else None, 0.5, codes), D, N
 
 
