@@ -161,9 +161,10 @@ def _camera(rec, image, cameras_file: Path) -> Camera:
     coefficients = params[len(MODEL_PARAMS[model]) - len(_distortion_names(model)):]
     _check_distortion(c, model, coefficients, what)
     if square and not any(coefficients):
-        return Camera(image.name, int(c.width), int(c.height), float(fx), cx, cy, T)
+        return Camera(image.name, int(c.width), int(c.height), float(fx), cx, cy, T, camera_id=int(image.camera_id))
     f = float(pinhole_for(c).focal_length_x)
-    return Camera(image.name, int(c.width), int(c.height), f, cx, cy, T, distortion=(model, params))
+    return Camera(image.name, int(c.width), int(c.height), f, cx, cy, T, distortion=(model, params),
+                  camera_id=int(image.camera_id))
 
 
 def article(word: str) -> str:

@@ -102,6 +102,9 @@ class Camera:
     #: its parameters in COLMAP's order), e.g. ``("OPENCV", (fx, fy, cx, cy, k1, k2, p1, p2))``;
     #: None for a pinhole camera with fx == fy (the photographs are used as they are)
     distortion: tuple[str, tuple[float, ...]] | None = None
+    #: the COLMAP camera id of ``cameras.txt`` this view uses (views sharing one share their lens:
+    #: one vignetting profile); None for a camera built without a COLMAP model
+    camera_id: int | None = field(default=None, compare=False)
 
     def project(self, points: np.ndarray) -> np.ndarray:
         """Pixel coordinates (x right, y down, pixel centres at .5) of world points (N, 3)."""

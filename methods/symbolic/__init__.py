@@ -37,8 +37,9 @@ class SymbolicMethod(Method):
     ``method.cost=per_segment``), with no more rendering. By default the pass also traces
     ``render.tail_bounces`` reflections beyond N_max weighted by the guesses, and further passes
     are rendered at the estimate until it stops moving (:mod:`methods.symbolic.refinement`).
-    Field photographs (pixel weights, per-view exposure gains, robust reweighting) are fitted
-    from the same stored coefficients (:mod:`methods.symbolic.field`).
+    Field photographs (pixel weights, per-view exposure gains, a lens's vignetting, robust
+    reweighting) are fitted from the same stored coefficients (:mod:`methods.symbolic.field`,
+    :mod:`methods.symbolic.vignetting`).
 
     Options: :class:`~methods.symbolic.options.SymbolicOptions` (defaults in
     ``framework/conf/method/symbolic.yaml``; docs/cli.md's table is generated from it). Uses
@@ -65,8 +66,9 @@ class SymbolicMethod(Method):
     """
 
     Options = SymbolicOptions
-    #: a segment's ``known`` weights are substituted in the solve (:mod:`methods.symbolic.known`)
-    survey = frozenset({"known"})
+    #: a segment's ``known`` weights are substituted in the solve (:mod:`methods.symbolic.known`);
+    #: scene.yaml's ``photometry: vignetting`` is applied or estimated (:mod:`methods.symbolic.vignetting`)
+    survey = frozenset({"known", "vignetting"})
     kernels: tuple[str, ...] | None = None     # fixed by subclasses (lambertian_prior)
 
     @classmethod

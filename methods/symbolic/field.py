@@ -1,6 +1,6 @@
-"""Field photographs in the symbolic fit: pixel weights, per-view exposure gains, robust IRLS.
+"""Field photographs in the symbolic fit: pixel weights, per-view exposure gains, vignetting, robust IRLS.
 
-All three act on the per-pixel coefficients the polynomial pass stored, never on a new render.
+All four act on the per-pixel coefficients the polynomial pass stored, never on a new render.
 
 Pixel weights
     A view's Gram system is rebuilt from its coefficients with weights ``w_p``
@@ -16,6 +16,11 @@ Per-view exposure (``photometry: exposure: per_view``)
     multiplied by ``h_v`` (:func:`with_gain`): the gains are solved jointly with ρ, exactly,
     and their standard errors come from the same sandwich as ρ's. The reference view's gains
     are 1 and fix the scale, which the data cannot (``g·L(ρ)`` = ``(g/s)·L(sρ)`` at first order).
+
+Vignetting (``photometry: vignetting``)
+    A known lens falloff multiplies each pixel's coefficients by its factor; an estimated one
+    adds three parameters per COLMAP camera, appended after the gains
+    (:mod:`methods.symbolic.vignetting`).
 
 Robust weights (``method.robust``)
     Iteratively reweighted least squares: after each solve, the residuals ``r_{p,c}`` of every
@@ -42,6 +47,7 @@ from methods.symbolic.fit import Fit
 from methods.symbolic.gram import weighted_system
 from methods.symbolic.options import ROBUST_LOSSES, SymbolicOptions
 from methods.symbolic.coefficients import TiledCoefficients, ViewCoefficients, predicted
+from methods.symbolic.vignetting import Vignetting
 
 #: ``segment_name`` of a view's gain parameter: this prefix, then the view's name
 GAIN_PREFIX = "exposure:"
@@ -163,6 +169,9 @@ class FieldOptions:
         Cap on the IRLS rounds (solves); 1 without robust weights.
     tol : float
         IRLS stops when no estimate (ρ or gain) moves more than this between two rounds.
+    vignetting : str
+        scene.yaml ``photometry: vignetting``: ``none``, ``known`` or ``estimate``
+        (:mod:`methods.symbolic.vignetting`).
     """
 
     weights: dict | None
@@ -171,10 +180,12 @@ class FieldOptions:
     robust: str
     iterations: int
     tol: float
+    vignetting: str = "none"
 
     @property
     def active(self) -> bool:
-        return self.weights is not None or self.reference is not None or self.robust != "none"
+        return (self.weights is not None or self.reference is not None or self.robust != "none"
+                or self.vignetting != "none")
 
     @classmethod
     def resolve(cls, options: SymbolicOptions, problem, *, boundaries: bool = True) -> "FieldOptions":
@@ -206,14 +217,15 @@ class FieldOptions:
         if robust == "auto":
             robust = "cauchy" if (weights is not None or per_view or noise) else "none"
         iterations = options.irls.iterations if robust != "none" else 1
-        return cls(weights, floors, reference, robust, iterations, options.irls.tol)
+        vignetting = photometry.vignetting if photometry is not None else "none"
+        return cls(weights, floors, reference, robust, iterations, options.irls.tol, vignetting)
 
     def describe(self, fit: Fit) -> dict:
         """``extras["field"]``: what the fit did (JSON-able)."""
         return {"exposure": "per_view" if self.reference is not None else "known",
                 "reference_view": self.reference, "robust": self.robust,
                 "scene_weights": self.weights is not None, "irls_rounds": fit.irls_rounds,
-                "irls_stopped": fit.irls_stopped}
+                "irls_stopped": fit.irls_stopped, "vignetting": self.vignetting}
 
 
 def _boundary_width(value: int | str, problem) -> int:
@@ -266,19 +278,24 @@ class _View:
 
 
 def field_views(result, problem, params, x0: np.ndarray, options: FieldOptions
-                ) -> tuple[list[_View], list, np.ndarray]:
-    """The views of the fit over ``(ρ, h)``, the gain parameters and the extended start.
+                ) -> tuple[list[_View], list, np.ndarray, Vignetting | None]:
+    """The views of the fit over ``(ρ, h)``, the gain and profile parameters and the extended start.
 
-    Returns ``(views, gain_parameters, x0)``: one :class:`_View` per camera; a
+    Returns ``(views, extra_parameters, x0, vignetting)``: one :class:`_View` per camera; a
     :class:`~framework.scene.model.Parameter` per gain (``segment`` -1 - j, kernel ``gain``,
-    ``segment_name`` ``exposure:<view>``); ``x0`` with each view's gain guess
-    (:func:`gain_guess` at ``x0``, over ``GAIN_MAX``) appended.
+    ``segment_name`` ``exposure:<view>``), then per lens the three profile parameters with
+    ``vignetting: estimate`` (:meth:`Vignetting.parameters`); ``x0`` with each view's gain guess
+    (:func:`gain_guess` at ``x0``, over ``GAIN_MAX``) and the profiles' start (no falloff)
+    appended; the run's :class:`~methods.symbolic.vignetting.Vignetting` (None without).
     """
     from framework.scene.model import Parameter
     from methods.symbolic.basis import MonomialBasis
     P, N, C = len(params), problem.settings.max_bounces, problem.n_channels
     gained = [c.name for c in problem.cameras if options.reference is not None and c.name != options.reference]
     gains = [Parameter(P + j, -1 - j, GAIN_PREFIX + name, "gain") for j, name in enumerate(gained)]
+    lens = Vignetting.of(problem.scene.photometry, problem.cameras, first=P + len(gained)) \
+        if options.vignetting != "none" else None
+    extra = gains + (lens.parameters() if lens is not None else [])
     base = MonomialBasis(P, N, result.codes)
     mu0 = np.stack([base.evaluate(x0[:, c]) for c in range(C)])
     views, h0 = [], []
@@ -287,12 +304,17 @@ def field_views(result, problem, params, x0: np.ndarray, options: FieldOptions
         y = np.asarray(problem.observed[cam.name], np.float64).reshape(-1, C)
         w = options.weights.get(cam.name) if options.weights is not None else None
         gain = P + gained.index(cam.name) if cam.name in gained else None
+        if lens is not None and lens.mode == "known":      # before the gain guess: the gain of V·L
+            coeffs = lens.apply(coeffs, cam, n_params=P, max_degree=N)
         if gain is not None:
             h0.append(gain_guess(coeffs, y, w, mu0, result.codes) / GAIN_MAX)
-        if gained:
-            coeffs = with_gain(coeffs, n_params=P, max_degree=N, n_total=P + len(gained), gain=gain)
+        if extra:
+            coeffs = with_gain(coeffs, n_params=P, max_degree=N, n_total=P + len(extra), gain=gain)
+        if lens is not None and lens.mode == "estimate":
+            coeffs = lens.apply(coeffs, cam, n_params=P + len(extra), max_degree=N + (gain is not None))
         views.append(_View(cam.name, (cam.height, cam.width), coeffs, y, w, gain))
-    return views, gains, np.vstack([x0] + [h[None] for h in h0]) if h0 else x0
+    starts = [x0] + [h[None] for h in h0] + ([lens.start(C)] if lens is not None and lens.n_parameters else [])
+    return views, extra, np.vstack(starts), lens
 
 
 def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, solve, *,
@@ -312,12 +334,13 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
     from methods._common import segment_groups
     from methods.symbolic.basis import MonomialBasis
     P, C = len(params), problem.n_channels
-    views, gains, x = field_views(result, problem, params, x0, options)
+    views, extra, x, lens = field_views(result, problem, params, x0, options)
+    gains = [p for p in extra if p.kernel == "gain"]
     if start and options.robust != "none":
         for v in views:
             v.robust_w = start.get(v.name)
-    every = list(params) + gains
-    degree = problem.settings.max_bounces + (1 if gains else 0)
+    every = list(params) + extra
+    degree = problem.settings.max_bounces + (1 if gains else 0) + (1 if lens is not None and lens.n_parameters else 0)
     iterates, stopped, fit = [], "single solve", None
     for round_ in range(options.iterations):
         system = reduce(operator.iadd, (weighted_system(v.coeffs, v.y, v.weights) for v in views))
@@ -339,7 +362,8 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
             keep = np.ones(len(v.y), bool) if v.scene_w is None else v.scene_w > 0
             v.robust_w = robust_weights(predicted(v.coeffs, mu, system.codes) - v.y, keep, loss=options.robust,
                                         floor=options.floors.get(v.name, 0.0))
-    return _field_outputs(fit, views, used, basis, system, gains, P, C, round_ + 1, stopped, iterates)
+    out = _field_outputs(fit, views, used, basis, system, gains, P, C, round_ + 1, stopped, iterates)
+    return out if lens is None else out.replace(vignetting=lens.report(fit.estimate, fit.std, fit.correlation))
 
 
 def _field_outputs(fit: Fit, views, used, basis, system, gains, P, C, rounds, stopped, iterates) -> Fit:

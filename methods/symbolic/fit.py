@@ -49,6 +49,9 @@ class Fit:
         ``method.cost=per_segment``: sweeps, converged, held_at_guess.
     exposure : list or None
         The field path with per-view gains: results.json ``exposure``.
+    vignetting : list or None
+        The field path with ``photometry: vignetting``: results.json ``vignetting``
+        (:meth:`~methods.symbolic.vignetting.Vignetting.report`).
     pixel_weights, robust_weights : dict or None
         The field path: view -> ``(H, W)`` weights of the last solve; view -> the robust weights
         after the last round (a refinement pass starts from them).
@@ -76,6 +79,7 @@ class Fit:
     images: Callable[[], dict] = field(default=dict, repr=False)
     per_segment: dict | None = None
     exposure: list | None = None
+    vignetting: list | None = None
     pixel_weights: dict | None = None
     robust_weights: dict | None = None
     irls_rounds: int | None = None

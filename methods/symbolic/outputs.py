@@ -41,6 +41,8 @@ def method_result(passes: Passes, problem, params, guess: np.ndarray, options: S
         extras["field"] = passes.field.describe(fit)
     if fit.exposure is not None:
         extras["exposure"] = fit.exposure
+    if fit.vignetting is not None:
+        extras["vignetting"] = fit.vignetting
     timings = {"render": passes.render_s, "solve": passes.solve_s}
     if options.relight.enabled:
         t = time.perf_counter()

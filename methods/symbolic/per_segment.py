@@ -49,6 +49,7 @@ from framework.render.checks import check_memory
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.fit import Fit
 from methods.symbolic.field import GAIN_PREFIX
+from methods.symbolic.vignetting import VIGNETTING_PREFIX, lens_key
 from methods.symbolic.gram import owned_systems, summed
 from methods.symbolic.solve import ChannelCost, SolveResult
 from methods.symbolic.uncertainty import (correlation_extra, estimating_uncertainty, observable_parameters,
@@ -63,23 +64,29 @@ MAX_SWEEPS = 200
 def ownership(problem, params) -> list[sp.csr_matrix]:
     """Per view (``problem.cameras`` order) the ``(pixels, D)`` 0/1 matrix: pixel ``p`` is owned
     by parameter ``j`` (its segment is seen through the pixel's centre, or ``j`` is the gain of
-    the pixel's view)."""
+    the pixel's view or a vignetting coefficient of its lens)."""
     from framework.render.mitsuba_scene import segment_maps
     maps = segment_maps(problem.scene, problem.cameras)
     out = []
     for cam in problem.cameras:
         seen = maps[cam.name].ravel()
         columns = [seen == p.segment if p.segment >= 0 else
-                   np.full(seen.shape, p.segment_name == GAIN_PREFIX + cam.name) for p in params]
+                   np.full(seen.shape, p.segment_name in (GAIN_PREFIX + cam.name, VIGNETTING_PREFIX + lens_key(cam)))
+                   for p in params]
         out.append(sp.csr_matrix(np.stack(columns, axis=1).astype(np.float64)))
     return out
 
 
 def parameter_blocks(params, groups: list[list[int]]) -> list[list[int]]:
-    """The blocks of the fit: the ``groups`` (a segment's kernels), then every parameter in
-    none of them (a view's gain) alone."""
+    """The blocks of the fit: the ``groups`` (a segment's kernels), then the parameters in none
+    of them by ``segment_name`` (a view's gain alone, a lens's three vignetting coefficients
+    together: solved one at a time, these strongly correlated coefficients took the 200 sweeps)."""
     grouped = {j for g in groups for j in g}
-    return [list(g) for g in groups if g] + [[j] for j in range(len(params)) if j not in grouped]
+    rest: dict[str, list[int]] = {}
+    for j in range(len(params)):
+        if j not in grouped:
+            rest.setdefault(params[j].segment_name, []).append(j)
+    return [list(g) for g in groups if g] + list(rest.values())
 
 
 def block_systems(views, owned: list[sp.csr_matrix], blocks: list[list[int]]) -> list:

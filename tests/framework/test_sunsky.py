@@ -8,7 +8,8 @@
   with its scene.yaml index and part; a place-and-time sunsky renders like the same sunsky given
   by ``sun_direction``; ``north`` turns the sun and the sky about the vertical.
 * ``scale: unknown``, ``known`` and ``photometry vignetting`` are parsed into the model, and the
-  methods, which do not estimate them yet, refuse them with one line.
+  methods that do not treat them refuse them with one line (vignetting: the baselines only, see
+  tests/methods/test_vignetting.py).
 * Bad input: one line each.
 """
 from __future__ import annotations
@@ -213,15 +214,11 @@ REFUSED = [
     (lambda d: d["emitters"].append(dict(PARIS, sky_scale="unknown")),
      r"scene.yaml: emitter 2 \(sunsky\) sky_scale: unknown is not supported by method=symbolic yet; "
      r"give sky_scale as a number$"),
-    (lambda d: d.update(photometry={"vignetting": "estimate"}),
-     r"scene.yaml: photometry vignetting: estimate is not supported by method=symbolic yet; correct the "
-     r"photographs for the lens falloff and set vignetting: none$"),
-    (lambda d: d.update(photometry={"vignetting": [-0.3, 0, 0]}),
-     r"scene.yaml: photometry vignetting: \[a1, a2, a3\] is not supported by method=symbolic yet"),
 ]
+# vignetting: the symbolic family models it; the baselines' refusal is in tests/methods/test_vignetting.py
 
 
-@pytest.mark.parametrize("edit, match", REFUSED, ids=["scale", "sky_scale", "estimate", "profile"])
+@pytest.mark.parametrize("edit, match", REFUSED, ids=["scale", "sky_scale"])
 def test_methods_refuse_what_they_do_not_estimate_yet(tmp_path, edit, match):
     """Until estimation lands, a run refuses (before rendering anything) rather than take the
     unknowns as absent (``known`` is estimated by the symbolic family and refused by the
