@@ -22,6 +22,9 @@ photographs: distorted cameras, 8-bit sRGB JPEGs, per-view exposure, masks):
 
 The true gains, camera parameters, objects and clip counts are in ``truth.yaml`` (the loader
 ignores it); ``README.md`` lists the alterations. Deterministic for a given ``seed``.
+
+One file above the project's ~450 lines on purpose: it is one scene's recipe (cameras, objects,
+photometry, truth and README), whose steps and the README it writes are read and changed together.
 """
 from __future__ import annotations
 
