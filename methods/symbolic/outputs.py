@@ -13,16 +13,11 @@ from methods.symbolic.options import SymbolicOptions
 from methods.symbolic.refinement import Passes
 from methods.symbolic.uncertainty import ill_determined
 
-#: results.json ``solve_stages_s`` keeps the solver's seconds under its former key too, for a release
-STAGE_ALIASES = {"solver": "nlopt"}
-
-
 def method_result(passes: Passes, problem, params, guess: np.ndarray, options: SymbolicOptions, *,
                   started: float, trace: Trace) -> MethodResult:
     """The run's result from its passes; relit images when ``options.relight.enabled``."""
     fit, sol = passes.fit, passes.fit.solve
     stages = dict(passes.stages_s)
-    stages.update({alias: stages[key] for key, alias in STAGE_ALIASES.items() if key in stages})
     extras = {"n_monomials": fit.n_monomials, "gram_nnz": fit.gram_nnz,
               "parameter_blocks": len(sol.blocks) if sol else 0, "psd_skipped_components": list(fit.psd_skipped),
               "solver_evaluations": sol.n_evals if sol else 0,
