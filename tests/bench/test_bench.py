@@ -1,6 +1,8 @@
 """Smoke test of the benchmark code paths (``python -m bench``) at toy size."""
 from __future__ import annotations
 
+import pytest
+
 import dataclasses
 
 from bench import markdown, render_ratio
@@ -28,6 +30,7 @@ def test_error_stats_skip_unobservable():
     assert error_stats(res) == (0.02, 0.02)
 
 
+@pytest.mark.slow
 def test_ratio_and_memory_on_tiny_scene(tiny_scene, tmp_path):
     """The pass-vs-render measurement and the memory wrapper run on a 16x16 scene."""
     cfg = compose([f"scene.dir={tiny_scene}", "views=all", "observe.spp=4", f"cache.dir={tmp_path / 'c'}",

@@ -63,6 +63,7 @@ def _tree_digest(root: Path) -> str:
     return h.hexdigest()
 
 
+@pytest.mark.slow
 def test_cli_bad_scene_errors(tiny_scene, tmp_path):
     """One line naming the file, exit 2, no results.json, the user's folder untouched."""
     (tiny_scene / "meshes/block.ply").unlink()
@@ -76,6 +77,7 @@ def test_cli_bad_scene_errors(tiny_scene, tmp_path):
     assert _tree_digest(tiny_scene) == before
 
 
+@pytest.mark.slow
 def test_cli_bad_setting_errors(tiny_scene, tmp_path):
     proc = _cli([f"scene.dir={tiny_scene}", "render.max_bounces=0", f"hydra.run.dir={tmp_path / 'r'}"], tmp_path)
     assert proc.returncode == 2
@@ -84,6 +86,7 @@ def test_cli_bad_setting_errors(tiny_scene, tmp_path):
     assert proc.returncode == 2 and "variant=llvm_ad_foo is not a Mitsuba variant" in proc.stderr
 
 
+@pytest.mark.slow
 def test_cli_run_writes_run_folder(tiny_scene, tmp_path):
     """`python -m framework.run` end to end: results.json, report.md and report.html."""
     proc = _cli(["method=symbolic", f"scene.dir={tiny_scene}", f"cache.dir={tmp_path / 'c'}",
@@ -95,6 +98,7 @@ def test_cli_run_writes_run_folder(tiny_scene, tmp_path):
         assert (runs[0] / name).is_file(), name
 
 
+@pytest.mark.slow
 def test_rgb_then_mono_scene_in_one_process(tmp_path):
     """Plugins are per Mitsuba variant: an rgb and a mono symbolic run share one process."""
     for ch in ("rgb", "mono", "rgb"):

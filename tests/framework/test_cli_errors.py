@@ -111,6 +111,7 @@ def test_scene_dependent_errors(tmp_path):
 
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("override", ["views=[]", "method=nonsense", "scene.dir=/tmp/ü"])
 def test_cli_prints_one_line(override, tiny_scene, tmp_path):
     """The command line itself: the preflight line, status 2, no run folder at all."""
@@ -127,6 +128,7 @@ def _broken_scene(root: Path) -> Path:
     return scene
 
 
+@pytest.mark.slow
 def test_cli_failed_run_keeps_foreign_file(tmp_path):
     """A run folder holding someone's file is refused before anything runs; the file stays."""
     scene = _broken_scene(tmp_path / "broken")
@@ -140,6 +142,7 @@ def test_cli_failed_run_keeps_foreign_file(tmp_path):
     assert (tmp_path / "u" / "keep").read_text() == "mine"
 
 
+@pytest.mark.slow
 def test_cli_scene_folder_as_run_folder(tiny_scene, tmp_path):
     """``scene.dir=. hydra.run.dir=.`` inside a scene folder: refused, the scene untouched."""
     before = snapshot(tiny_scene)
@@ -149,6 +152,7 @@ def test_cli_scene_folder_as_run_folder(tiny_scene, tmp_path):
     assert snapshot(tiny_scene) == before
 
 
+@pytest.mark.slow
 def test_cli_earlier_run_refused(tiny_scene, tmp_path):
     """A folder holding an earlier run's results.json is not reused: that run stays as it was."""
     (tmp_path / "old").mkdir()
@@ -159,6 +163,7 @@ def test_cli_earlier_run_refused(tiny_scene, tmp_path):
     assert [p.name for p in (tmp_path / "old").iterdir()] == ["results.json"]
 
 
+@pytest.mark.slow
 def test_cli_failed_run_in_empty_folder(tmp_path):
     """A run that fails in a folder that existed (empty) removes what it wrote, not the folder."""
     scene = _broken_scene(tmp_path / "broken")
@@ -168,6 +173,7 @@ def test_cli_failed_run_in_empty_folder(tmp_path):
     assert list((tmp_path / "empty").iterdir()) == []
 
 
+@pytest.mark.slow
 def test_cli_interrupt(tiny_scene, tmp_path):
     """Ctrl-C while the method renders: ``interrupted`` (no traceback), status 130, no results.json,
     and the run folder this run created removed."""

@@ -50,6 +50,7 @@ def _estimate(folder, seed: int):
     return names, np.asarray(result.estimate, float), np.asarray(result.std, float)
 
 
+@pytest.mark.slow
 def test_converted_match_hand_built(folders):
     runs = [_estimate(folders["hand"], s) for s in SEEDS]
     names = runs[0][0]

@@ -22,6 +22,7 @@ def _commands(marker: str) -> list[list[str]]:
     return [shlex.split(cmd) for cmd in block.replace("\\\n", " ").splitlines() if cmd.strip()]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("marker, printed", [
     ("walkthrough", "city-from-cityjson: 15 segments, 218 triangles, 4 views, origin [652340.000, 6862275.000, 35.000]"),
     ("walkthrough-obj", "city-from-obj: 15 segments, 370 triangles, 4 views, origin [652340.000, 6862275.000, 35.000]"),

@@ -19,6 +19,7 @@ def test_make_executor_defaults_and_errors():
         make_executor(OmegaConf.create({"name": "dask", "n_workers": 0}))
 
 
+@pytest.mark.slow
 def test_dask_local_cluster_equals_serial_and_fills_cache(tmp_path):
     """Two worker processes render the two views (same seeds per view): the estimates equal the
     serial run's within 1e-6 relative (only the summation order of the Gram systems may differ);

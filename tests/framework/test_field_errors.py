@@ -192,6 +192,7 @@ def _cli_error(scene: Path, tmp_path: Path) -> str:
     return lines[0]
 
 
+@pytest.mark.slow
 def test_cli_fisheye_camera(tiny_scene, tmp_path):
     _camera_line(tiny_scene, 1, "OPENCV_FISHEYE 16 16 13.8 13.8 8 8 0.1 0.01 0 0")
     assert _cli_error(tiny_scene, tmp_path) == (
@@ -200,6 +201,7 @@ def test_cli_fisheye_camera(tiny_scene, tmp_path):
         "or OPENCV")
 
 
+@pytest.mark.slow
 def test_cli_undecodable_image(tiny_scene, tmp_path):
     _photos(tiny_scene)
     (tiny_scene / "images/view_0.png").write_bytes(b"GIF89a broken")
@@ -208,6 +210,7 @@ def test_cli_undecodable_image(tiny_scene, tmp_path):
         "re-export it as PNG or JPEG")
 
 
+@pytest.mark.slow
 def test_cli_unknown_encoding(tiny_scene, tmp_path):
     edit_scene_yaml(tiny_scene, lambda d: d.update(photometry={"encoding": "log"}))
     assert _cli_error(tiny_scene, tmp_path).startswith(

@@ -218,6 +218,7 @@ def _chain_weights(high: Camera, delivered, pinhole, valid: np.ndarray) -> np.nd
     return alpha
 
 
+@pytest.mark.slow
 def test_undistorted_photo_equals_the_pinhole_render(tmp_path):
     """An OPENCV photograph (fx != fy) synthesised from a render at twice the resolution, written
     as a 16-bit sRGB PNG and loaded, equals a direct render of the loaded pinhole camera.

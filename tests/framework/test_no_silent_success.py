@@ -63,6 +63,7 @@ def test_view_without_usable_pixel_is_an_error(tiny_scene, case):
                                "(views=...)")
 
 
+@pytest.mark.slow
 def test_view_without_usable_pixel_is_left_out(tiny_scene, tmp_path, caplog):
     """With another usable view: a warning, the view left out of the fit and named in
     results.json ``views_left_out``; the estimates come from the other view."""
@@ -81,6 +82,7 @@ def test_view_without_usable_pixel_is_left_out(tiny_scene, tmp_path, caplog):
     assert results["settings"]["views"] == ["view_1.png"]
 
 
+@pytest.mark.slow
 def test_sky_only_view_one_rule(tmp_path):
     """A view whose usable pixels see only sky: the same for photographs (its segment pixels
     masked) as for synthetic observations of a camera facing the sky. Alone: the same error
@@ -207,6 +209,7 @@ def test_image_rmse_counts_used_pixels_only():
 # 7, 8, 9. Tracebacks: executor address, run-folder path length, image name length
 # ----------------------------------------------------------------------------------------------
 
+@pytest.mark.slow
 @pytest.mark.parametrize("address, message", [
     ("garbage", "executor.address=garbage is not a scheduler address: write tcp://host:port (the scheduler's "
                 "address, port 8786 by default), or executor.address=null"),
@@ -221,6 +224,7 @@ def test_executor_address_form(tiny_scene, tmp_path, address, message):
     assert not (tmp_path / "run").exists()
 
 
+@pytest.mark.slow
 def test_run_folder_name_too_long(tiny_scene, tmp_path):
     """A part of 300 bytes: one line, and no folder created (was: three chained tracebacks and
     an empty parent folder)."""
@@ -235,6 +239,7 @@ def test_run_folder_name_too_long(tiny_scene, tmp_path):
     assert not (tmp_path / ("d" * 200)).exists()
 
 
+@pytest.mark.slow
 def test_image_name_too_long(tmp_path):
     """A 249-byte COLMAP image name: refused before anything is rendered (was: the run computed
     everything, then failed writing its images)."""
@@ -268,6 +273,7 @@ def test_article_before_camera_model():
 # 11, 12. Interrupted set-up, the cache folder a failed run created
 # ----------------------------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_interrupt_during_mitsuba_start(tiny_scene, tmp_path):
     """Ctrl-C while Mitsuba starts, which a library reports as an error: ``interrupted``, exit
     130 (was: "variant=llvm_ad_rgb cannot start on this machine", exit 2). The interrupt is
@@ -293,6 +299,7 @@ def test_interrupt_during_mitsuba_start(tiny_scene, tmp_path):
     assert not (tmp_path / "run").exists() and not (tmp_path / "cache").exists()
 
 
+@pytest.mark.slow
 def test_failed_run_removes_the_cache_folder_it_created(tmp_path):
     """A run that fails on a user error (a mesh missing) removes the cache folder it created,
     with its missing parents; a cache folder that existed stays."""

@@ -1,6 +1,8 @@
 """Relighting and reflectance images (framework.relight) on the tiny diffuse scene."""
 from __future__ import annotations
 
+import pytest
+
 import numpy as np
 from factory import edit_scene_yaml, make_problem, make_tiny_scene, mean_difference, run_symbolic
 
@@ -23,6 +25,7 @@ def test_relit_scene_replaces_illumination(tmp_path):
     assert new.content_hash != scene.content_hash and new.meshes == scene.meshes
 
 
+@pytest.mark.slow
 def test_relit_matches_path_render_of_relit_scene_folder(tmp_path):
     """At the true weights, relighting equals Mitsuba ``path`` on a scene folder written with the
     new sun. Both are Monte Carlo: 8 seeded repetitions at 16 spp each give per-pixel means and
@@ -71,6 +74,7 @@ def test_reflectance_image_is_segment_weight(tmp_path):
     assert (seg == 0).any() and (seg == 1).any()
 
 
+@pytest.mark.slow
 def test_symbolic_relight_option(tmp_path):
     """``method.relight.enabled`` puts ``<view>.relit`` and ``<view>.reflectance`` arrays into
     extras["relit_images"] and times them."""

@@ -60,6 +60,7 @@ AWAY = [[12, -10, 9], [-12, -10, 8]]      # up and away from the ground and the 
 CENTRE = [0, 0, 0.8]
 
 
+@pytest.mark.slow
 def test_unlit_scene_errors(tiny_scene):
     _emitters(tiny_scene, [{**SKY, "radiance": [0, 0, 0]}, {**SUN, "irradiance": [0, 0, 0]}])
     with pytest.raises(SceneError, match=r"scene.yaml: no emitter gives light \(every radiance, irradiance "
@@ -76,6 +77,7 @@ def test_unlit_scene_errors(tiny_scene):
         make_problem(tiny_scene)
 
 
+@pytest.mark.slow
 def test_blind_view_errors(tiny_scene, caplog):
     """Both views facing away: nothing to estimate, an error naming them. One view facing away:
     a warning, and the inversion runs on the other."""
@@ -91,6 +93,7 @@ def test_blind_view_errors(tiny_scene, caplog):
     assert np.isfinite(run_symbolic(problem).estimate).all()
 
 
+@pytest.mark.slow
 def test_blind_view_without_sky_still_inverts(tiny_scene):
     """Under a sun alone, a view facing away gets no event at all: the check only warns, so the
     pass must accept an empty tile (``EventBuffer.compact`` returns no event). One pass: under
@@ -118,6 +121,7 @@ def test_camera_pose_errors(tiny_scene):
         make_problem(tiny_scene)
 
 
+@pytest.mark.slow
 def test_memory_errors(tiny_scene, monkeypatch):
     """render.spp=4194304 used to crash the process: the smallest tile (64 pixels) would need
     64 x 4194304 samples x 3 events (N_max = 2) x 16 bytes x 3 copies = 36864 MiB. At 4096 spp
@@ -156,6 +160,7 @@ def test_dask_scheduler_errors():
         make_executor(OmegaConf.create({"name": "dask", "address": "tcp://127.0.0.1:1", "connect_timeout_s": 0}))
 
 
+@pytest.mark.slow
 def test_failed_render_leaves_whole_cache_entries(tmp_path, monkeypatch):
     """A pass that fails on its second view keeps the first view's entry (whole, loadable) and
     leaves nothing of the second; a write that fails leaves neither an entry nor a temporary file."""

@@ -76,6 +76,7 @@ def test_view_images_never_leave_the_run_folder(tmp_path):
     assert all(w.startswith("a/run/images/") for w in written)
 
 
+@pytest.mark.slow
 def test_view_name_with_subfolder_runs(tiny_scene, tmp_path):
     """A COLMAP image name with a sub-folder (left/view_1.png) gets its outputs below images/left/."""
     images_txt = tiny_scene / "sparse" / "images.txt"

@@ -177,6 +177,7 @@ def test_truncated_ply_prints_nothing_else(tiny_scene, capfd, keep, match):
     assert out == "" and err == ""
 
 
+@pytest.mark.slow
 def test_cli_prints_one_line_for_a_truncated_ply(tiny_scene, tmp_path):
     ply = tiny_scene / "meshes/block.ply"
     ply.write_bytes(ply.read_bytes()[:500])

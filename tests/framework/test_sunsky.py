@@ -230,6 +230,7 @@ def test_methods_refuse_what_they_do_not_estimate_yet(tmp_path, edit, match):
     assert "\n" not in str(info.value)
 
 
+@pytest.mark.slow
 def test_cli_refuses_unknown_scale_with_one_line(tmp_path):
     """The command line: ``error: <that line>``, exit status 2, no results.json."""
     import os

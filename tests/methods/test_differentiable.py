@@ -8,6 +8,7 @@ from factory import max_error, run_differentiable, tiny_problem
 from framework.errors import ConfigError
 
 
+@pytest.mark.slow
 def test_differentiable_recovers_diffuse(tmp_path):
     """16 spp, lr 0.02, budget 200 (99 iterations): |ρ - ρ_ref| <= 0.03.
 
@@ -43,6 +44,7 @@ def test_differentiable_two_views_gradient_direction(tmp_path):
     assert set(result.reconstructions) == {c.name for c in problem.cameras}
 
 
+@pytest.mark.slow
 def test_differentiable_specular_weights_move(tmp_path):
     """Dirac-lobe (mirror) weights get gradients (prb_dirac; Mitsuba's prb gives none): every
     channel of every specular weight leaves its guess in 3 Adam steps (each about lr = 0.02;

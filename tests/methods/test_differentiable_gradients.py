@@ -32,6 +32,7 @@ def gradients(tmp_path_factory):
     return (problem,) + ad_and_fd_gradients(problem, spp=SPP, rho=RHO, repeats=REPEATS, step=STEP)
 
 
+@pytest.mark.slow
 def test_gradient_matches_finite_differences(gradients):
     """Every weight and channel, diffuse and mirror kernels: |mean AD - mean FD| < 4 SE.
 

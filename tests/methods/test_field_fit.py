@@ -95,6 +95,7 @@ def test_per_view_gains_are_estimated_with_their_std(problem):
     assert abs(rec.mean() / _scaled(problem)[problem.cameras[1].name].mean() - 1) < 0.05
 
 
+@pytest.mark.slow
 def test_robust_weights_ignore_an_object_the_model_lacks(problem):
     """A bright 4x4 blob (a 'car') in view_0: the Cauchy fit stays within two standard errors of
     the Cauchy fit of the clean photographs and gives the blob weights < 0.05; the plain L2 fit
@@ -152,6 +153,7 @@ def test_field_errors(problem):
         run_symbolic(problem, robust="bisquare")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["iterative", "differentiable"])
 def test_baselines_ignore_masked_pixels(problem, method):
     """A baseline's cost leaves weight-0 pixels out (its first cost equal with and without

@@ -263,6 +263,7 @@ def glossy_gradients(tmp_path_factory):
     return (problem,) + ad_and_fd_gradients(problem, spp=SPP, rho=RHO, repeats=REPEATS, step=STEP)
 
 
+@pytest.mark.slow
 def test_glossy_gradient_matches_finite_differences(glossy_gradients):
     """Every weight and channel (ground diffuse, ground glossy(0.2), block diffuse): |mean AD -
     mean FD| < 4 SE (16 repetitions each at 64 spp, 16x16; SE sqrt(SE_AD² + SE_FD²) from the

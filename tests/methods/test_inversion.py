@@ -35,6 +35,7 @@ def small_canyon(tmp_path_factory):
                       views=["street_002.png", "street_003.png", "aerial_000.png"])
 
 
+@pytest.mark.slow
 def test_symbolic_recovers_cornell_box(tmp_path):
     """64x64, 64 spp, 512-spp observations: max |error| 0.020 at this seed; over seeds 0-5 it
     ranged 0.002-0.023 with mean errors within ±0.003 (no bias), hence the tolerance 0.03.
@@ -49,6 +50,7 @@ def test_symbolic_recovers_cornell_box(tmp_path):
     assert [p["estimate"] for p in again["parameters"]] == [p["estimate"] for p in r["parameters"]]
 
 
+@pytest.mark.slow
 def test_symbolic_recovers_small_urban_canyon(tmp_path, small_canyon):
     """Kernel setting (diffuse + specular, 12 parameters), 3 views of 48x48, 64 spp.
 
@@ -73,6 +75,7 @@ def test_symbolic_recovers_small_urban_canyon(tmp_path, small_canyon):
     assert max(abs(e) for e in roof_s[0]["error"]) < 0.6
 
 
+@pytest.mark.slow
 def test_lambertian_prior_on_small_urban_canyon(tmp_path, small_canyon):
     """The paper's Table 1 setting: segments without a specular part are recovered (max |error|
     measured over seeds 0-5, ``seed`` and ``observe.seed``: 0.005-0.012, seed 0: 0.009;
@@ -85,6 +88,7 @@ def test_lambertian_prior_on_small_urban_canyon(tmp_path, small_canyon):
     assert _errors(r, {"window"}).max() > 0.1
 
 
+@pytest.mark.slow
 def test_observations_rendered_once_and_cache_rebuilt_when_corrupt(tmp_path):
     """A second run reuses the observed images and the polynomial pass; a corrupt cache entry
     is detected (checksum) and rebuilt, never trusted. One pass (``method.refine=0``), so that
@@ -105,6 +109,7 @@ def test_observations_rendered_once_and_cache_rebuilt_when_corrupt(tmp_path):
     assert [p["estimate"] for p in third["parameters"]] == [p["estimate"] for p in first["parameters"]]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method,extra,tol", [
     ("iterative", ["method.noise=fixed", "budget.renders=120"], 0.1),
     ("differentiable", ["budget.renders=120", "render.spp=16", "method.lr=0.05"], 0.035),
@@ -125,6 +130,7 @@ def test_baselines_recover_cornell_box(tmp_path, method, extra, tol):
     assert _errors(r).max() < tol, _errors(r)
 
 
+@pytest.mark.slow
 def test_iterative_fresh_noise_spreads_more_than_symbolic(tmp_path):
     """The paper's claim (section 4.2): re-rendering with fresh noise at every evaluation makes
     the plain algorithm's estimates spread across seeds more than the symbolic method's.
@@ -141,6 +147,7 @@ def test_iterative_fresh_noise_spreads_more_than_symbolic(tmp_path):
     assert spread["iterative"] > 1.5 * spread["symbolic"], spread
 
 
+@pytest.mark.slow
 def test_lambertian_prior_init_is_no_worse_than_flat_guess(tmp_path, small_canyon):
     """method.init=lambertian_prior gives the kernel inversion at least the accuracy of a flat
     0.5 guess, in no more solver evaluations from that guess (the seeded random starts do not
@@ -159,6 +166,7 @@ def test_lambertian_prior_init_is_no_worse_than_flat_guess(tmp_path, small_canyo
     assert np.mean(evals["prior"]) <= np.mean(evals["flat"])
 
 
+@pytest.mark.slow
 def test_tail_and_refine_remove_the_truncation_bias(tmp_path, small_canyon):
     """Unbounded observations (all reflections): the paper's N_max = 3 truncation biases the
     facade weights (``method=symbolic_paper``); the default ``method=symbolic`` (light beyond
@@ -181,6 +189,7 @@ def test_tail_and_refine_remove_the_truncation_bias(tmp_path, small_canyon):
     assert np.mean(tail) <= 0.02, (tail, plain)
 
 
+@pytest.mark.slow
 def test_polynomial_matches_path_on_small_urban_canyon(small_canyon):
     """The polynomial at random ρ (far from its guesses, 0.5) equals Mitsuba's ``path`` image
     (max_depth = N_max + 1, box filter) at that ρ: per-segment means of 4 independent

@@ -18,6 +18,7 @@ def expected_renders(result, D: int) -> int:
     return n_grad * (D + 1) + (n_eval - n_grad) + 1
 
 
+@pytest.mark.slow
 def test_iterative_recovers_diffuse(tmp_path):
     """Fixed noise (common random numbers), forward FD, 64 spp: |ρ - ρ_ref| <= 0.05.
 

@@ -165,6 +165,7 @@ def test_per_segment_gains_come_back(problem):
     assert (np.abs(est / gains - 1) < 0.03).all()
 
 
+@pytest.mark.slow
 def test_per_segment_removes_the_lambertian_bias_on_the_street(tmp_path):
     """urban_canyon's default view at 64x64 (render.spp 32, observe.spp 256), Lambertian: the
     windows mirror sky and sun onto the street, which no diffuse weight reproduces. Measured

@@ -299,6 +299,7 @@ def test_config_errors():
         PolynomialPathIntegrator.create([], [[("glossy", 0)]], 1, np.ones((1, 3)))
 
 
+@pytest.mark.slow
 def test_mono_variant_in_subprocess():
     """llvm_ad_mono (C = 1): the exact mirror-plane case, in a fresh process (a Mitsuba class is
     bound to the variant active when its module is imported)."""

@@ -149,6 +149,7 @@ def _tight_memory(need, what, fix):
         checks.available_memory_bytes = original
 
 
+@pytest.mark.slow
 def test_symbolic_run_on_18_materials_at_three_bounces(tmp_path):
     """K = 2 street (18 materials, D = 36) at N_max = 3, 32 x 32, 4 spp: the full basis would have
     C(39, 3) = 9139 monomials (a dense G of 3 x 9139² floats); the occurring ones run in seconds.
@@ -204,6 +205,7 @@ def test_a_segment_constraint_joins_its_weights():
     assert [b.tolist() for b in S.parameter_blocks(system, basis, [[0, 1, 2, 3]])] == [[0, 1, 2, 3]]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("where", ["serial", "dask"])
 def test_blocks_as_executor_tasks_give_the_same_minimiser(where):
     """Each (channel, block) solved as a task of an executor (in process, or on 2 Dask workers)

@@ -71,6 +71,7 @@ def _stats(z: np.ndarray) -> tuple[float, float]:
     return float(np.sqrt(np.mean(finite ** 2))), float(np.mean(np.abs(z) < 2))
 
 
+@pytest.mark.slow
 def test_sandwich_std_is_calibrated(z_values):
     """Sandwich: RMS z in [0.7, 1.5] and |z| < 2 for at least 90 % (measured 0.95 and 95.8 %)."""
     z = z_values["sandwich"]
@@ -88,6 +89,7 @@ def test_residual_std_fails_calibration(z_values):
     assert inside < 0.5, inside
 
 
+@pytest.mark.slow
 def test_sandwich_matches_spread_of_noisy_coefficients():
     """Linear pixels (N_max = 1) y_p = γ_p·μ(ρ) + e_p whose coefficients are known only through
     two independent noisy halves a_p, b_p (noise 0.15 each, image noise 0.02): the cross-Gram

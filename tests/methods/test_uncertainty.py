@@ -7,6 +7,8 @@ extra camera ``view_9`` below the ground looks up at it.
 """
 from __future__ import annotations
 
+import pytest
+
 from pathlib import Path
 
 import numpy as np
@@ -142,6 +144,7 @@ def test_joint_inversion_equals_solve_of_summed_gram_systems(tmp_path):
     assert not np.allclose(single.estimate, sol.estimate, atol=1e-6)     # the second view matters
 
 
+@pytest.mark.slow
 def test_hidden_segment_is_unobservable_and_a_view_makes_it_observable(tmp_path):
     """Views 0 and 1 never see ``pit``: observable False, estimate and std NaN, correlation
     labels without it, and ground/block recovered within 0.04 of the reference (64 spp

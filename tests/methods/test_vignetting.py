@@ -242,6 +242,7 @@ def test_estimated_profile(photographed):
         assert np.abs(ratio / expected - 1).max() <= 3 * entry["corner_std"] + 0.01     # measured 0.0073
 
 
+@pytest.mark.slow
 def test_estimated_profile_with_exposure_gains_and_per_segment(photographed):
     """Composed with per-view exposure (view 1 photographed with gains 1.5, 0.8, 1.2; robust
     off: its Cauchy weights bias this noiseless tiny scene by 0.04 with or without vignetting)

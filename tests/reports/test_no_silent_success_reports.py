@@ -22,6 +22,7 @@ def _edit(run: Path, fn) -> Path:
     return run
 
 
+@pytest.mark.slow
 def test_scenes_sharing_a_name_are_compared_apart(tmp_path):
     """Two scene folders named ``courtyard``, told apart by their content hash: two groups, each
     with its own reference column, and a note naming the shared name (was: one group, errors
@@ -80,6 +81,7 @@ def _row(text: str, method: str) -> list[str]:
     return [c.strip() for c in line.strip("|").split("|")]
 
 
+@pytest.mark.slow
 def test_time_ratio_leaves_out_compilation(tmp_path):
     """The first symbolic run pays 2.5 s of compilation and 0.25 s of observations (3.75 s total,
     1.0 s of work), the second 0.25 s of compilation (1.25 s total, 1.0 s of work): against a

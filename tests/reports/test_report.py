@@ -1,3 +1,4 @@
+import pytest
 """reports: per-run report and comparison content, from fake run folders."""
 import json
 import re
@@ -77,6 +78,7 @@ def test_report_200px_single_view(tmp_path):
     assert "report_files/" in md.read_text()
 
 
+@pytest.mark.slow
 def test_comparison_numbers(fake_sweep, capsys):
     assert main([str(fake_sweep)]) == 0
     md = (fake_sweep / "comparison.md").read_text()
@@ -95,6 +97,7 @@ def test_comparison_numbers(fake_sweep, capsys):
     assert "comparison.md" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_comparison_of_run_dirs_with_out(fake_sweep, tmp_path):
     runs = [fake_sweep / "symbolic_seed0", fake_sweep / "iterative_seed2"]
     md_path, html_path = write_comparison(runs, out=tmp_path / "cmp")
@@ -104,6 +107,7 @@ def test_comparison_of_run_dirs_with_out(fake_sweep, tmp_path):
     assert "(../sweep/symbolic_seed0/report.html)" in md
 
 
+@pytest.mark.slow
 def test_default_out_is_common_parent(fake_sweep):
     runs = [str(fake_sweep / "symbolic_seed0"), str(fake_sweep / "symbolic_seed1")]
     assert main(runs) == 0

@@ -65,6 +65,7 @@ def _count(html_path: Path, pattern: str) -> int:
     return len(re.findall(pattern, html_path.read_text()))
 
 
+@pytest.mark.slow
 def test_run_report_in_browser(tmp_path):
     run = make_fake_run(tmp_path / "run", seed=0)
     _, html_path = write_run_report(run)
@@ -75,6 +76,7 @@ def test_run_report_in_browser(tmp_path):
     _screenshot(html_path, "run_report.png", tmp_path)
 
 
+@pytest.mark.slow
 def test_comparison_in_browser(fake_sweep, tmp_path):
     assert main([str(fake_sweep)]) == 0
     html_path = fake_sweep / "comparison.html"
@@ -85,6 +87,7 @@ def test_comparison_in_browser(fake_sweep, tmp_path):
     _screenshot(html_path, "comparison.png", tmp_path)
 
 
+@pytest.mark.slow
 def test_browser_check_catches_a_broken_image(tmp_path):
     run = make_fake_run(tmp_path / "run", correlation=False)
     _, html_path = write_run_report(run)

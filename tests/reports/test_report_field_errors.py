@@ -35,6 +35,7 @@ def test_bad_field_refused(edit, message, tmp_path, capsys):
     assert snapshot(tmp_path) == before
 
 
+@pytest.mark.slow
 def test_failing_report_writes_nothing(tmp_path, monkeypatch):
     """A report that fails half-way leaves the earlier report as it was, and no new file."""
     run = make_fake_run(tmp_path / "run")

@@ -30,6 +30,7 @@ def _truth(folder: Path) -> dict:
     return yaml.safe_load((folder / "truth.yaml").read_text())
 
 
+@pytest.mark.slow
 def test_cameras_are_distorted_models(built):
     import pycolmap
 

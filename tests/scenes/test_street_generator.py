@@ -51,6 +51,7 @@ def street4(tmp_path_factory) -> Path:
     return sb.build(tmp_path_factory.mktemp("street") / "street4", buildings=4, image=32)
 
 
+@pytest.mark.slow
 def test_same_seed_same_bytes_other_seed_other_materials(tmp_path, street4):
     again = sb.build(tmp_path / "street4", buildings=4, image=32)
     assert _files(again) == _files(street4)
@@ -161,6 +162,7 @@ def test_bundled_street_block_is_up_to_date(tmp_path):
     assert conf == {"name": "street_block", "dir": None, "views": "all"}
 
 
+@pytest.mark.slow
 def test_symbolic_run_on_18_materials(tmp_path):
     """``python -m framework.run`` on K = 2 (18 materials, D = 36; at most N_e = 703 monomials at
     N_max = 2, only those that occur kept), 9 views of 32 x 32."""
