@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 
 from framework.errors import SceneError
-from framework.scene.values import (one_line, quoted, read_direction, read_in_range, read_list, read_mapping,
-                                    read_names, read_number, read_spectrum, read_text, shown)
+from framework.scene.values import (one_line, quoted, read_direction, read_in_range, read_mapping,
+                                    read_names, read_number, read_spectrum, read_text, read_vector, shown)
 
 
 EMITTER_KEYS = {
@@ -196,9 +196,7 @@ def _time(value: object, where: str) -> datetime:
 def _north(value: object, where: str) -> np.ndarray:
     """The world direction of geographic north: horizontal (within a few degrees), normalised."""
     what = "3 finite numbers, not all 0, horizontal (z about 0): the world direction of geographic north"
-    n = np.array([read_number(x, where, what) for x in read_list(value, where, "0, 1, 0")])
-    if n.shape != (3,) or not np.isfinite(n).all() or np.linalg.norm(n) == 0:
-        raise SceneError(f"{where} must be {what}; got {shown(value)}")
+    n = read_vector(value, where, what, "0, 1, 0")
     tilt = np.degrees(np.arcsin(abs(n[2]) / np.linalg.norm(n)))
     if tilt > NORTH_TILT_MAX_DEG:
         raise SceneError(f"{where} = {shown(value)} points {tilt:.1f} deg out of the horizontal plane "
@@ -208,10 +206,7 @@ def _north(value: object, where: str) -> np.ndarray:
 
 
 def _sun_direction(value: object, where: str) -> np.ndarray:
-    what = "3 finite numbers, not all 0: the direction towards the sun, z > 0"
-    d = np.array([read_number(x, where, what) for x in read_list(value, where, "0.3, -0.4, 0.87")])
-    if d.shape != (3,) or not np.isfinite(d).all() or np.linalg.norm(d) == 0:
-        raise SceneError(f"{where} must be {what}; got {shown(value)}")
+    d = read_vector(value, where, "3 finite numbers, not all 0: the direction towards the sun, z > 0", "0.3, -0.4, 0.87")
     if d[2] <= 0:
         raise SceneError(f"{where} = {shown(value)} points at or below the horizon; it points towards the sun "
                          "(z > 0), the opposite of a directional emitter's direction")

@@ -111,11 +111,17 @@ def read_spectrum(value: object, channels: tuple[str, ...], where: str, *, unit:
     return v
 
 
-def read_direction(value: object, where: str) -> np.ndarray:
-    what = "3 finite numbers, not all 0 (the direction the light travels)"
-    d = np.array([read_number(x, where, what) for x in read_list(value, where, "0.4, 0.3, -0.87")])
+def read_vector(value: object, where: str, what: str, example: str) -> np.ndarray:
+    """3 finite numbers, not all 0 (``what`` says what they are, ``example`` shows some)."""
+    d = np.array([read_number(x, where, what) for x in read_list(value, where, example)])
     if d.shape != (3,) or not np.isfinite(d).all() or np.linalg.norm(d) == 0:
         raise SceneError(f"{where} must be {what}; got {shown(value)}")
+    return d
+
+
+def read_direction(value: object, where: str) -> np.ndarray:
+    """The unit direction light travels."""
+    d = read_vector(value, where, "3 finite numbers, not all 0 (the direction the light travels)", "0.4, 0.3, -0.87")
     return d / np.linalg.norm(d)
 
 
