@@ -93,12 +93,16 @@ class SymbolicMethod(Method):
         FieldOptions.resolve(self.options, problem, boundaries=False)   # a reference view outside the views
         warn_unseen(problem, self.parameters(problem))                  # a known segment no view sees
 
-    def run(self, problem) -> MethodResult:
-        t0 = time.perf_counter()
+    def _start(self, problem):
+        """``(parameters, the problem over them, start weights, renders spent on them)``."""
         params = self.parameters(problem)
         sub = dataclasses.replace(problem, parameters=params)
         x0, renders = initial_guess(self.options, sub, prior=_lambertian_prior)
-        x0 = known_guess(x0, params, problem.scene)           # a known weight starts at its value
+        return params, sub, known_guess(x0, params, problem.scene), renders   # a known weight starts at its value
+
+    def run(self, problem) -> MethodResult:
+        t0 = time.perf_counter()
+        params, sub, x0, renders = self._start(problem)
         trace = Trace(t0)
         trace.record(renders, x0)
         passes = run_passes(sub, params, x0, self.options, renders=renders, trace=trace)
@@ -107,11 +111,8 @@ class SymbolicMethod(Method):
     def render_at(self, problem, rho: np.ndarray, *, seed: int = 0) -> dict[str, np.ndarray]:
         """One polynomial pass at the initial guess, evaluated at ρ (restricted to this method's
         kernels): the images the solve compares with the observations."""
-        params = self.parameters(problem)
         index = {(p.segment, p.kernel): p.index for p in problem.parameters}
-        sub = dataclasses.replace(problem, parameters=params)
-        x0, _ = initial_guess(self.options, sub, prior=_lambertian_prior)
-        x0 = known_guess(x0, params, problem.scene)
+        params, sub, x0, _ = self._start(problem)
         result = render_pass(sub, params, x0, self.options, seed=seed)
         basis = MonomialBasis(len(params), problem.settings.max_bounces, result.codes)
         return images_at(result, basis, rho[[index[(p.segment, p.kernel)] for p in params]], problem.cameras)
