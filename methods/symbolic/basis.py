@@ -56,13 +56,45 @@ def monomial_columns(keys: np.ndarray, n_params: int, max_degree: int) -> tuple[
     return codes, merged.astype(np.int32)[inverse]
 
 
-def check_key_range(n_params: int, max_degree: int) -> None:
-    """Raise :class:`ConfigError` when the ordered path keys (``< (D + 1)^N_max``) do not fit in
-    the integrator's uint32 event column (one value is reserved for an empty slot)."""
-    if (int(n_params) + 1) ** int(max_degree) >= 2 ** 32 - 1:
-        raise ConfigError(f"(number of parameters + 1)^render.max_bounces = ({n_params} + 1)^{max_degree} "
-                          "exceeds the 32-bit path keys: lower render.max_bounces or estimate fewer parameters "
-                          "(method.kernels)")
+def emitter_columns(keys: np.ndarray, n_params: int, max_degree: int, n_scales: int
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`monomial_columns` of path keys that carry the group of the emitter a contribution
+    came from above the ``N_max`` digits (``key = κ + g (D + 1)^N_max``, ``g`` in ``[0, G]``).
+
+    Group 0 is light of known intensity: its monomial is ``κ``'s. Group ``g >= 1`` is the
+    ``g``-th unknown emitter scale, the parameter ``D + g - 1`` of a basis over ``D + G``
+    parameters of degree ``N_max + 1``: its digit is appended to ``κ``'s monomial (it exceeds
+    every ρ index, so the multiset stays sorted). Returns ``(codes, cols)`` in that basis.
+    """
+    D, N, G = int(n_params), int(max_degree), int(n_scales)
+    keys = np.asarray(keys, dtype=np.int64)
+    top = (D + 1) ** N
+    group = keys // top
+    codes_rho, cols_rho = monomial_columns(keys % top, D, N)
+    pair = cols_rho.astype(np.int64) * (G + 1) + group          # few distinct: a dense table
+    seen = np.zeros(len(codes_rho) * (G + 1), dtype=bool)
+    seen[pair] = True
+    distinct = np.flatnonzero(seen)
+    digits = code_digits(codes_rho[distinct // (G + 1)], D, N)
+    g = distinct % (G + 1)
+    wide = np.zeros((len(distinct), N + 1), dtype=np.int64)
+    wide[:, :N] = digits
+    wide[np.arange(len(wide)), (digits > 0).sum(axis=1)] = np.where(g > 0, D + g, 0)
+    codes, merged = np.unique(encode_digits(wide, D + G), return_inverse=True)
+    position = np.zeros(len(seen), dtype=np.int32)
+    position[distinct] = merged
+    return codes, position[pair]
+
+
+def check_key_range(n_params: int, max_degree: int, n_scales: int = 0) -> None:
+    """Raise :class:`ConfigError` when the ordered path keys (``< (D + 1)^N_max``, times ``G + 1``
+    with ``G`` unknown emitter scales: :func:`emitter_columns`) do not fit in the integrator's
+    uint32 event column (one value is reserved for an empty slot)."""
+    if (int(n_params) + 1) ** int(max_degree) * (int(n_scales) + 1) >= 2 ** 32 - 1:
+        times = f" x ({n_scales} unknown emitter scales + 1)" if n_scales else ""
+        raise ConfigError(f"(number of parameters + 1)^render.max_bounces{times} = ({n_params} + 1)^{max_degree}"
+                          f"{times} exceeds the 32-bit path keys: lower render.max_bounces or estimate fewer "
+                          "parameters (method.kernels)")
 
 
 def merge_codes(*codes: np.ndarray) -> np.ndarray:

@@ -121,6 +121,7 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
             raise ConfigError(f"tile_pixels={self.tile_pixels}: must be >= 1")
         self._set_scalars(max_bounces, prob_floor, tail_bounces)
         self._configured = False
+        self.n_scales = 0
         self._shape_tables: dict[int, mi.Int32] = {}
 
     # -- the path loop    # -- the path loop ---------------------------------------------------------------------------
@@ -150,7 +151,7 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
         # Camera ray: directly visible emitters, the constant monomial
         si = scene.ray_intersect(ray, mi.RayFlags.All, coherent=True, active=active)
         Le = β * si.emitter(scene, active).eval(si, active)
-        store(mi.UInt32(0), mi.UInt32(0), Le, active)
+        store(mi.UInt32(0), self._emitter_key(mi.UInt32(0), si.emitter(scene, active), active), Le, active)
         L = dr.select(active, Le, 0.0)
 
         while dr.hint(active, max_iterations=N_max + self.tail_bounces, label="Polynomial path"):
@@ -168,7 +169,7 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
             wo = si.to_local(ds.d)
             f_val, f_pdf = self._kernel_eval_pdf(kt, ctx, si, wo, active_em)
             mis_em = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, f_pdf))
-            contrib = dr.select(active_em, β * f_val * em_weight * mis_em * w, 0.0)
+            contrib_em = dr.select(active_em, β * f_val * em_weight * mis_em * w, 0.0)
 
             # BSDF sampling of f_k: β *= f_k cos / pdf / q_k
             bs, f_weight = self._kernel_sample(kt, ctx, si, sampler.next_1d(active), sampler.next_2d(active),
@@ -181,12 +182,12 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
 
             # Emitter hit by the BSDF-sampled ray, with the complementary MIS weight
             si = scene.ray_intersect(ray, mi.RayFlags.All, coherent=False, active=active)
-            Le, mis_bsdf = _emission_hit(scene, si, prev_si, bs.pdf, prev_delta, active)
-            contrib += dr.select(active, β * Le * mis_bsdf, 0.0)
+            Le, mis_bsdf, hit_emitter = _emission_hit(scene, si, prev_si, bs.pdf, prev_delta, active)
+            contrib_hit = dr.select(active, β * Le * mis_bsdf, 0.0)
 
             # Both contributions belong to the monomial of the path up to this vertex
-            store(depth + 1, κ, contrib, active | active_em)
-            L = self._add_radiance(L, contrib * ρ_path, active | active_em, track)
+            self._store_vertex(store, depth, κ, contrib_em, ds.emitter, active_em, contrib_hit, hit_emitter, active)
+            L = self._add_radiance(L, (contrib_em + contrib_hit) * ρ_path, active | active_em, track)
             stride = dr.select(exact, stride * (D + 1), stride)
             depth += 1
             active &= depth < N_max + self.tail_bounces
@@ -246,6 +247,27 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
         w = dr.select(exact, mi.Spectrum(inv_q), ρ_hat * inv_q)
         return w, (dr.select(exact, ρ_path * ρ_hat, ρ_path) if track else ρ_path)
 
+    def _emitter_key(self, κ, emitter, active):
+        """``κ`` with the group of ``emitter`` above its ``N_max`` digits (unknown emitter scales);
+        ``κ`` itself when every emitter is known. Plain Python branch: outside the loop's syntax."""
+        if not self.n_scales:
+            return κ
+        return κ + self._group(emitter, active) * mi.UInt32((self.n_params + 1) ** self.max_bounces)
+
+    def _store_vertex(self, store, depth, κ, contrib_em, em_emitter, active_em, contrib_hit, hit_emitter, active):
+        """Store vertex ``depth``'s next-event and emitter-hit contributions: in one slot, or, with
+        unknown emitter scales, in two (the two emitters may differ), each keyed by its emitter."""
+        if not self.n_scales:
+            store(depth + 1, κ, contrib_em + contrib_hit, active | active_em)
+            return
+        store(2 * depth + 1, self._emitter_key(κ, em_emitter, active_em), contrib_em, active_em)
+        store(2 * depth + 2, self._emitter_key(κ, hit_emitter, active), contrib_hit, active)
+
+    def event_slots(self) -> int:
+        """Event slots of one path: the camera ray's, then one per vertex (two with unknown
+        emitter scales: next-event estimation and the emitter hit)."""
+        return 1 + (2 if self.n_scales else 1) * (self.max_bounces + self.tail_bounces)
+
     @staticmethod
     def _add_radiance(L, value, mask, track: bool):
         """``L + value`` where ``mask``, when the radiance at the guesses is tracked."""
@@ -273,7 +295,7 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
                 f"tail_bounces={self.tail_bounces}, prob_floor={self.prob_floor}]")
 
 def _emission_hit(scene, si, prev_si, prev_pdf, prev_delta, active):
-    """``(Le, mis)``: radiance of the emitter hit at ``si`` by a ray sampled from the kernel at
+    """``(Le, mis, emitter)``: radiance of the emitter hit at ``si`` by a ray sampled from the kernel at
     ``prev_si`` with pdf ``prev_pdf``, and its MIS weight against emitter sampling (1 after a
     Dirac kernel, which emitter sampling cannot reach), as Mitsuba's ``path``."""
     emitter = si.emitter(scene, active)
@@ -281,7 +303,7 @@ def _emission_hit(scene, si, prev_si, prev_pdf, prev_delta, active):
     em_pdf = scene.pdf_emitter_direction(prev_si, ds, active & ~prev_delta)
     em_pdf = dr.select(prev_delta, 0.0, em_pdf)
     mis = mis_weight(prev_pdf, em_pdf)
-    return emitter.eval(si, active & (prev_pdf > 0)), mis
+    return emitter.eval(si, active & (prev_pdf > 0)), mis, emitter
 
 
 def integrator_class() -> type:

@@ -63,7 +63,8 @@ class KernelTables:
 
     @classmethod
     def create(cls, shape_segments, segment_kernels, n_params, guesses, *, max_bounces: int = 3,
-               prob_floor: float = 0.1, tile_pixels: int = 4096, tail_bounces: int = 0) -> Self:
+               prob_floor: float = 0.1, tile_pixels: int = 4096, tail_bounces: int = 0,
+               emitter_groups: Sequence[tuple] = ()) -> Self:
         """Build and :meth:`configure` an integrator in one call (arguments as there)."""
         props = mi.Properties("polynomial_path")
         props["max_bounces"] = int(max_bounces)
@@ -71,11 +72,11 @@ class KernelTables:
         props["tile_pixels"] = int(tile_pixels)
         props["tail_bounces"] = int(tail_bounces)
         integ = cls(props)
-        integ.configure(shape_segments, segment_kernels, n_params, guesses)
+        integ.configure(shape_segments, segment_kernels, n_params, guesses, emitter_groups=emitter_groups)
         return integ
 
     def configure(self, shape_segments: Sequence[tuple], segment_kernels: Sequence[Sequence[tuple]],
-                  n_params: int, guesses: np.ndarray) -> None:
+                  n_params: int, guesses: np.ndarray, *, emitter_groups: Sequence[tuple] = ()) -> None:
         """Set the scene-dependent model.
 
         Parameters
@@ -89,10 +90,15 @@ class KernelTables:
         guesses : numpy.ndarray
             ``(D, C)`` guesses of ρ, used for the kernel selection probabilities and by
             :meth:`sample`.
+        emitter_groups : list of (mi.Emitter, int)
+            The emitters of unknown scale, each with its group ``g >= 1`` (the ``g``-th unknown
+            scale; emitters not listed are group 0, known). Their contributions are kept apart:
+            the path key carries the group (:func:`~methods.symbolic.basis.emitter_columns`).
         """
         D = int(n_params)
         if D < 1:
             raise ConfigError(f"n_params={n_params}: must be >= 1")
+        self.n_scales = max([int(g) for _, g in emitter_groups] + [0])
         g = self._checked_guesses(segment_kernels, D, guesses)
         self.n_params, self.n_channels = D, g.shape[1]
         self.guesses = g
@@ -100,12 +106,13 @@ class KernelTables:
         self._build_kernel_tables()
         self._shape_segment = _shape_ids(shape_segments, len(self.segment_kernels))
         self._shape_tables = {}
+        self._emitter_group = _emitter_table(emitter_groups)
         self._configured = True
 
     def _checked_guesses(self, segment_kernels, D: int, guesses) -> np.ndarray:
         """Check the key range and the kernels; the guesses as a ``(D, C)`` array (broadcast over
         the channels)."""
-        check_key_range(D, self.max_bounces)
+        check_key_range(D, self.max_bounces, self.n_scales)
         C = dr.size_v(mi.Spectrum)
         g = np.asarray(guesses, dtype=float)
         if g.ndim == 1:
@@ -166,6 +173,13 @@ class KernelTables:
             self._shape_tables = {key: mi.Int32(tab)}   # keep only the latest scene
         return self._shape_tables[key]
 
+    def _group(self, emitter, active):
+        """Group of the emitter each lane's ``emitter`` pointer names (0: known, or no emitter)."""
+        eid = dr.reinterpret_array(mi.UInt32, emitter)
+        n = dr.width(self._emitter_group)
+        inside = active & (eid < n)
+        return dr.gather(mi.UInt32, self._emitter_group, dr.minimum(eid, n - 1), inside)
+
     def _check(self):
         if not self._configured:
             raise ConfigError("PolynomialPathIntegrator used before configure(): call "
@@ -185,3 +199,16 @@ def _shape_ids(shape_segments, n_seg: int) -> dict[int, int]:
             raise ConfigError(f"shape {shape.id()}: segment {seg} outside [-1, {n_seg - 1}]")
         out[_shape_id(shape)] = seg
     return out
+
+
+def _emitter_table(emitter_groups) -> mi.UInt32:
+    """Registry id -> group of the listed emitters (every other id: 0), groups checked ``>= 1``."""
+    ids = {}
+    for emitter, g in emitter_groups:
+        if int(g) < 1:
+            raise ConfigError(f"emitter {emitter.id()}: group {g} must be >= 1 (0 is every emitter not listed)")
+        ids[int(dr.reinterpret_array(mi.UInt32, mi.EmitterPtr(emitter))[0])] = int(g)
+    tab = np.zeros(max(ids, default=0) + 1, np.uint32)
+    for eid, g in ids.items():
+        tab[eid] = g
+    return mi.UInt32(tab)

@@ -8,7 +8,7 @@ import mitsuba as mi
 import numpy as np
 
 from framework.errors import ConfigError
-from methods.symbolic.basis import merge_codes, monomial_columns
+from methods.symbolic.basis import emitter_columns, merge_codes, monomial_columns
 from methods.symbolic.common import camera_rays, pixel_window, tile_sampler
 from methods.symbolic.events import EventBuffer, lane_pixel, reindex_columns, stack_tiles, tile_matrices
 
@@ -98,10 +98,13 @@ class CoefficientTiles:
         sampler = tile_sampler(sensor, spp, seed, start, n)
         pix = lane_pixel(dr.arange(mi.UInt32, n * spp), n, spp, split) + dr.opaque(mi.UInt32, start)
         ray, weight = camera_rays(sensor, sampler, pix)
-        events = EventBuffer(n * spp, self.max_bounces + self.tail_bounces + 1, self.n_channels)
+        events = EventBuffer(n * spp, self.event_slots(), self.n_channels)
         β = mi.Spectrum(weight) * dr.opaque(mi.Float, 1.0 / spp)      # box filter: 1/spp per sample
         self._trace(scene, sampler, mi.Ray3f(ray), β, mi.Bool(True), events.store)
         (rows, keys, vals), first_b = events.compact(n, spp, split)
         # the ordered keys of one monomial differ by the order of its parameters: sort them out
-        codes, cols = monomial_columns(keys, self.n_params, self.max_bounces)
+        if self.n_scales:        # the emitter's group above the path's digits: one more variable
+            codes, cols = emitter_columns(keys, self.n_params, self.max_bounces, self.n_scales)
+        else:
+            codes, cols = monomial_columns(keys, self.n_params, self.max_bounces)
         return codes, tile_matrices((rows, cols, vals), first_b, (n, len(codes)), spp, split)

@@ -97,3 +97,15 @@ def test_monomial_columns_equal_the_codes_of_every_key(D, N):
     expected = multiset_codes(keys, D, N)
     np.testing.assert_array_equal(codes, np.unique(expected))
     np.testing.assert_array_equal(codes[cols], expected)
+
+
+def test_emitter_columns_by_hand():
+    """D = 2, N_max = 2, one unknown scale (G = 1): keys ``κ + g·3²``. κ = 2 + 1·3 is the path
+    (ρ_1, ρ_0): multiset digits [1, 2], code 1 + 2·4 = 9 in base D + G + 1 = 4; with the scale
+    (g = 1) its digit 3 is appended: 1 + 2·4 + 3·16 = 57. κ = 0 (a directly seen emitter):
+    code 0, with the scale 3; κ = 1 (ρ_0 alone) with the scale: digits [1, 3], 1 + 3·4 = 13."""
+    from methods.symbolic.basis import emitter_columns
+    keys = np.array([5, 5 + 9, 0, 9, 5 + 9, 1 + 9])
+    codes, cols = emitter_columns(keys, 2, 2, 1)
+    assert codes.tolist() == [0, 3, 9, 13, 57]
+    assert codes[cols].tolist() == [9, 57, 0, 3, 57, 13]

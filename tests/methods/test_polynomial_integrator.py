@@ -323,3 +323,39 @@ def test_mono_variant_in_subprocess():
     """)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and "OK" in out.stdout, out.stderr[-2000:]
+
+
+def _lit_cornell(rho, light_scale=1.0, res=16):
+    """:func:`cornell` with its ceiling light's radiance times ``light_scale`` and a constant sky
+    (0.5) seen through the open front: two emitters."""
+    d = mi.cornell_box()
+    d["light"]["emitter"]["radiance"]["value"] = [v * light_scale for v in d["light"]["emitter"]["radiance"]["value"]]
+    d["sky"] = {"type": "constant", "radiance": {"type": "rgb", "value": [0.5, 0.5, 0.5]}}
+    orig = mi.cornell_box
+    try:
+        mi.cornell_box = lambda: d
+        return cornell(rho, res)
+    finally:
+        mi.cornell_box = orig
+
+
+def test_emitter_groups_carry_the_scale():
+    """An unknown emitter scale is one more variable: the pass keyed by the emitter group, at
+    scale ``s``, equals the plain pass of the scene whose light is ``s`` times brighter. The same
+    seed draws the same paths (emitter selection does not depend on the emitters' power), so
+    the two agree to float32 rounding (sums in another order), not only in expectation."""
+    rho = np.full((5, 3), 0.4)
+    N, spp, res, s = 2, 4, 16, 2.5
+    scene, shapes = _lit_cornell(rho, res=res)
+    light = [sh.emitter() for sh, _ in shapes if sh.emitter() is not None]
+    grouped = PolynomialPathIntegrator.create(shapes, SEGMENTS, 5, rho, max_bounces=N, emitter_groups=[(light[0], 1)])
+    assert grouped.event_slots() == 1 + 2 * N
+    codes, mats = grouped.coefficients_sparse(scene, spp=spp, seed=3)
+    basis = MonomialBasis(6, N + 1, codes)                # ρ (5) and the light's scale, degree N + 1
+    at = lambda scale: np.stack([mats[c] @ basis.evaluate(np.r_[rho[:, c], scale]) for c in range(3)], -1)
+    for scale in (0.0, 1.0, s):                           # 0: the sky's light alone
+        sc, sh = _lit_cornell(rho, light_scale=scale, res=res)
+        plain = PolynomialPathIntegrator.create(sh, SEGMENTS, 5, rho, max_bounces=N)
+        ref = _polynomial_image(plain, sc, rho, spp, 3, res).reshape(-1, 3)
+        assert ref.max() > 0
+        np.testing.assert_allclose(at(scale), ref, rtol=1e-4, atol=1e-6 * ref.max())
