@@ -125,6 +125,14 @@ class MitsubaScene:
                               for k, key in zip(scene.segments[m.segment].kernels,
                                                 weight_keys(scene.segments[m.segment].kernels))]
 
+    def emitter_objects(self, j: int) -> list:
+        """The ``mi.Emitter`` objects of ``scene.emitters[j]``: the emitter itself, or for an area
+        emitter the area light of each of its meshes."""
+        if self.model.emitters[j].type == "area":
+            shapes = [shape for (shape, _), mesh in zip(self.shape_segments, self.model.meshes) if mesh.emitter == j]
+            return [shape.emitter() for shape in shapes if shape.emitter() is not None]
+        return [e for e in self.scene.emitters() if e.id() == f"emitter_{j}"]
+
     def weight_keys(self, parameters) -> list[list[str]]:
         """Per parameter: the ``mi.traverse`` keys of its weight, one in every mesh of its segment."""
         index = {(p.segment, p.kernel): p.index for p in parameters}

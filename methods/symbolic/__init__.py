@@ -17,7 +17,7 @@ from framework.errors import ConfigError
 from framework.options import build
 from framework.registry import Method, MethodResult, register
 from methods._common import Trace, initial_guess
-from methods.symbolic.basis import MonomialBasis
+from methods.symbolic.illumination import check_gauge, nominal, pass_basis, unknown_emitters
 from methods.symbolic.field import FieldOptions
 from methods.symbolic.fit import images_at
 from methods.symbolic.known import known_guess, warn_unseen
@@ -68,7 +68,8 @@ class SymbolicMethod(Method):
     Options = SymbolicOptions
     #: a segment's ``known`` weights are substituted in the solve (:mod:`methods.symbolic.known`);
     #: scene.yaml's ``photometry: vignetting`` is applied or estimated (:mod:`methods.symbolic.vignetting`)
-    survey = frozenset({"known", "vignetting"})
+    #: an emitter's ``scale: unknown`` is estimated with ρ (:mod:`methods.symbolic.illumination`)
+    survey = frozenset({"known", "vignetting", "scale"})
     kernels: tuple[str, ...] | None = None     # fixed by subclasses (lambertian_prior)
 
     @classmethod
@@ -91,6 +92,11 @@ class SymbolicMethod(Method):
 
     def check_problem(self, problem) -> None:
         FieldOptions.resolve(self.options, problem, boundaries=False)   # a reference view outside the views
+        if unknown_emitters(problem.scene):
+            check_gauge(problem.scene)                                  # ρ and the light's scale trade off
+            if self.options.cost == "per_segment":
+                raise ConfigError("method.cost=per_segment cannot estimate an emitter's unknown scale (it couples "
+                                  "every segment's block): use method.cost=joint, or give the scale as a number")
         warn_unseen(problem, self.parameters(problem))                  # a known segment no view sees
 
     def _start(self, problem):
@@ -114,8 +120,9 @@ class SymbolicMethod(Method):
         index = {(p.segment, p.kernel): p.index for p in problem.parameters}
         params, sub, x0, _ = self._start(problem)
         result = render_pass(sub, params, x0, self.options, seed=seed)
-        basis = MonomialBasis(len(params), problem.settings.max_bounces, result.codes)
-        return images_at(result, basis, rho[[index[(p.segment, p.kernel)] for p in params]], problem.cameras)
+        basis = pass_basis(len(params), problem.settings.max_bounces, problem.scene, result.codes)
+        own = rho[[index[(p.segment, p.kernel)] for p in params]]
+        return images_at(result, basis, nominal(own, problem.scene), problem.cameras)   # the declared light
 
 
 #: ``method.solver`` options the per-segment fit does not use

@@ -47,6 +47,7 @@ from methods.symbolic.fit import Fit
 from methods.symbolic.gram import weighted_system
 from methods.symbolic.options import ROBUST_LOSSES, SymbolicOptions
 from methods.symbolic.coefficients import TiledCoefficients, ViewCoefficients, predicted
+from methods.symbolic.illumination import Illumination, unknown_emitters
 from methods.symbolic.vignetting import Vignetting
 
 #: ``segment_name`` of a view's gain parameter: this prefix, then the view's name
@@ -172,6 +173,8 @@ class FieldOptions:
     vignetting : str
         scene.yaml ``photometry: vignetting``: ``none``, ``known`` or ``estimate``
         (:mod:`methods.symbolic.vignetting`).
+    scales : int
+        Emitters of unknown scale (:mod:`methods.symbolic.illumination`).
     """
 
     weights: dict | None
@@ -181,11 +184,12 @@ class FieldOptions:
     iterations: int
     tol: float
     vignetting: str = "none"
+    scales: int = 0
 
     @property
     def active(self) -> bool:
         return (self.weights is not None or self.reference is not None or self.robust != "none"
-                or self.vignetting != "none")
+                or self.vignetting != "none" or self.scales > 0)
 
     @classmethod
     def resolve(cls, options: SymbolicOptions, problem, *, boundaries: bool = True) -> "FieldOptions":
@@ -218,14 +222,15 @@ class FieldOptions:
             robust = "cauchy" if (weights is not None or per_view or noise) else "none"
         iterations = options.irls.iterations if robust != "none" else 1
         vignetting = photometry.vignetting if photometry is not None else "none"
-        return cls(weights, floors, reference, robust, iterations, options.irls.tol, vignetting)
+        return cls(weights, floors, reference, robust, iterations, options.irls.tol, vignetting,
+                   len(unknown_emitters(scene)))
 
     def describe(self, fit: Fit) -> dict:
         """``extras["field"]``: what the fit did (JSON-able)."""
         return {"exposure": "per_view" if self.reference is not None else "known",
                 "reference_view": self.reference, "robust": self.robust,
                 "scene_weights": self.weights is not None, "irls_rounds": fit.irls_rounds,
-                "irls_stopped": fit.irls_stopped, "vignetting": self.vignetting}
+                "irls_stopped": fit.irls_stopped, "vignetting": self.vignetting, "unknown_scales": self.scales}
 
 
 def _boundary_width(value: int | str, problem) -> int:
@@ -278,43 +283,53 @@ class _View:
 
 
 def field_views(result, problem, params, x0: np.ndarray, options: FieldOptions
-                ) -> tuple[list[_View], list, np.ndarray, Vignetting | None]:
-    """The views of the fit over ``(ρ, h)``, the gain and profile parameters and the extended start.
+                ) -> tuple[list[_View], list, np.ndarray, Vignetting | None, Illumination | None]:
+    """The views of the fit over ``(ρ, h)``, the scale, gain and profile parameters and the extended start.
 
-    Returns ``(views, extra_parameters, x0, vignetting)``: one :class:`_View` per camera; a
-    :class:`~framework.scene.model.Parameter` per gain (``segment`` -1 - j, kernel ``gain``,
-    ``segment_name`` ``exposure:<view>``), then per lens the three profile parameters with
-    ``vignetting: estimate`` (:meth:`Vignetting.parameters`); ``x0`` with each view's gain guess
-    (:func:`gain_guess` at ``x0``, over ``GAIN_MAX``) and the profiles' start (no falloff)
-    appended; the run's :class:`~methods.symbolic.vignetting.Vignetting` (None without).
+    Returns ``(views, extra_parameters, x0, vignetting, illumination)``: one :class:`_View` per
+    camera; a :class:`~framework.scene.model.Parameter` per unknown emitter scale
+    (:meth:`Illumination.parameters`; the pass's coefficients are already over them), per gain
+    (``segment`` -1 - j, kernel ``gain``, ``segment_name`` ``exposure:<view>``), then per lens the
+    three profile parameters with ``vignetting: estimate`` (:meth:`Vignetting.parameters`); ``x0``
+    with the scales' start (the declared light), each view's gain guess (:func:`gain_guess` at
+    ``x0``, over ``GAIN_MAX``) and the profiles' start (no falloff) appended; the run's
+    :class:`~methods.symbolic.vignetting.Vignetting` and
+    :class:`~methods.symbolic.illumination.Illumination` (None without).
     """
     from framework.scene.model import Parameter
     from methods.symbolic.basis import MonomialBasis
-    P, N, C = len(params), problem.settings.max_bounces, problem.n_channels
+    P, C = len(params), problem.n_channels
+    light = Illumination.of(problem.scene, first=P)
+    Q = P + (light.n_parameters if light is not None else 0)            # ρ and the scales: the pass's variables
+    N = problem.settings.max_bounces + (1 if light is not None else 0)  # and its degree
     gained = [c.name for c in problem.cameras if options.reference is not None and c.name != options.reference]
-    gains = [Parameter(P + j, -1 - j, GAIN_PREFIX + name, "gain") for j, name in enumerate(gained)]
-    lens = Vignetting.of(problem.scene.photometry, problem.cameras, first=P + len(gained)) \
+    gains = [Parameter(Q + j, -1 - j, GAIN_PREFIX + name, "gain") for j, name in enumerate(gained)]
+    lens = Vignetting.of(problem.scene.photometry, problem.cameras, first=Q + len(gained)) \
         if options.vignetting != "none" else None
-    extra = gains + (lens.parameters() if lens is not None else [])
-    base = MonomialBasis(P, N, result.codes)
+    extra = (light.parameters() if light is not None else []) + gains + (lens.parameters() if lens is not None else [])
+    if light is not None:
+        x0 = np.vstack([x0, light.start(C)])
+    base = MonomialBasis(Q, N, result.codes)
     mu0 = np.stack([base.evaluate(x0[:, c]) for c in range(C)])
     views, h0 = [], []
     for cam in problem.cameras:
         coeffs = result.coefficients(cam.name)
+        if light is not None:                               # per unit s -> per unit h (the solver's box)
+            coeffs = light.to_box(coeffs, max_degree=N)
         y = np.asarray(problem.observed[cam.name], np.float64).reshape(-1, C)
         w = options.weights.get(cam.name) if options.weights is not None else None
-        gain = P + gained.index(cam.name) if cam.name in gained else None
+        gain = Q + gained.index(cam.name) if cam.name in gained else None
         if lens is not None and lens.mode == "known":      # before the gain guess: the gain of V·L
-            coeffs = lens.apply(coeffs, cam, n_params=P, max_degree=N)
+            coeffs = lens.apply(coeffs, cam, n_params=Q, max_degree=N)
         if gain is not None:
             h0.append(gain_guess(coeffs, y, w, mu0, result.codes) / GAIN_MAX)
-        if extra:
-            coeffs = with_gain(coeffs, n_params=P, max_degree=N, n_total=P + len(extra), gain=gain)
+        if len(extra) > Q - P:
+            coeffs = with_gain(coeffs, n_params=Q, max_degree=N, n_total=P + len(extra), gain=gain)
         if lens is not None and lens.mode == "estimate":
             coeffs = lens.apply(coeffs, cam, n_params=P + len(extra), max_degree=N + (gain is not None))
         views.append(_View(cam.name, (cam.height, cam.width), coeffs, y, w, gain))
     starts = [x0] + [h[None] for h in h0] + ([lens.start(C)] if lens is not None and lens.n_parameters else [])
-    return views, extra, np.vstack(starts), lens
+    return views, extra, np.vstack(starts), lens, light
 
 
 def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, solve, *,
@@ -334,13 +349,14 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
     from methods._common import segment_groups
     from methods.symbolic.basis import MonomialBasis
     P, C = len(params), problem.n_channels
-    views, extra, x, lens = field_views(result, problem, params, x0, options)
+    views, extra, x, lens, light = field_views(result, problem, params, x0, options)
     gains = [p for p in extra if p.kernel == "gain"]
     if start and options.robust != "none":
         for v in views:
             v.robust_w = start.get(v.name)
     every = list(params) + extra
-    degree = problem.settings.max_bounces + (1 if gains else 0) + (1 if lens is not None and lens.n_parameters else 0)
+    degree = (problem.settings.max_bounces + (1 if light is not None else 0) + (1 if gains else 0)
+              + (1 if lens is not None and lens.n_parameters else 0))
     iterates, stopped, fit = [], "single solve", None
     for round_ in range(options.iterations):
         system = reduce(operator.iadd, (weighted_system(v.coeffs, v.y, v.weights) for v in views))
@@ -363,6 +379,8 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
             v.robust_w = robust_weights(predicted(v.coeffs, mu, system.codes) - v.y, keep, loss=options.robust,
                                         floor=options.floors.get(v.name, 0.0))
     out = _field_outputs(fit, views, used, basis, system, gains, P, C, round_ + 1, stopped, iterates)
+    if light is not None:
+        out = out.replace(illumination=light.report(fit.estimate, fit.std))
     return out if lens is None else out.replace(vignetting=lens.report(fit.estimate, fit.std, fit.correlation))
 
 

@@ -52,6 +52,9 @@ class Fit:
     vignetting : list or None
         The field path with ``photometry: vignetting``: results.json ``vignetting``
         (:meth:`~methods.symbolic.vignetting.Vignetting.report`).
+    illumination : list or None
+        The field path with unknown emitter scales: results.json ``illumination``
+        (:meth:`~methods.symbolic.illumination.Illumination.report`).
     pixel_weights, robust_weights : dict or None
         The field path: view -> ``(H, W)`` weights of the last solve; view -> the robust weights
         after the last round (a refinement pass starts from them).
@@ -80,6 +83,7 @@ class Fit:
     per_segment: dict | None = None
     exposure: list | None = None
     vignetting: list | None = None
+    illumination: list | None = None
     pixel_weights: dict | None = None
     robust_weights: dict | None = None
     irls_rounds: int | None = None

@@ -38,6 +38,8 @@ def method_result(passes: Passes, problem, params, guess: np.ndarray, options: S
         extras["exposure"] = fit.exposure
     if fit.vignetting is not None:
         extras["vignetting"] = fit.vignetting
+    if fit.illumination is not None:
+        extras["illumination"] = fit.illumination
     timings = {"render": passes.render_s, "solve": passes.solve_s}
     if options.relight.enabled:
         t = time.perf_counter()

@@ -96,7 +96,8 @@ def view_key(problem, cam, parameters, guesses, spp, seed, prob_floor, max_bounc
             "guesses": np.round(np.asarray(guesses, float), 9).tolist(), "prob_floor": float(prob_floor),
             "observed": _digest(problem.observed[cam.name]),
             "variant": problem.settings.variant, "cross_gram": bool(cross_gram),
-            "tail_bounces": int(tail_bounces), "version": 7}
+            "tail_bounces": int(tail_bounces), "version": 7,
+            "unknown_scales": [i for i, e in enumerate(problem.scene.emitters) if e.scale_unknown]}
 
 
 def observed_pixels(problem, cam) -> np.ndarray:
