@@ -83,7 +83,7 @@ class Method(ABC):
     #: the survey unknowns of scene.yaml this method treats (:func:`refuse_survey_unknowns`):
     #: ``"scale"`` (an emitter's ``scale: unknown``, a sunsky's ``sun_scale``/``sky_scale: unknown``),
     #: ``"known"`` (a segment's ``known`` weights), ``"vignetting"`` (``photometry vignetting``
-    #: other than ``none``); the symbolic family treats ``"known"`` and ``"vignetting"``, the others none yet
+    #: other than ``none``); the symbolic family treats all three, the baselines none yet
     survey: ClassVar[frozenset[str]] = frozenset()
 
     def __init__(self, options):

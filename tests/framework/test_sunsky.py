@@ -209,10 +209,10 @@ def test_area_meshes_name_their_emitter(tmp_path):
 
 REFUSED = [
     (lambda d: d["emitters"][1].update(scale="unknown"),
-     r"scene.yaml: emitter 1 \(directional\) scale: unknown is not supported by method=symbolic yet; "
+     r"scene.yaml: emitter 1 \(directional\) scale: unknown is not supported by method=iterative yet; "
      r"give scale as a number$"),
     (lambda d: d["emitters"].append(dict(PARIS, sky_scale="unknown")),
-     r"scene.yaml: emitter 2 \(sunsky\) sky_scale: unknown is not supported by method=symbolic yet; "
+     r"scene.yaml: emitter 2 \(sunsky\) sky_scale: unknown is not supported by method=iterative yet; "
      r"give sky_scale as a number$"),
 ]
 # vignetting: the symbolic family models it; the baselines' refusal is in tests/methods/test_vignetting.py
@@ -220,13 +220,13 @@ REFUSED = [
 
 @pytest.mark.parametrize("edit, match", REFUSED, ids=["scale", "sky_scale"])
 def test_methods_refuse_what_they_do_not_estimate_yet(tmp_path, edit, match):
-    """Until estimation lands, a run refuses (before rendering anything) rather than take the
-    unknowns as absent (``known`` is estimated by the symbolic family and refused by the
-    baselines: tests/methods/test_known.py)."""
+    """A method that does not estimate an unknown scale (the baselines; the symbolic family does:
+    tests/methods/test_illumination.py) refuses it before rendering anything rather than take the
+    declared intensity as known (``known`` segments: tests/methods/test_known.py)."""
     root = make_tiny_scene(tmp_path / "s")
     edit_scene_yaml(root, edit)
     with pytest.raises(ConfigError, match=match) as info:
-        prepare(compose_config(root, "views=all"))
+        prepare(compose_config(root, "views=all", "method=iterative"))
     assert "\n" not in str(info.value)
 
 
@@ -242,12 +242,12 @@ def test_cli_refuses_unknown_scale_with_one_line(tmp_path):
     edit_scene_yaml(root, lambda d: d["emitters"][1].update(scale="unknown"))
     env = dict(os.environ, HYDRA_FULL_ERROR="0", PYTHONPATH=str(Path(__file__).resolve().parents[2]))
     proc = subprocess.run([sys.executable, "-m", "framework.run", f"scene.dir={root}", "cache.dir=null",
-                           "render.spp=4", "observe.spp=8", "report=false", f"hydra.run.dir={tmp_path / 'run'}"],
+                           "render.spp=4", "observe.spp=8", "report=false", "method=iterative", f"hydra.run.dir={tmp_path / 'run'}"],
                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
     lines = [line for line in proc.stderr.splitlines() if line.strip()]
     assert proc.returncode == 2 and len(lines) == 1, proc.stderr[-2000:]
     assert lines[0] == (f"error: {root}/scene.yaml: emitter 1 (directional) scale: unknown is not supported "
-                        "by method=symbolic yet; give scale as a number")
+                        "by method=iterative yet; give scale as a number")
     assert not (tmp_path / "run" / "results.json").exists()
 
 
