@@ -39,7 +39,10 @@ class SymbolicMethod(Method):
     are rendered at the estimate until it stops moving (:mod:`methods.symbolic.refinement`).
     Field photographs (pixel weights, per-view exposure gains, a lens's vignetting, robust
     reweighting) are fitted from the same stored coefficients (:mod:`methods.symbolic.field`,
-    :mod:`methods.symbolic.vignetting`).
+    :mod:`methods.symbolic.vignetting`). An emitter of unknown scale (scene.yaml ``scale:
+    unknown``) is one more variable of the pass's polynomials, solved with ρ
+    (:mod:`methods.symbolic.illumination`; refused when every emitter is unknown and no segment
+    is ``known``, and with ``method.cost=per_segment``).
 
     Options: :class:`~methods.symbolic.options.SymbolicOptions` (defaults in
     ``framework/conf/method/symbolic.yaml``; docs/cli.md's table is generated from it). Uses

@@ -63,6 +63,13 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
       ``max_depth = N_max + T + 1``) and its error elsewhere is of the order of
       ``ρ - ρ̂`` times the light beyond ``N_max`` reflections, instead of all of that light.
 
+    * Unknown emitter scales (``emitter_groups`` of :meth:`configure`, not in the paper): the
+      light is linear in each emitter's scale ``s_g``, so the contributions of an emitter of group
+      ``g >= 1`` (seen from the camera, reached by next-event estimation or hit) go to key
+      ``κ + g (D + 1)^N_max``, each vertex's two contributions in their own slots; the host
+      appends the digit of ``s_g`` to the monomial (:func:`~methods.symbolic.basis.emitter_columns`):
+      a polynomial of degree ``N_max + 1`` over ``(ρ, s)``, exact in ``s``.
+
     Each sample has weight ``1/spp`` (box pixel filter: samples are uniform inside their pixel
     and never spread to a neighbour). Each path writes its contributions to ``N_max + T + 1``
     event slots (monomial, value per channel); a tile of ``tile_pixels`` pixels is one kernel,
