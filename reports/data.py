@@ -104,6 +104,7 @@ TOP_LEVEL = {
     "correlation": ("an object", lambda x: isinstance(x, dict)),
     "segments": ("a list", lambda x: isinstance(x, list)),
     "views": OBJECT_LIST, "relit": OBJECT_LIST, "trace": OBJECT_LIST, "exposure": OBJECT_LIST,
+    "illumination": OBJECT_LIST, "vignetting": OBJECT_LIST,
 }
 
 

@@ -146,6 +146,39 @@ def _section_exposure(doc: Doc, res: dict) -> None:
                       "the reference view's are 1 by definition; ± one standard error.")
 
 
+def _section_illumination(doc: Doc, res: dict) -> None:
+    """The unknown emitter scales (``scale: unknown``) and the vignetting profiles, when
+    results.json has them."""
+    nc = len(res["channels"])
+    scales = [e for e in (res.get("illumination") or []) if isinstance(e, dict)]
+    if scales:
+        rows = []
+        for e in scales:
+            est, std = as_list(e.get("estimate"), nc), as_list(e.get("std"), nc)
+            name = f"{e.get('emitter')}" + (f" ({e['part']})" if e.get("part") else "")
+            rows.append([name] + [_pm(est[c], std[c]) for c in range(nc)])
+        doc.heading("Illumination")
+        doc.table(["Emitter"] + [f"scale {ch}" for ch in res["channels"]], rows, left=1,
+                  caption="Unknown emitter scales estimated with ρ: the factor multiplying the light as scene.yaml "
+                          "declares it (emitter = its index in scene.yaml's emitters); ± one standard error.")
+    lenses = [v for v in (res.get("vignetting") or []) if isinstance(v, dict)]
+    if lenses:
+        rows = []
+        for v in lenses:
+            a, a_std = as_list(v.get("estimate"), 3), as_list(v.get("std"), 3)
+            rows.append([str(v.get("camera")), "yes" if v.get("known") else "no"]
+                        + [_pm(a[i], a_std[i]) for i in range(3)] + [_pm(v.get("corner"), v.get("corner_std"))])
+        doc.heading("Vignetting")
+        doc.table(["Camera", "Known", "a1", "a2", "a3", "corner V(1)"], rows, left=2,
+                  caption="Lens falloff per COLMAP camera, pixel = (1 + a1 r² + a2 r⁴ + a3 r⁶) · radiance; "
+                          "± one standard error.")
+
+
+def _pm(value, std) -> str:
+    """``value ± std``, or the value alone without a std."""
+    return f"{fmt_num(value)} ± {fmt_num(std)}" if std is not None else fmt_num(value)
+
+
 def _section_timings(doc: Doc, res: dict) -> None:
     """Render, solve and total times and the render count."""
     timings = res.get("timings_s") if isinstance(res.get("timings_s"), dict) else {}
@@ -317,7 +350,8 @@ def write_run_report(run_dir, results: dict | None = None) -> tuple[Path, Path]:
     doc = Doc(f"{res['method']} on {res['scene']}" + (f" (seed {seed})" if seed is not None else ""))
     with staged(run_dir, (FILES_DIR, "report.md", "report.html")) as tmp:
         ctx = _RunContext(run_dir, res, tmp / FILES_DIR)
-        for section in (_section_overview, _section_parameters, _section_exposure, _section_timings):
+        for section in (_section_overview, _section_parameters, _section_exposure, _section_illumination,
+                        _section_timings):
             section(doc, res)
         for section in (_section_convergence, _section_views, _section_correlation, _section_relit):
             section(doc, ctx)

@@ -25,6 +25,13 @@ The gauge
     them apart, weakly. So a scene whose every emitter has an unknown scale and no segment is
     ``known`` (a calibration panel) is refused (:func:`check_gauge`): one emitter of known
     intensity, or one known segment, fixes the gauge.
+
+    Per-view exposure gains (``exposure: per_view``) share a second trade-off with the scales: a
+    view's pixels are ``g_v Σ_e s_e L_e(ρ)``, unchanged if every ``s_e`` is multiplied by ``k``
+    and every ``g_v`` divided by it. The reference view's gains are 1 by definition, which
+    removes ``k``: the scales are those of the light as the reference view's camera records it,
+    the other views' gains relative to it; the ρ-versus-light trade-off above is unchanged by
+    the gains and still needs a known emitter or segment.
 """
 from __future__ import annotations
 

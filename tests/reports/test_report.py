@@ -141,3 +141,20 @@ def test_correlation_of_many_parameters_is_a_table(tmp_path):
     md = write_run_report(run)[0].read_text()
     first, second = md.index("| p2 | p3 | -0.9500 |"), md.index("| p0 | p1 | 0.9000 |")
     assert first < second and "correlation.png" not in md
+
+
+def test_illumination_and_vignetting_sections(tmp_path):
+    """results.json ``illumination`` and ``vignetting`` become their own tables, each number with
+    its standard error (fmt_num's four decimals)."""
+    run = tmp_path / "survey"
+    run.mkdir()
+    (run / "results.json").write_text(json.dumps({
+        "method": "symbolic", "scene": "s", "channels": ["R", "G", "B"],
+        "parameters": [{"segment": "wall", "kernel": "diffuse", "estimate": [0.5] * 3}],
+        "illumination": [{"emitter": 1, "part": "sun", "estimate": [1.12, 1.1, None], "std": [0.01, 0.02, None]}],
+        "vignetting": [{"camera": 1, "known": False, "estimate": [-0.3, 0.0, 0.01], "std": [0.03, 0.1, 0.1],
+                        "corner": 0.71, "corner_std": 0.02}]}))
+    md = write_run_report(run)[0].read_text()
+    assert "## Illumination" in md and "| 1 (sun) | 1.1200 ± 0.0100 | 1.1000 ± 0.0200 | — |" in md
+    assert "## Vignetting" in md
+    assert "| 1 | no | -0.3000 ± 0.0300 | 0.0000 ± 0.1000 | 0.0100 ± 0.1000 | 0.7100 ± 0.0200 |" in md
