@@ -42,11 +42,12 @@ import numpy as np
 import scipy.sparse as sp
 
 from framework.results import per_channel
-from methods.symbolic.basis import code_digits, encode_digits
+from methods.symbolic.basis import MonomialBasis, code_digits, encode_digits, merge_codes
 from methods.symbolic.fit import Fit
 from methods.symbolic.gram import weighted_system
 from methods.symbolic.options import ROBUST_LOSSES, SymbolicOptions
 from methods.symbolic.coefficients import TiledCoefficients, ViewCoefficients, predicted
+from methods.symbolic.consistency import MIN_OTHERS, ViewPairs
 from methods.symbolic.illumination import Illumination, unknown_emitters
 from methods.symbolic.vignetting import Vignetting
 
@@ -175,6 +176,9 @@ class FieldOptions:
         (:mod:`methods.symbolic.vignetting`).
     scales : int
         Emitters of unknown scale (:mod:`methods.symbolic.illumination`).
+    consistency : ViewPairs or None
+        The views' correspondences when pixels are weighed by the views' disagreement
+        (``method.consistency``, :mod:`methods.symbolic.consistency`); None when off.
     """
 
     weights: dict | None
@@ -185,6 +189,7 @@ class FieldOptions:
     tol: float
     vignetting: str = "none"
     scales: int = 0
+    consistency: ViewPairs | None = None
 
     @property
     def active(self) -> bool:
@@ -222,15 +227,18 @@ class FieldOptions:
             robust = "cauchy" if (weights is not None or per_view or noise) else "none"
         iterations = options.irls.iterations if robust != "none" else 1
         vignetting = photometry.vignetting if photometry is not None else "none"
+        compare = robust != "none" and options.consistency == "auto" and len(names) > MIN_OTHERS
+        pairs = ViewPairs.of(problem) if compare and boundaries else None
         return cls(weights, floors, reference, robust, iterations, options.irls.tol, vignetting,
-                   len(unknown_emitters(scene)))
+                   len(unknown_emitters(scene)), pairs)
 
     def describe(self, fit: Fit) -> dict:
         """``extras["field"]``: what the fit did (JSON-able)."""
         return {"exposure": "per_view" if self.reference is not None else "known",
                 "reference_view": self.reference, "robust": self.robust,
                 "scene_weights": self.weights is not None, "irls_rounds": fit.irls_rounds,
-                "irls_stopped": fit.irls_stopped, "vignetting": self.vignetting, "unknown_scales": self.scales}
+                "irls_stopped": fit.irls_stopped, "vignetting": self.vignetting, "unknown_scales": self.scales,
+                "consistency": self.consistency is not None}
 
 
 def _boundary_width(value: int | str, problem) -> int:
@@ -351,12 +359,16 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
     P, C = len(params), problem.n_channels
     views, extra, x, lens, light = field_views(result, problem, params, x0, options)
     gains = [p for p in extra if p.kernel == "gain"]
-    if start and options.robust != "none":
-        for v in views:
-            v.robust_w = start.get(v.name)
     every = list(params) + extra
     degree = (problem.settings.max_bounces + (1 if light is not None else 0) + (1 if gains else 0)
               + (1 if lens is not None and lens.n_parameters else 0))
+    if start and options.robust != "none":
+        for v in views:
+            v.robust_w = start.get(v.name)
+    elif options.consistency is not None:    # the high-breakdown start: the views' disagreement at x
+        codes = merge_codes([0], *(b.codes for v in views for _, b in v.coeffs.blocks()))
+        mu = np.stack([MonomialBasis(len(every), degree, codes).evaluate(x[:, c]) for c in range(C)])
+        _reweight(views, mu, codes, options, per_pixel=False)
     iterates, stopped, fit = [], "single solve", None
     for round_ in range(options.iterations):
         system = reduce(operator.iadd, (weighted_system(v.coeffs, v.y, v.weights) for v in views))
@@ -374,14 +386,27 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
             break
         stopped = f"{options.iterations} rounds"
         mu = np.stack([basis.evaluate(x[:, c]) for c in range(C)])
-        for v, w in zip(views, used):
-            keep = np.ones(len(v.y), bool) if v.scene_w is None else v.scene_w > 0
-            v.robust_w = robust_weights(predicted(v.coeffs, mu, system.codes) - v.y, keep, loss=options.robust,
-                                        floor=options.floors.get(v.name, 0.0))
+        _reweight(views, mu, system.codes, options)
     out = _field_outputs(fit, views, used, basis, system, gains, P, C, round_ + 1, stopped, iterates)
     if light is not None:
         out = out.replace(illumination=light.report(fit.estimate, fit.std))
     return out if lens is None else out.replace(vignetting=lens.report(fit.estimate, fit.std, fit.correlation))
+
+
+def _reweight(views, mu: np.ndarray, codes: np.ndarray, options: FieldOptions, *, per_pixel: bool = True) -> None:
+    """Each view's robust weights at the monomials ``mu``: the views' disagreement
+    (:mod:`methods.symbolic.consistency`) where a pixel has other views to compare with, else the
+    per-pixel robust weights (``per_pixel=False``: 1 there, the first solve's start)."""
+    pred = {v.name: predicted(v.coeffs, mu, codes) for v in views}
+    usable = {v.name: np.ones(len(v.y), bool) if v.scene_w is None else v.scene_w > 0 for v in views}
+    agree = options.consistency.weights({v.name: v.y for v in views}, pred, usable) \
+        if options.consistency is not None else {}
+    for v in views:
+        w = robust_weights(pred[v.name] - v.y, usable[v.name], loss=options.robust,
+                           floor=options.floors.get(v.name, 0.0)) if per_pixel else np.ones(len(v.y))
+        if v.name in agree:
+            w = np.where(np.isnan(agree[v.name]), w, agree[v.name])
+        v.robust_w = w
 
 
 def _field_outputs(fit: Fit, views, used, basis, system, gains, P, C, rounds, stopped, iterates) -> Fit:

@@ -107,6 +107,13 @@ class SymbolicOptions(StartOptions):
         "robust reweighting of the pixels (IRLS from the stored coefficients, no render) against "
         "objects the model lacks; `auto`: `cauchy` for photographs (8/16-bit images, pixel weights or "
         "per-view exposure), `none` for linear radiance", choice("auto", *ROBUST_LOSSES))
+    consistency: str = option(
+        "with robust reweighting and at least 3 views, `auto` weighs each pixel whose model point "
+        "two or more other views see by how far its relative residual departs from theirs at that "
+        "point (a Cauchy weight; objects the model lacks, such as a parked car, disagree between "
+        "views whatever share of a segment they cover), before the first solve and after each "
+        "robust round; pixels without two other views keep the per-pixel robust weights; `none`: "
+        "per-pixel robust weights only. results.json `field.consistency`", choice("auto", "none"))
     boundary: int | str = option(
         "leave out pixels within this many pixels of a change of segment (a photograph resampled from "
         "a distorted camera mixes the two materials there); `auto`: 1 when some view has a distorted "
