@@ -99,10 +99,11 @@ class SymbolicOptions(StartOptions):
     align: str = option(
         "views aligned to the model between refinement passes (needs `refine` >= 1): each observed "
         "image is registered to the prediction at the pass's estimate by a small rotation of its camera "
-        "(Gauss-Newton on the prediction's image gradient over the fit's pixel weights), and the next "
-        "pass renders the corrected camera; `shift`: pitch and yaw (to first order a sub-pixel image "
-        "shift), `rotation`: and roll; a correction above `align_max_px` or ill-conditioned is refused "
-        "and the camera kept. results.json `alignment`", choice("none", "shift", "rotation"))
+        "(Gauss-Newton over the fit's pixel weights), and the next pass renders the corrected camera; "
+        "`shift`: pitch and yaw (to first order a sub-pixel image shift), `rotation`: and roll. A "
+        "correction above `align_max_px`, ill-conditioned or within its noise is not applied; its "
+        "precision is that of the pass's prediction (about 0.03 px on a 64x64 view at 256 spp, 0.15 px "
+        "at 16 spp). results.json `alignment`", choice("none", "shift", "rotation"))
     align_max_px: float = option(
         "largest correction `align` accepts, in pixels of image motion (at the principal point; the "
         "roll's at the image corner)", number(0.0, lo_open=True))
