@@ -2,6 +2,7 @@
 results.json reports (docs/results.md, "method-specific keys")."""
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -40,6 +41,9 @@ def method_result(passes: Passes, problem, params, guess: np.ndarray, options: S
         extras["vignetting"] = fit.vignetting
     if fit.illumination is not None:
         extras["illumination"] = fit.illumination
+    if passes.alignment is not None:
+        extras["alignment"] = passes.alignment
+        problem = dataclasses.replace(problem, cameras=passes.cameras)   # relit through the corrected cameras
     timings = {"render": passes.render_s, "solve": passes.solve_s}
     if options.relight.enabled:
         t = time.perf_counter()

@@ -96,8 +96,15 @@ def view_key(problem, cam, parameters, guesses, spp, seed, prob_floor, max_bounc
             "guesses": np.round(np.asarray(guesses, float), 9).tolist(), "prob_floor": float(prob_floor),
             "observed": _digest(problem.observed[cam.name]),
             "variant": problem.settings.variant, "cross_gram": bool(cross_gram),
-            "tail_bounces": int(tail_bounces), "version": 7,
+            "tail_bounces": int(tail_bounces), "version": 8, "camera": camera_key(cam),
             "unknown_scales": [i for i, e in enumerate(problem.scene.emitters) if e.scale_unknown]}
+
+
+def camera_key(cam) -> list:
+    """The camera's pose and pinhole, in the pass's key: a view whose camera was corrected
+    (:mod:`methods.symbolic.alignment`) keeps its name but renders other pixels."""
+    pinhole = [int(cam.width), int(cam.height), float(cam.f), float(cam.cx), float(cam.cy)]
+    return pinhole + np.round(np.asarray(cam.cam_from_world, float), 12).ravel().tolist()
 
 
 def observed_pixels(problem, cam) -> np.ndarray:

@@ -32,8 +32,8 @@ from methods.symbolic.coefficients import PassResult, TiledCoefficients, ViewCoe
 from methods.symbolic.gram import GramSystem, weighted_system
 from methods.symbolic.illumination import unknown_emitters
 from methods.symbolic.integrator import integrator_class
-from methods.symbolic.pass_cache import (TileWriter, cached_view, empty_system, observed_pixels, store_tile,
-                                         view_key)
+from methods.symbolic.pass_cache import (TileWriter, cached_view, camera_key, empty_system, observed_pixels,
+                                         store_tile, view_key)
 
 log = logging.getLogger(__name__)
 BYTES_COPIES = 3   # an event buffer lives in Dr.Jit, compacted on the device, and in numpy
@@ -226,7 +226,9 @@ def render_view_task(task: dict, *, variant: str, threads: int | None = None
 
 def _scene_and_integrator(task: dict, variant: str):
     scene, params = task["scene"], task["parameters"]
-    key = (variant, scene.content_hash, scene.root, tuple(c.name for c in task["cameras"]), task["spp"],
+    # the cameras by pose too: a corrected camera (methods.symbolic.alignment) keeps its name
+    key = (variant, scene.content_hash, scene.root, tuple(c.name for c in task["cameras"]),
+           tuple(tuple(camera_key(c)) for c in task["cameras"]), task["spp"],
            task["guesses"].tobytes(), task["prob_floor"], task["max_bounces"], task["tile_pixels"],
            task.get("tail_bounces", 0),
            tuple((p.segment, p.kernel) for p in params))

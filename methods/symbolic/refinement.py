@@ -5,7 +5,8 @@ and is solved without more rendering: through the joint cost, the per-segment es
 equations, or the field path around either (pixel weights, exposure gains, robust rounds). With
 ``refine`` > 0 the next pass is rendered at the estimate (the tail's linearisation and the kernel
 selection move there) until no weight moved more than ``refine_tol + 2 std`` between two
-passes, or the cap.
+passes, or the cap. With ``align`` each view's camera is registered to the prediction before the
+next pass (:mod:`methods.symbolic.alignment`).
 """
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ import numpy as np
 from framework.cache import Cache
 from framework.executor import make_executor
 from methods._common import Trace, segment_groups
+from methods.symbolic.alignment import Alignment
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.field import FieldOptions, fit_field
 from methods.symbolic.fit import Fit, images_at
@@ -40,6 +42,8 @@ class Passes:
     stopped: str
     from_cache: list
     field: FieldOptions
+    cameras: list                  # those of the last pass: corrected with method.align
+    alignment: list | None         # results.json alignment (method.align), else None
 
 
 def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, renders: int, trace: Trace) -> Passes:
@@ -52,9 +56,16 @@ def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, ren
     stopped = "single pass" if options.refine == 0 else f"cap of {options.refine} refinement pass(es)"
     render_s = solve_s = 0.0
     stages, moves, fit = {}, [], None
+    # method.align: between passes each view's camera is registered to the prediction at the
+    # estimate; the next pass renders (and caches, its key holds the pose) the corrected cameras
+    alignment = Alignment(problem.cameras, mode=options.align, max_px=options.align_max_px) \
+        if options.align != "none" else None
     for k in range(1 + options.refine):
         if k:      # re-render at the estimate: better kernel selection, and a tail at the estimate
             x0 = np.where(np.isnan(fit.estimate), x0, fit.estimate)
+            if alignment is not None:
+                problem = alignment.update(problem, fit, before_pass=k)
+                field = FieldOptions.resolve(options, problem)    # the boundary pixels follow the cameras
         result = render_pass(problem, params, x0, options, seed=int(problem.seed) + 7777 * renders)
         renders += 1
         t_solve = time.perf_counter()
@@ -69,11 +80,12 @@ def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, ren
         if k:
             fit = carried(previous, fit)
             moves.append(moved(previous.estimate, fit.estimate, fit.std, options.refine_tol))
-            if moves[-1] <= 1.0:
+            if moves[-1] <= 1.0 and (alignment is None or not alignment.moved()):   # and no camera moved
                 stopped = (f"converged after {k} refinement pass(es): no weight moved more than "
                            f"refine_tol + 2 std ({moves[-1]:.2f} of it)")
                 break
-    return Passes(fit, renders, render_s, solve_s, stages, moves, stopped, result.from_cache, field)
+    return Passes(fit, renders, render_s, solve_s, stages, moves, stopped, result.from_cache, field,
+                  problem.cameras, alignment.report(problem.cameras) if alignment is not None else None)
 
 
 def render_pass(problem, params, x0: np.ndarray, options: SymbolicOptions, *, seed: int):
