@@ -114,3 +114,21 @@ def predicted(coeffs, mu: np.ndarray, codes: np.ndarray) -> np.ndarray:
         at = np.searchsorted(codes, block.codes)
         out.append(np.stack([block.apply(c, mu[c][at]) for c in range(len(block.a))], axis=1))
     return np.concatenate(out)
+
+
+def predicted_variance(coeffs, mu: np.ndarray, codes: np.ndarray) -> np.ndarray:
+    """``(n, C)`` Monte Carlo variance of each pixel's :func:`predicted` value, one estimate per
+    pixel from its two half-sample estimates: ``Γ = s A + (1 - s) B`` with ``A``, ``B``
+    independent, so ``Var(Γμ) = s (1 - s) E[((A - B) μ)²]`` (``s`` = ``split``; zeros without
+    halves). Single-pixel and so itself noisy (one degree of freedom); it tells the pixels whose
+    pass drew a rare, bright path (which an unbiased estimate needs) from those whose observation
+    departs from any prediction."""
+    out = []
+    for _, block in coeffs.blocks():
+        at = np.searchsorted(codes, block.codes)
+        if block.b is None:
+            out.append(np.zeros((block.n_rows, len(block.a))))
+            continue
+        diff = np.stack([block.a[c] @ mu[c][at] - block.b[c] @ mu[c][at] for c in range(len(block.a))], axis=1)
+        out.append(block.split * (1.0 - block.split) * diff ** 2)
+    return np.concatenate(out)

@@ -13,7 +13,8 @@ The estimator
     ``d = e_v(p) - median(e_v(p), e_u(q_u) for every such u)`` per channel (the median of three or
     more values, the view's own included: one view that disagrees cannot move it); standardised by the robust scale of all the
     views' disagreements (``1.4826 MAD`` of ``d`` over every compared pixel of every view, per
-    channel) to ``t`` (the RMS over channels), it weighs the pixel ``1 / (1 + (t / 2.385)²)`` (Cauchy, 95 % efficiency for
+    channel), widened per pixel by the Monte Carlo variance of its own prediction (relative), to
+    ``t`` (the RMS over channels), it weighs the pixel ``1 / (1 + (t / 2.385)²)`` (Cauchy, 95 % efficiency for
     Gaussian ``d``). Pixels with fewer other views keep the per-pixel robust weights
     (``method.robust``) as before.
 
@@ -67,16 +68,18 @@ class ViewPairs:
             kept[(v, u)] = (p[same], q[same])
         return cls(tuple(c.name for c in problem.cameras), tuple(c.width * c.height for c in problem.cameras), kept)
 
-    def weights(self, observed: dict, predicted: dict, usable: dict) -> dict:
+    def weights(self, observed: dict, predicted: dict, usable: dict, variance: dict | None = None) -> dict:
         """View name -> ``(n,)`` consistency weights, NaN where the pixel has fewer than
         :data:`MIN_OTHERS` other views to compare with (module docstring).
 
         ``observed``, ``predicted``: name -> ``(n, C)``; ``usable``: name -> ``(n,)`` bool (pixels
-        with a non-zero scene weight: masked pixels neither are tested nor testify).
+        with a non-zero scene weight: masked pixels neither are tested nor testify); ``variance``:
+        name -> ``(n, C)`` Monte Carlo variance of each prediction, which widens the pixel's own
+        scale (a pass's rare bright path is not an object the model lacks).
         """
         e = {n: _relative(observed[n], predicted[n]) for n in self.names}
         V = len(self.names)
-        tested, d = {}, {}
+        tested, d, own = {}, {}, {}
         for v, name in enumerate(self.names):
             C = e[name].shape[1]
             others = np.full((self.sizes[v], V, C), np.nan)
@@ -89,20 +92,25 @@ class ViewPairs:
             tested[name] = t = np.flatnonzero((count >= MIN_OTHERS) & usable[name])
             others[t, v] = e[name][t]              # the median of all views that see the point
             d[name] = e[name][t] - np.nanmedian(others[t], axis=1)
+            own[name] = 0.0 if variance is None else variance[name][t] / _floored(predicted[name])[t] ** 2
         pooled = np.concatenate([d[n] for n in self.names])
         out = {}
         for v, name in enumerate(self.names):
             w = np.full(self.sizes[v], np.nan)
             if len(pooled):
-                w[tested[name]] = _cauchy(d[name], _scale(pooled))
+                w[tested[name]] = _cauchy(d[name], np.sqrt(_scale(pooled) ** 2 + own[name]))
             out[name] = w
         return out
 
 
+def _floored(y_hat: np.ndarray) -> np.ndarray:
+    """``max(ŷ, floor)`` per channel (floor: :data:`DARK_FRACTION` of the median ŷ)."""
+    return np.maximum(y_hat, DARK_FRACTION * np.maximum(np.median(y_hat, axis=0), 1e-12))
+
+
 def _relative(y: np.ndarray, y_hat: np.ndarray) -> np.ndarray:
-    """``(y - ŷ) / max(ŷ, floor)`` per channel (floor: :data:`DARK_FRACTION` of the median ŷ)."""
-    floor = DARK_FRACTION * np.maximum(np.median(y_hat, axis=0), 1e-12)
-    return (y - y_hat) / np.maximum(y_hat, floor)
+    """``(y - ŷ) / max(ŷ, floor)`` per channel (:func:`_floored`)."""
+    return (y - y_hat) / _floored(y_hat)
 
 
 def _scale(d: np.ndarray) -> np.ndarray:
@@ -112,7 +120,7 @@ def _scale(d: np.ndarray) -> np.ndarray:
 
 
 def _cauchy(d: np.ndarray, scale: np.ndarray) -> np.ndarray:
-    """Cauchy weights of disagreements ``d`` (m, C) standardised by ``scale`` (C,), ``t`` the RMS
-    over the channels."""
+    """Cauchy weights of disagreements ``d`` (m, C) standardised by ``scale`` ((C,) or per pixel
+    (m, C)), ``t`` the RMS over the channels."""
     t = np.sqrt(np.mean((d / scale) ** 2, axis=1))
     return 1.0 / (1.0 + (t / CAUCHY_K) ** 2)

@@ -26,12 +26,20 @@ Robust weights (``method.robust``)
     Iteratively reweighted least squares: after each solve, the residuals ``r_{p,c}`` of every
     pixel are divided by a robust scale per view and channel, ``s = max(1.4826·MAD(r),
     σ_q)`` (``σ_q``: the median quantisation noise of the delivered 8/16-bit encoding, so that
-    quantisation never makes an outlier), combined over channels into ``t_p = sqrt(mean_c
-    (r_{p,c}/s_c)²)``, and the pixel gets the weight ``ψ(t)/t`` of the Cauchy
+    quantisation never makes an outlier), widened per pixel by the Monte Carlo variance ``v_{p,c}``
+    of the pixel's own prediction (from its two half-sample estimates,
+    :func:`~methods.symbolic.coefficients.predicted_variance`), combined over channels into
+    ``t_p = sqrt(mean_c r_{p,c}² / (s_c² + v_{p,c}))``, and the pixel gets the weight ``ψ(t)/t`` of the Cauchy
     (``1/(1 + (t/2.385)²)``) or Huber (``min(1, 1.345/t)``) loss (95 % Gaussian efficiency
     each). A car or a pedestrian the model lacks leaves residuals many times the scale and is
     weighted out; the fit stops when the estimate moves less than ``tol`` between two rounds
-    or after ``iterations`` rounds.
+    or after ``iterations`` rounds. Why the pixel's own variance: an unbiased Monte Carlo pass
+    is heavy-tailed (a few pixels drew a rare bright path); measured against the view's scale
+    alone those pixels look like outliers and were weighted out, which biased ρ by up to 15 std
+    on clean linear images (tests/methods/test_consistency.py); against their own variance
+    they are not.
+    With ``method.consistency=auto`` a pixel that two or more other views can be compared with
+    is weighed by the views' disagreement instead (:mod:`methods.symbolic.consistency`).
 """
 from __future__ import annotations
 
@@ -46,7 +54,7 @@ from methods.symbolic.basis import MonomialBasis, code_digits, encode_digits, me
 from methods.symbolic.fit import Fit
 from methods.symbolic.gram import weighted_system
 from methods.symbolic.options import ROBUST_LOSSES, SymbolicOptions
-from methods.symbolic.coefficients import TiledCoefficients, ViewCoefficients, predicted
+from methods.symbolic.coefficients import TiledCoefficients, ViewCoefficients, predicted, predicted_variance
 from methods.symbolic.consistency import MIN_OTHERS, ViewPairs
 from methods.symbolic.illumination import Illumination, unknown_emitters
 from methods.symbolic.vignetting import Vignetting
@@ -105,8 +113,8 @@ def with_gain(coeffs, *, n_params: int, max_degree: int, n_total: int, gain: int
     return ViewCoefficients(relabel(coeffs.a), relabel(coeffs.b), float(coeffs.split), codes[order])
 
 
-def robust_weights(residual: np.ndarray, used: np.ndarray, *, loss: str, floor: np.ndarray | float = 0.0
-                   ) -> np.ndarray:
+def robust_weights(residual: np.ndarray, used: np.ndarray, *, loss: str, floor: np.ndarray | float = 0.0,
+                   variance: np.ndarray | None = None) -> np.ndarray:
     """``(n,)`` IRLS weights of one view's pixels (module docstring).
 
     Parameters
@@ -119,6 +127,13 @@ def robust_weights(residual: np.ndarray, used: np.ndarray, *, loss: str, floor: 
         ``cauchy`` or ``huber`` (``none``: all ones).
     floor : float or numpy.ndarray
         Smallest scale per channel (the quantisation noise).
+    variance : numpy.ndarray, optional
+        ``(n, C)`` Monte Carlo variance of each pixel's prediction
+        (:func:`~methods.symbolic.coefficients.predicted_variance`): a pixel's residual is
+        measured against ``sqrt(scale² + variance)``, so a pixel whose pass drew a rare bright
+        path is not taken for an outlier. Down-weighting those would drop the very samples that
+        keep the estimate unbiased (measured on the tiny scene's clean linear images: the
+        per-pixel weights alone moved ρ by up to 15 std).
     """
     n, C = residual.shape
     if loss == "none" or not used.any():
@@ -127,7 +142,8 @@ def robust_weights(residual: np.ndarray, used: np.ndarray, *, loss: str, floor: 
     mad = np.median(np.abs(r - np.median(r, axis=0)), axis=0)
     scale = np.maximum(MAD_TO_STD * mad, np.broadcast_to(np.asarray(floor, float), (C,)))
     scale = np.maximum(scale, 1e-12 * (np.abs(r).max() + 1e-30))
-    t = np.sqrt(np.mean((residual / scale) ** 2, axis=1))
+    spread = scale ** 2 if variance is None else scale ** 2 + variance
+    t = np.sqrt(np.mean(residual ** 2 / spread, axis=1))
     if loss == "cauchy":
         return 1.0 / (1.0 + (t / CAUCHY_K) ** 2)
     if loss == "huber":
@@ -398,12 +414,14 @@ def _reweight(views, mu: np.ndarray, codes: np.ndarray, options: FieldOptions, *
     (:mod:`methods.symbolic.consistency`) where a pixel has other views to compare with, else the
     per-pixel robust weights (``per_pixel=False``: 1 there, the first solve's start)."""
     pred = {v.name: predicted(v.coeffs, mu, codes) for v in views}
+    var = {v.name: predicted_variance(v.coeffs, mu, codes) for v in views}
     usable = {v.name: np.ones(len(v.y), bool) if v.scene_w is None else v.scene_w > 0 for v in views}
-    agree = options.consistency.weights({v.name: v.y for v in views}, pred, usable) \
+    agree = options.consistency.weights({v.name: v.y for v in views}, pred, usable, var) \
         if options.consistency is not None else {}
     for v in views:
         w = robust_weights(pred[v.name] - v.y, usable[v.name], loss=options.robust,
-                           floor=options.floors.get(v.name, 0.0)) if per_pixel else np.ones(len(v.y))
+                           floor=options.floors.get(v.name, 0.0), variance=var[v.name]) \
+            if per_pixel else np.ones(len(v.y))
         if v.name in agree:
             w = np.where(np.isnan(agree[v.name]), w, agree[v.name])
         v.robust_w = w

@@ -23,22 +23,20 @@ def van(tmp_path_factory):
     problem = dataclasses.replace(problem, settings=dataclasses.replace(problem.settings, spp=16))
     cam = problem.cameras[0]
     ground = np.flatnonzero(segment_maps(problem.scene, [cam])[cam.name].ravel() == 0)
-    rng = np.random.default_rng(0)
     rows = np.sort(np.unique(ground // cam.width))            # a block of whole rows: one object
     covered = ground[np.isin(ground // cam.width, rows[: int(0.6 * len(rows))])]
     img = problem.observed[cam.name].reshape(-1, 3).copy()
     img[covered] *= 0.3
     observed = dict(problem.observed, **{cam.name: img.reshape(problem.observed[cam.name].shape)})
-    del rng
     return problem, dataclasses.replace(problem, observed=observed), covered, problem.scene.reference(problem.parameters)
 
 
 def test_the_van_disagrees_with_the_other_views(van):
     """At the truth the van's pixels weigh < 0.1 (their relative residual is -0.7, the other
-    views' about 0), while the clean pixels' median weight is > 0.8 (measured ...)."""
+    views' about 0), while the clean pixels' median weight is > 0.8 (measured: 0.018 and 0.96;
+    51 of the van's 62 pixels have two other views to compare with)."""
     clean, problem, covered, ref = van
     pairs = ViewPairs.of(problem)
-    from factory import run_symbolic as _  # noqa: F401  (the method's own prediction is not needed)
     from framework.observe import render_references
     pred = render_references(problem.scene, list(problem.cameras), spp=256, max_depth=4, seed=7)
     flat = lambda img: img.reshape(-1, img.shape[-1]).astype(np.float64)  # noqa: E731
@@ -51,22 +49,27 @@ def test_the_van_disagrees_with_the_other_views(van):
     van_w = w[name][covered][tested[covered]]
     clean_w = w[name][tested & ~np.isin(np.arange(len(tested)), covered)]
     assert len(van_w) > 0.5 * len(covered)            # most of the van's pixels are tested
-    print("weights", np.median(van_w), np.median(clean_w), len(van_w), len(covered))
     assert np.median(van_w) < 0.1 and np.median(clean_w) > 0.8, (np.median(van_w), np.median(clean_w))
 
 
-def test_the_estimate_does_not_follow_the_van(van):
-    """With Cauchy weights alone the ground's ρ follows the van (measured ... below the truth); with
-    the views' disagreement it stays within 4 std + 0.01 of it (measured ...)."""
+@pytest.mark.slow
+def test_per_pixel_weights_are_unbiased_and_hold_the_van(van):
+    """The per-pixel robust weights measure each residual against the robust scale widened by the
+    pixel's own Monte Carlo variance (two half-sample estimates): on the clean linear images with
+    ``robust=cauchy`` they no longer drop the pass's rare bright paths, and with the van they hold.
+    Measured, seeds 0-2 (max |error| / max |z|): clean 0.011, 0.008, 0.008 / 2.9, 2.0, 2.1 (without
+    the variance: 0.040, 0.027, 0.027 / 11, 10, 9); van 0.006, 0.014, 0.012 / 2.4, 4.0, 4.0 (without
+    the variance 0.049, 0.011 / 4.4, 2.2, seeds 0-1); with ``consistency=auto`` as well 0.016, 0.025, 0.021
+    / 4.4, 6.0, 5.6 (why it does worse than the per-pixel weights here is not understood yet; it
+    is off by default). Tolerances: 1.5x the worst of the three seeds."""
     clean, problem, covered, ref = van
-    alone = run_symbolic(problem, robust="cauchy", consistency="none")
+    plain = run_symbolic(clean, robust="cauchy")
+    assert np.abs(plain.estimate - ref).max() < 0.017 and np.abs((plain.estimate - ref) / plain.std).max() < 4.4
+    held = run_symbolic(problem, robust="cauchy")
+    assert np.abs(held.estimate - ref).max() < 0.021
     both = run_symbolic(problem, robust="cauchy", consistency="auto")
-    err_alone = np.abs(alone.estimate - ref).max()
-    err_both = np.abs(both.estimate - ref).max()
-    print("errors", np.round(alone.estimate - ref, 4).tolist(), np.round(both.estimate - ref, 4).tolist(),
-          np.round(both.std, 4).tolist())
-    assert err_both < 0.5 * err_alone
-    assert np.all(np.abs(both.estimate - ref) <= 4 * both.std + 0.01)
+    assert np.abs(both.estimate - ref).max() < 0.038
+    assert both.extras["field"]["consistency"] and not held.extras["field"]["consistency"]
 
 
 def test_cauchy_of_the_disagreement_by_hand():
