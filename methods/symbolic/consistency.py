@@ -11,9 +11,10 @@ The estimator
     other views (:func:`framework.render.correspondence.visible_pairs`: projection, a shadow ray
     to each camera, the same segment at the pixel found there), the disagreement is
     ``d = e_v(p) - median(e_v(p), e_u(q_u) for every such u)`` per channel (the median of three or
-    more values, the view's own included: one view that disagrees cannot move it); standardised by the robust scale of all the
-    views' disagreements (``1.4826 MAD`` of ``d`` over every compared pixel of every view, per
-    channel), widened per pixel by the Monte Carlo variance of its own prediction (relative), to
+    more values, the view's own included: one view that disagrees cannot move it); standardised by
+    ``sqrt(s² + v_p)``, ``v_p`` the Monte Carlo variance of the pixel's own prediction (relative)
+    and ``s`` the robust scale of every compared pixel of every view
+    (:func:`~methods.symbolic.robust_scale.robust_scale`, per channel), to
     ``t`` (the RMS over channels), it weighs the pixel ``1 / (1 + (t / 2.385)²)`` (Cauchy, 95 % efficiency for
     Gaussian ``d``). Pixels with fewer other views keep the per-pixel robust weights
     (``method.robust``) as before.
@@ -38,12 +39,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from methods.symbolic.robust_scale import robust_scale
+
 #: the other views that must see a point for its test (a median of two or more)
 MIN_OTHERS = 2
 #: Cauchy constant (95 % efficiency for Gaussian disagreement), as the per-pixel weights
 CAUCHY_K = 2.385
-#: 1.4826 · MAD estimates a Gaussian's standard deviation
-MAD_TO_STD = 1.4826
 #: ``ŷ`` is floored at this fraction of the view's median prediction (per channel): dark pixels
 #: would otherwise blow the relative residual up
 DARK_FRACTION = 0.05
@@ -92,13 +93,15 @@ class ViewPairs:
             tested[name] = t = np.flatnonzero((count >= MIN_OTHERS) & usable[name])
             others[t, v] = e[name][t]              # the median of all views that see the point
             d[name] = e[name][t] - np.nanmedian(others[t], axis=1)
-            own[name] = 0.0 if variance is None else variance[name][t] / _floored(predicted[name])[t] ** 2
+            own[name] = 0.0 * d[name] if variance is None else variance[name][t] / _floored(predicted[name])[t] ** 2
         pooled = np.concatenate([d[n] for n in self.names])
+        own_all = None if variance is None else np.concatenate([own[n] for n in self.names])
+        scale = robust_scale(pooled, own_all) if len(pooled) else None
         out = {}
         for v, name in enumerate(self.names):
             w = np.full(self.sizes[v], np.nan)
-            if len(pooled):
-                w[tested[name]] = _cauchy(d[name], np.sqrt(_scale(pooled) ** 2 + own[name]))
+            if scale is not None:
+                w[tested[name]] = _cauchy(d[name], np.sqrt(scale ** 2 + own[name]))
             out[name] = w
         return out
 
@@ -111,12 +114,6 @@ def _floored(y_hat: np.ndarray) -> np.ndarray:
 def _relative(y: np.ndarray, y_hat: np.ndarray) -> np.ndarray:
     """``(y - ŷ) / max(ŷ, floor)`` per channel (:func:`_floored`)."""
     return (y - y_hat) / _floored(y_hat)
-
-
-def _scale(d: np.ndarray) -> np.ndarray:
-    """``(C,)`` robust scale of disagreements ``d`` (m, C): 1.4826 MAD per channel."""
-    mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0)
-    return np.maximum(MAD_TO_STD * mad, 1e-12)
 
 
 def _cauchy(d: np.ndarray, scale: np.ndarray) -> np.ndarray:

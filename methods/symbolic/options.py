@@ -126,7 +126,7 @@ class SymbolicOptions(StartOptions):
         "robust round; pixels without two other views keep the per-pixel robust weights; `none`: "
         "per-pixel robust weights only (the default: on the tiny scene with a van over 60 % of the "
         "ground in one of 4 views, the per-pixel weights, whose scale includes each pixel's Monte Carlo "
-        "variance, erred 0.006-0.014 and `auto` 0.016-0.025, seeds 0-2). results.json "
+        "variance, erred 0.009-0.018 and `auto` 0.015-0.020, seeds 0-2). results.json "
         "`field.consistency`", choice("auto", "none"))
     boundary: int | str = option(
         "leave out pixels within this many pixels of a change of segment (a photograph resampled from "

@@ -117,14 +117,21 @@ def test_robust_weights_ignore_an_object_the_model_lacks(problem):
 
 
 def test_robust_weights_by_hand():
-    """Cauchy weight 1/(1 + (t/2.385)²) of t = |r|/(1.4826·MAD); Huber min(1, 1.345/t)."""
+    """Cauchy weight 1/(1 + (t/2.385)²) of t = |r|/(MAD / 0.67449), the MAD's Gaussian scale
+    (0.67449 = the median of |N(0, 1)|); Huber min(1, 1.345/t); with each pixel's own variance
+    v_p the scale s solves median(|r - median r| / sqrt(s² + v)) = 0.67449 and t = |r|/sqrt(s² + v)."""
     r = np.array([[-1.0], [0.0], [1.0], [2.0], [40.0]])
     used = np.ones(5, bool)
-    scale = 1.4826 * 1.0                   # median 1, |r - 1| = 2, 1, 0, 1, 39: MAD 1
+    scale = 1.0 / 0.6744897501960817       # median 1, |r - 1| = 2, 1, 0, 1, 39: MAD 1
     t = np.abs(r[:, 0]) / scale
     np.testing.assert_allclose(robust_weights(r, used, loss="cauchy"), 1 / (1 + (t / 2.385) ** 2))
     np.testing.assert_allclose(robust_weights(r, used, loss="huber"), np.minimum(1, 1.345 / np.maximum(t, 1e-300)))
     np.testing.assert_allclose(robust_weights(r, used, loss="cauchy", floor=10.0), 1 / (1 + (np.abs(r[:, 0]) / 10 / 2.385) ** 2))
+    # v = 1 everywhere: s² + 1 = (MAD / 0.67449)², so the weights are those without v
+    v = np.full((5, 1), 1.0)
+    assert (1.0 / 0.6744897501960817) ** 2 > 1.0
+    np.testing.assert_allclose(robust_weights(r, used, loss="cauchy", variance=v),
+                               1 / (1 + (t / 2.385) ** 2), rtol=1e-9)
 
 
 def test_masked_pixels_do_not_count(problem):

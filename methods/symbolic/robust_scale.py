@@ -1,0 +1,35 @@
+"""The robust scale of residuals whose pixels carry their own Monte Carlo variance.
+
+A residual ``d_p`` of pixel ``p`` has variance ``s² + v_p``: ``s²`` shared by the view's pixels
+(image noise, misfit), ``v_p`` the Monte Carlo variance of the pixel's own prediction (known per
+pixel from its two half-sample estimates). The scale ``s`` is the one at which the standardised
+residuals ``d_p / sqrt(s² + v_p)`` have the median absolute value of a unit Gaussian (0.6745):
+the MAD estimator made heteroscedastic, with the same 50 % breakdown point. Without ``v`` it is
+``1.4826 · MAD`` about 0. Measuring against the plain MAD of ``d`` would count the typical pixel's
+Monte Carlo variance twice (once in the MAD, once in ``v_p``) and let outliers through.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+#: median of |N(0, 1)|
+HALF_NORMAL_MEDIAN = 0.6744897501960817
+
+
+def robust_scale(d: np.ndarray, variance: np.ndarray | None = None, *, steps: int = 60) -> np.ndarray:
+    """``(C,)`` scale ``s`` of residuals ``d`` (n, C) with per-pixel variances ``variance``
+    (n, C) or None (module docstring); 0 where the variances alone already explain the spread.
+    Found by bisection (the standardised median decreases in ``s``) to ``2^-steps`` of the
+    plain MAD scale."""
+    d = np.abs(np.asarray(d, float))
+    plain = np.median(d, axis=0) / HALF_NORMAL_MEDIAN
+    if variance is None or len(d) == 0:
+        return plain
+    v = np.asarray(variance, float)
+    lo, hi = np.zeros_like(plain), plain.copy()
+    for _ in range(steps):
+        mid = 0.5 * (lo + hi)
+        too_wide = np.median(d / np.sqrt(mid ** 2 + v + 1e-300), axis=0) < HALF_NORMAL_MEDIAN
+        hi = np.where(too_wide, mid, hi)
+        lo = np.where(too_wide, lo, mid)
+    return hi
