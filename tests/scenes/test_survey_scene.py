@@ -120,3 +120,17 @@ def test_true_light_scales_the_declared_one():
     hazy = survey.true_light(scene, turbidity=6.0)
     np.testing.assert_allclose(hazy.emitters[1].direction, scene.emitters[1].direction)
     assert not np.allclose(hazy.emitters[0].image, scene.emitters[0].image)
+
+
+def test_shared_camera_needs_identical_intrinsics(tmp_path):
+    """``write_colmap(shared_camera=True)`` writes one camera for views of one lens and refuses
+    views whose size or intrinsics differ."""
+    import pycolmap
+
+    from framework.scene.write import write_colmap
+
+    cams = uc.cameras(2, 32)
+    rec = pycolmap.Reconstruction(str(write_colmap(tmp_path / "one", cams, shared_camera=True)))
+    assert rec.num_cameras() == 1 and rec.num_images() == 3
+    with pytest.raises(ValueError, match="aerial_000.png differ"):
+        write_colmap(tmp_path / "two", [*cams[:2], uc.cameras(1, 48)[-1]], shared_camera=True)
