@@ -230,17 +230,29 @@ def sky_match(scales: list[dict]) -> dict:
 # The runs
 # ----------------------------------------------------------------------------------------------
 
+def failure(stderr: str, work: Path) -> str:
+    """The line that says why a run wrote no results: the one-line ``error: ...`` of a refusal,
+    else the exception's last line (a traceback's end), else the last line; the run folder
+    ``work`` written ``<work>`` (the stored results name no machine's folders)."""
+    lines = [x.strip() for x in stderr.splitlines() if x.strip()]
+    refused = [x for x in lines if x.startswith("error:")]
+    raised = [x for x in lines if x.split(":", 1)[0].endswith(("Error", "Exception"))]
+    line = (refused or raised or lines or [""])[-1]
+    return line.replace(str(work), "<work>")
+
+
 def run(sizes, work: Path, log=print) -> list[dict]:
     """The rows of :data:`ROWS`; a row dict each."""
     base = base_folder(sizes, work)
-    folders = {"a": declared_variant(base, work / "scenes" / "a_declared"), "b": base,
-               "c": no_panel_variant(base, work / "scenes" / "c_no_panel"),
-               "d": turbidity_variant(base, work / "scenes" / "d_turbidity", spp=sizes.survey_photo_spp)}
+    folders = {"a": lambda: declared_variant(base, work / "scenes" / "a_declared"), "b": lambda: base,
+               "c": lambda: no_panel_variant(base, work / "scenes" / "c_no_panel"),
+               "d": lambda: turbidity_variant(base, work / "scenes" / "d_turbidity", spp=sizes.survey_photo_spp)}
     rows = {}
     for key in RUN_ORDER:
+        folder = folders[key]()
         run_dir = work / "runs" / key
         shutil.rmtree(run_dir, ignore_errors=True)
-        out = run_child([f"scene={SCENE}", f"scene.dir={folders[key]}", "views=all", "method=symbolic",
+        out = run_child([f"scene={SCENE}", f"scene.dir={folder}", "views=all", "method=symbolic",
                          "report=false", f"cache.dir={work / 'cache'}", f"hydra.run.dir={run_dir}", *sizes.extra,
                          *sizes.survey_extra], timeout=5400)
         path = run_dir / "results.json"
@@ -250,8 +262,7 @@ def run(sizes, work: Path, log=print) -> list[dict]:
         if res:
             row.update(summarise(res, key))
         else:
-            lines = [x for x in out["stderr_tail"].splitlines() if x.strip()]
-            row.update({"met": False, "refusal": lines[-1] if lines else ""})
+            row.update({"met": False, "refusal": failure(out["stderr_tail"], work)})
         rows[key] = row
         log(f"[survey] {key}: rc {out['rc']}, worst diffuse {row.get('worst_diffuse')}, specular "
             f"{row.get('worst_specular')}, beyond {row.get('beyond')}, {out['wall_s']:.0f} s"
@@ -298,7 +309,8 @@ def markdown(rows: list[dict]) -> list[str]:
     body = []
     for r in rows:
         if "refusal" in r:
-            body.append([r["label"], f"refused (exit {r['rc']}): `{r['refusal']}`", "", "", "", "", "", "",
+            verb = "refused" if r["rc"] == 2 else "failed"
+            body.append([r["label"], f"{verb} (exit {r['rc']}): `{r['refusal']}`", "", "", "", "", "", "",
                          f(r["wall_s"], 1), "n/a"])
             continue
         body.append([r["label"], f(r.get("worst_diffuse"), 4), f(r.get("worst_specular"), 4), r.get("ill_determined"),

@@ -39,8 +39,9 @@ def test_generator_reproduces_folder(rebuilt, tmp_path):
     (r < 0.4, 0.4-0.8, > 0.8, where the falloff is 1-0.95, 0.95-0.81, 0.81-0.70), the mean of
     rebuild - committed within 5 standard errors (from the pixels' spread of that difference,
     which is the 4-spp noise: the content cancels) plus 0.5 % of the band's mean (half-float
-    rounding is 0.05 %). A sun 12 % off, or no falloff in the corners, moves a band's mean by
-    1-8 % of it, many standard errors."""
+    rounding is 0.05 %). Measured on street_002 and aerial_000 (4 spp, seed 0): the rebuild's
+    |mean difference| is at most 0.31 of that bound; rendered under the declared light (sun and
+    sky x1) it reaches 3.2 times the bound, without the falloff 8.7 times."""
     bundled = tmp_path / "bundled"
     shutil.copytree(FOLDER, bundled, ignore=shutil.ignore_patterns("preview.png", "images"))
     built = tmp_path / "built"
@@ -99,6 +100,7 @@ def test_panel_seen_in_several_views_and_above_the_road():
     assert np.ptp(v[:, 0]) == pytest.approx(1.0) and np.ptp(v[:, 1]) == pytest.approx(1.0)
 
 
+@pytest.mark.slow
 def test_pixel_radius_is_the_methods_r():
     """The builder's r (scenes may not import methods) is :func:`methods.symbolic.vignetting.pixel_radius`."""
     from methods.symbolic.vignetting import pixel_radius
