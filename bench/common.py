@@ -81,10 +81,12 @@ def observable_keys(results: dict) -> set:
 def downsample_scene(src: Path, dest: Path, image: int) -> None:
     """The cameras of scene folder ``dest`` (a copy of ``src``) made ``image`` pixels wide, and its
     photographs (``images/<stem>.exr``, where present) box-averaged to match; a scene without
-    photographs renders its observations at the new size."""
+    photographs renders its observations at the new size. Views that all share one COLMAP camera
+    (one lens) still do."""
     cams = load_scene(src).cameras
     shutil.rmtree(dest / "sparse")
-    write_colmap(dest / "sparse", [resized(c, image) for c in cams])
+    shared = len(cams) > 1 and len({c.camera_id for c in cams}) == 1      # one lens for every view: kept
+    write_colmap(dest / "sparse", [resized(c, image) for c in cams], shared_camera=shared)
     for c in cams:
         path = dest / "images" / f"{Path(c.name).stem}.exr"
         if not path.is_file():

@@ -1,11 +1,13 @@
 """BENCHMARKS.md from the stored results of ``python -m bench``: the machine, then each section
 as its own module draws it (``markdown`` of :mod:`bench.render_ratio`, :mod:`bench.megapixel`,
 :mod:`bench.memory`, :mod:`bench.compare`, :mod:`bench.paper`, :mod:`bench.materials`,
-:mod:`bench.accuracy`, :mod:`bench.field`, :mod:`bench.glossy`, :mod:`bench.geometry`), through
+:mod:`bench.accuracy`, :mod:`bench.field`, :mod:`bench.glossy`, :mod:`bench.geometry`,
+:mod:`bench.survey`), through
 :mod:`bench.tables`."""
 from __future__ import annotations
 
-from bench import accuracy, compare, field, geometry, glossy, materials, megapixel, memory, paper, render_ratio
+from bench import (accuracy, compare, field, geometry, glossy, materials, megapixel, memory, paper, render_ratio,
+                   survey)
 from bench.tables import stamped, table
 
 
@@ -42,6 +44,7 @@ def render(machine: dict, command: str, sizes, stored: dict) -> str:
         "field": lambda: field.markdown(data["field"]),
         "glossy": lambda: glossy.markdown(data["glossy"]),
         "geometry": lambda: geometry.markdown(data["geometry"]),
+        "survey": lambda: survey.markdown(data["survey"]),
     }
     for name, part in parts.items():
         if name in data:

@@ -68,6 +68,14 @@ class Sizes:
         ``render.spp`` of its timed polynomial pass and path render.
     geometry_reps : int
         Timed repetitions of the load, the pass and the render (the least is kept).
+    survey_image : int or None
+        Width of the "survey" section's views (the bundled scene box-averaged; None: its own 200).
+    survey_photo_spp : int
+        Samples per pixel of the photographs the "survey" section renders for its turbidity row
+        (the bundled photographs have 1024; 256 keeps that render to a few minutes, and the
+        fit's std covers the photographs' noise: the sandwich takes the image residual).
+    survey_extra : tuple of str
+        Overrides added to the "survey" section's runs (the real one runs the shipped settings).
     """
 
     name: str = "default"
@@ -100,6 +108,9 @@ class Sizes:
     geometry_triangles: tuple = (20_000, 200_000, 2_000_000)
     geometry_spp: int = 16
     geometry_reps: int = 5
+    survey_image: int | None = None
+    survey_photo_spp: int = 256
+    survey_extra: tuple = field(default_factory=tuple)
 
 
 DEFAULT = Sizes()
@@ -110,4 +121,6 @@ QUICK = Sizes(name="quick", ratio_spps=(4,), ratio_reps=1, mem_views=(1, 2), mem
               extra=("method.solver.starts=1",),
               mega_spp=2, glossy_spp=4, defaults_extra=("render.spp=4", "observe.spp=16", "method.refine=1"),
               field_extra=("render.spp=4", "method.refine=0", "method.irls.iterations=2"),
-              geometry_triangles=(2_000, 20_000), geometry_spp=4, geometry_reps=1)
+              geometry_triangles=(2_000, 20_000), geometry_spp=4, geometry_reps=1,
+              survey_image=40, survey_photo_spp=4,
+              survey_extra=("render.spp=4", "method.refine=0", "render.tail_bounces=0"))

@@ -74,11 +74,13 @@ def pinhole_camera(name: str, width: int, height: int, focal: float, cam_from_wo
 
 
 def write_colmap(sparse_dir: Path, cameras: Sequence[Camera], points: np.ndarray | None = None,
-                 models: Sequence[tuple[str, Sequence[float]] | None] | None = None) -> Path:
+                 models: Sequence[tuple[str, Sequence[float]] | None] | None = None, *,
+                 shared_camera: bool = False) -> Path:
     """Write a text COLMAP model (cameras.txt, images.txt, points3D.txt, ...) with pycolmap.
 
     Each view gets its own ``PINHOLE`` camera (ids 1..n, in list order) and image of the same id,
-    unless ``models`` gives it another COLMAP camera model.
+    unless ``models`` gives it another COLMAP camera model, or ``shared_camera`` puts every view
+    on camera 1.
 
     Parameters
     ----------
@@ -93,6 +95,10 @@ def write_colmap(sparse_dir: Path, cameras: Sequence[Camera], points: np.ndarray
         its full parameter list in COLMAP's order (e.g. ``fx, fy, cx, cy, k1, k2, p1, p2``),
         which replace the view's ``PINHOLE`` intrinsics (its width, height and pose are kept);
         ``None`` (for the list or an entry) keeps ``PINHOLE``.
+    shared_camera : bool, default False
+        One COLMAP camera (id 1) for every view, as one lens takes them all (views that share a
+        camera id share e.g. a vignetting profile): the views must have the same size and
+        intrinsics (and ``models`` the same entry), else ``ValueError``. Images keep ids 1..n.
 
     Returns
     -------
@@ -103,9 +109,16 @@ def write_colmap(sparse_dir: Path, cameras: Sequence[Camera], points: np.ndarray
 
     if models is not None and len(models) != len(cameras):
         raise ValueError(f"write_colmap: {len(models)} camera models for {len(cameras)} views")
+    if shared_camera:
+        first = _intrinsics(cameras[0], None if models is None else models[0])
+        other = [c.name for k, c in enumerate(cameras)
+                 if _intrinsics(c, None if models is None else models[k]) != first]
+        if other:
+            raise ValueError(f"write_colmap: shared_camera, but {', '.join(other)} differ from "
+                             f"{cameras[0].name} in size or intrinsics")
     rec = pycolmap.Reconstruction()
     for i, cam in enumerate(cameras, start=1):
-        _add_view(rec, i, cam, None if models is None else models[i - 1])
+        _add_view(rec, i, cam, None if models is None else models[i - 1], camera_id=1 if shared_camera else i)
     for p in (np.zeros((0, 3)) if points is None else np.asarray(points, float)):
         rec.add_point3D(p, pycolmap.Track(), np.array([128, 128, 128], np.uint8))
     sparse_dir = Path(sparse_dir)
@@ -114,18 +127,27 @@ def write_colmap(sparse_dir: Path, cameras: Sequence[Camera], points: np.ndarray
     return sparse_dir
 
 
-def _add_view(rec, i: int, cam: Camera, model: tuple[str, Sequence[float]] | None = None) -> None:
-    """Add ``cam`` to the reconstruction ``rec`` as camera and image ``i`` (``model``: another
-    COLMAP model name and its parameters instead of ``PINHOLE``)."""
+def _intrinsics(cam: Camera, model: tuple[str, Sequence[float]] | None) -> tuple:
+    """(width, height, COLMAP model name, parameters) of a view as :func:`_add_view` writes it."""
+    name, params = ("PINHOLE", [cam.f, cam.f, cam.cx, cam.cy]) if model is None else model
+    return int(cam.width), int(cam.height), name, tuple(float(x) for x in params)
+
+
+def _add_view(rec, i: int, cam: Camera, model: tuple[str, Sequence[float]] | None = None, *,
+              camera_id: int | None = None) -> None:
+    """Add ``cam`` to the reconstruction ``rec`` as image ``i`` of camera ``camera_id`` (default
+    ``i``; added unless ``rec`` has it already). ``model``: another COLMAP model name and its
+    parameters instead of ``PINHOLE``."""
     import pycolmap
 
-    name, params = ("PINHOLE", [cam.f, cam.f, cam.cx, cam.cy]) if model is None else model
-    rec.add_camera_with_trivial_rig(pycolmap.Camera(
-        model=name, width=cam.width, height=cam.height,
-        params=[float(x) for x in params], camera_id=i))
+    camera_id = i if camera_id is None else camera_id
+    if camera_id not in rec.cameras:
+        width, height, name, params = _intrinsics(cam, model)
+        rec.add_camera_with_trivial_rig(pycolmap.Camera(
+            model=name, width=width, height=height, params=list(params), camera_id=camera_id))
     pose = pycolmap.Rigid3d(pycolmap.Rotation3d(np.asarray(cam.cam_from_world[:, :3], float)),
                             np.asarray(cam.cam_from_world[:, 3], float))
-    rec.add_image_with_trivial_frame(pycolmap.Image(name=cam.name, camera_id=i, image_id=i), pose)
+    rec.add_image_with_trivial_frame(pycolmap.Image(name=cam.name, camera_id=camera_id, image_id=i), pose)
 
 
 def write_scene_yaml(path: Path, scene: dict, comment: str = "") -> Path:
