@@ -320,3 +320,11 @@ def test_content_hash_does_not_depend_on_the_folder_location(tiny_scene):
     h0 = load_scene(tiny_scene).content_hash
     moved = tiny_scene.rename(tiny_scene.parent / "elsewhere")
     assert load_scene(moved).content_hash == h0
+
+
+def test_two_environments(tiny_scene):
+    """Mitsuba renders one environment emitter per scene: a second sky is refused when the scene is
+    read, not by a traceback once rendering starts."""
+    edit_scene_yaml(tiny_scene, lambda d: d["emitters"].append({"type": "constant", "radiance": 0.1}))
+    _message(tiny_scene, r"scene.yaml: emitters 0 \(constant\) and 2 \(constant\) are both environments \(light from "
+                         r"infinity\) and Mitsuba renders one per scene; combine them into one envmap, or keep one")
