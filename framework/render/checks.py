@@ -138,6 +138,7 @@ def check_lit_and_seen(scene: Scene, cameras: list[Camera], *, max_depth: int = 
     view none of those lit) on every seen pixel.
     """
     _check_some_emitter_shines(scene)
+    _check_one_environment(scene)
     ms = MitsubaScene(scene, cameras, spp=1, integrator={"type": "path", "max_depth": int(max_depth)})
     params = scene.parameters()
     ms.set_weights(np.array([[1.0 / len(scene.segments[p.segment].kernels)] * len(scene.channels)
@@ -177,6 +178,19 @@ def view_problems(found: dict[str, tuple[int, bool]], weights: dict | None = Non
         elif not lit:
             out[name] = "gets no light on the segments it sees"
     return out
+
+
+def _check_one_environment(scene: Scene) -> None:
+    """Raise when two emitters are environments (``envmap``, ``constant``, a ``sunsky``'s sky):
+    Mitsuba renders one per scene and would raise it as a traceback while building the scene."""
+    env = [("sunsky" if e.part is not None else e.type, e.source) for e in scene.emitters
+           if e.type in ("envmap", "constant")]
+    if len(env) > 1:
+        (a, i), (b, j) = env[:2]
+        raise SceneError(f"{Path(scene.root) / 'scene.yaml'}: emitters {i} ({a}) and {j} ({b}) are both "
+                         "environments (light from infinity) and Mitsuba renders one per scene; combine them into "
+                         "one envmap, or keep one (a sky of unknown turbidity as a combination of several sunsky "
+                         "skies is not supported)")
 
 
 def _check_some_emitter_shines(scene: Scene) -> None:

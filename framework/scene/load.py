@@ -38,21 +38,6 @@ __all__ = ["image_file", "load_scene"]     # image_file: where a view's observed
 _STDERR_LOCK = threading.Lock()
 
 
-#: emitter types that Mitsuba renders as the scene's environment (light from infinity on a miss)
-ENVIRONMENT_TYPES = ("envmap", "constant", "sunsky")
-
-
-def _check_one_environment(root: Path, spec) -> None:
-    """Refuse (one line) two environment emitters: Mitsuba takes one per scene (``Only one
-    environment emitter can be specified per scene``, raised only once rendering starts)."""
-    env = [(i, e.type) for i, e in enumerate(spec.emitters) if e.type in ENVIRONMENT_TYPES]
-    if len(env) > 1:
-        (i, a), (j, b) = env[:2]
-        raise SceneError(f"{root}/scene.yaml: emitters {i} ({a}) and {j} ({b}) are both environments (light from "
-                         "infinity) and Mitsuba renders one per scene; combine them into one envmap, or keep one "
-                         "(a sky of unknown turbidity as a combination of several sunsky skies is not supported)")
-
-
 def load_scene(directory: str | os.PathLike, *, observations: bool = True) -> Scene:
     """Load and check a scene folder (``docs/scene-format.md``).
 
@@ -77,7 +62,6 @@ def load_scene(directory: str | os.PathLike, *, observations: bool = True) -> Sc
     """
     root = Path(directory).expanduser().resolve()
     spec = read_scene_yaml(root)
-    _check_one_environment(root, spec)
     first = np.cumsum([0] + [2 if e.type == "sunsky" else 1 for e in spec.emitters])   # model index of each
     meshes = tuple(Mesh(path, *_read_mesh(root / path), segment=s, radiance=radiance,
                         emitter=None if source is None else int(first[source]))

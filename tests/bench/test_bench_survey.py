@@ -101,7 +101,7 @@ def test_quick_section_runs(tmp_path):
     runs at 4 spp. (c) is refused in one line (exit 2, nothing written, the line recorded with
     no machine's folder in it); (a) and (b) finish with numbers: (a) estimates no scale and no
     lens, (b) both scales and the lens. (d) does not run today: its model has three ``sunsky``
-    skies, three environment emitters, and Mitsuba takes one per scene: the loader refuses it
+    skies, three environment emitters, and Mitsuba takes one per scene: the run refuses it
     in one line (exit 2), which the row records; when the framework takes several, this
     assertion is to become (d)'s numbers (four scales, the sky measure per channel).
     Their accuracy at this size is not the point (the section's default size measures it)."""

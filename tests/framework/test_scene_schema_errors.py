@@ -322,9 +322,19 @@ def test_content_hash_does_not_depend_on_the_folder_location(tiny_scene):
     assert load_scene(moved).content_hash == h0
 
 
+
 def test_two_environments(tiny_scene):
-    """Mitsuba renders one environment emitter per scene: a second sky is refused when the scene is
-    read, not by a traceback once rendering starts."""
+    """Mitsuba renders one environment emitter per scene: a second sky is refused in one line before
+    anything renders (the scene still loads: a tool may read it), not by a traceback."""
+    from factory import compose_config
+
+    from framework.errors import SceneError
+    from framework.experiment import prepare
+    from framework.scene import load_scene
     edit_scene_yaml(tiny_scene, lambda d: d["emitters"].append({"type": "constant", "radiance": 0.1}))
-    _message(tiny_scene, r"scene.yaml: emitters 0 \(constant\) and 2 \(constant\) are both environments \(light from "
-                         r"infinity\) and Mitsuba renders one per scene; combine them into one envmap, or keep one")
+    assert len(load_scene(tiny_scene).emitters) == 3
+    with pytest.raises(SceneError, match=r"scene.yaml: emitters 0 \(constant\) and 2 \(constant\) are both "
+                                         r"environments \(light from infinity\) and Mitsuba renders one per scene; "
+                                         r"combine them into one envmap, or keep one") as info:
+        prepare(compose_config(tiny_scene, "views=all"))
+    assert "\n" not in str(info.value)
