@@ -55,14 +55,7 @@ def visible_pairs(scene: Scene, cameras: list[Camera]
 
 def _surface(ms, v: int) -> Surface:
     """The surface seen through view ``v``'s pixel centres."""
-    import drjit as dr
-    import mitsuba as mi
-    table = {int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(s))[0]): seg for s, seg in ms.shape_segments}
-    ray = ms.pixel_centre_rays(v)
-    si = ms.scene.ray_intersect(ray)
-    ids = np.array(dr.reinterpret_array(mi.UInt32, si.shape))
-    uniq, inverse = np.unique(ids, return_inverse=True)
-    seg = np.array([table.get(int(u), -1) for u in uniq], dtype=np.int32)[inverse]
+    ray, si, seg = ms.centre_hits(v)
     hit = np.array(si.is_valid()) & (seg >= 0)
     p = np.array(si.p, dtype=np.float64).reshape(3, -1).T
     n = np.array(si.n, dtype=np.float64).reshape(3, -1).T

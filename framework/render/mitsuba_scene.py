@@ -190,17 +190,22 @@ class MitsubaScene:
         ray, _ = self.scene.sensors()[view].sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
         return ray
 
-    def segment_map(self, view: int = 0) -> np.ndarray:
-        """(H, W) int32 segment index seen through each pixel centre (-1: sky or emitter only)."""
+    def centre_hits(self, view: int = 0):
+        """``(ray, si, segment)``: the pixel-centre rays of sensor ``view`` (:meth:`pixel_centre_rays`),
+        their first intersections and the ``(H·W,)`` int32 segment each hits (-1: sky or emitter only)."""
         import drjit as dr
         import mitsuba as mi
-        cam = self.cameras[view]
-        si = self.scene.ray_intersect(self.pixel_centre_rays(view))
+        ray = self.pixel_centre_rays(view)
+        si = self.scene.ray_intersect(ray)
         ids = np.array(dr.reinterpret_array(mi.UInt32, si.shape))
         table = {int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(s))[0]): seg for s, seg in self.shape_segments}
         uniq, inverse = np.unique(ids, return_inverse=True)
-        seg = np.array([table.get(int(u), -1) for u in uniq], dtype=np.int32)[inverse]
-        return seg.reshape(cam.height, cam.width)
+        return ray, si, np.array([table.get(int(u), -1) for u in uniq], dtype=np.int32)[inverse]
+
+    def segment_map(self, view: int = 0) -> np.ndarray:
+        """(H, W) int32 segment index seen through each pixel centre (-1: sky or emitter only)."""
+        cam = self.cameras[view]
+        return self.centre_hits(view)[2].reshape(cam.height, cam.width)
 
 
 def segment_maps(scene, cameras) -> dict[str, np.ndarray]:

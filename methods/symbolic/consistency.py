@@ -39,12 +39,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from methods.symbolic.robust_scale import robust_scale
+from methods.symbolic.robust_scale import cauchy_weight, robust_scale
 
 #: the other views that must see a point for its test (a median of two or more)
 MIN_OTHERS = 2
-#: Cauchy constant (95 % efficiency for Gaussian disagreement), as the per-pixel weights
-CAUCHY_K = 2.385
 #: ``ŷ`` is floored at this fraction of the view's median prediction (per channel): dark pixels
 #: would otherwise blow the relative residual up
 DARK_FRACTION = 0.05
@@ -120,4 +118,4 @@ def _cauchy(d: np.ndarray, scale: np.ndarray) -> np.ndarray:
     """Cauchy weights of disagreements ``d`` (m, C) standardised by ``scale`` ((C,) or per pixel
     (m, C)), ``t`` the RMS over the channels."""
     t = np.sqrt(np.mean((d / scale) ** 2, axis=1))
-    return 1.0 / (1.0 + (t / CAUCHY_K) ** 2)
+    return cauchy_weight(t)

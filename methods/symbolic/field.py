@@ -54,7 +54,7 @@ from methods.symbolic.basis import MonomialBasis, code_digits, encode_digits, me
 from methods.symbolic.fit import Fit
 from methods.symbolic.gram import weighted_system
 from methods.symbolic.options import ROBUST_LOSSES, SymbolicOptions
-from methods.symbolic.robust_scale import robust_scale
+from methods.symbolic.robust_scale import cauchy_weight, robust_scale
 from methods.symbolic.coefficients import TiledCoefficients, ViewCoefficients, predicted, predicted_variance
 from methods.symbolic.consistency import MIN_OTHERS, ViewPairs
 from methods.symbolic.illumination import Illumination, unknown_emitters
@@ -64,10 +64,7 @@ from methods.symbolic.vignetting import Vignetting
 GAIN_PREFIX = "exposure:"
 #: largest gain representable: h = g / GAIN_MAX lies in the solver's box [0, 1]
 GAIN_MAX = 4.0
-#: 1.4826 · MAD estimates a Gaussian's standard deviation
-MAD_TO_STD = 1.4826
-#: tuning constants at 95 % efficiency for Gaussian residuals
-CAUCHY_K = 2.385
+#: Huber tuning constant at 95 % efficiency for Gaussian residuals (Cauchy's: robust_scale.CAUCHY_K)
 HUBER_K = 1.345
 
 
@@ -146,7 +143,7 @@ def robust_weights(residual: np.ndarray, used: np.ndarray, *, loss: str, floor: 
     spread = scale ** 2 if variance is None else scale ** 2 + variance
     t = np.sqrt(np.mean(residual ** 2 / spread, axis=1))
     if loss == "cauchy":
-        return 1.0 / (1.0 + (t / CAUCHY_K) ** 2)
+        return cauchy_weight(t)
     if loss == "huber":
         return np.minimum(1.0, HUBER_K / np.maximum(t, 1e-300))
     raise ValueError(f"robust loss '{loss}' unknown; use one of {', '.join(ROBUST_LOSSES)}")

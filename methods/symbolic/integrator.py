@@ -16,6 +16,7 @@ import mitsuba as mi
 from framework.errors import ConfigError
 from framework.render.plugin import plugin_class
 from methods.symbolic.common import mis_weight
+from methods.symbolic.events import event_slots
 from methods.symbolic.integrator_tables import KernelTables
 from methods.symbolic.integrator_tiles import CoefficientTiles
 
@@ -271,9 +272,8 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
         store(2 * depth + 2, self._emitter_key(κ, hit_emitter, active), contrib_hit, active)
 
     def event_slots(self) -> int:
-        """Event slots of one path: the camera ray's, then one per vertex (two with unknown
-        emitter scales: next-event estimation and the emitter hit)."""
-        return 1 + (2 if self.n_scales else 1) * (self.max_bounces + self.tail_bounces)
+        """Event slots of one path (:func:`~methods.symbolic.events.event_slots`)."""
+        return event_slots(self.max_bounces, self.tail_bounces, self.n_scales)
 
     @staticmethod
     def _add_radiance(L, value, mask, track: bool):

@@ -15,6 +15,7 @@ import scipy.sparse as sp
 from framework.cache import Cache
 from methods.symbolic.coefficients import TiledCoefficients, ViewCoefficients
 from methods.symbolic.gram import GramSystem, weighted_system
+from methods.symbolic.illumination import unknown_emitters
 
 
 def empty_system(C: int) -> GramSystem:
@@ -97,7 +98,7 @@ def view_key(problem, cam, parameters, guesses, spp, seed, prob_floor, max_bounc
             "observed": _digest(problem.observed[cam.name]),
             "variant": problem.settings.variant, "cross_gram": bool(cross_gram),
             "tail_bounces": int(tail_bounces), "version": 8, "camera": camera_key(cam),
-            "unknown_scales": [i for i, e in enumerate(problem.scene.emitters) if e.scale_unknown]}
+            "unknown_scales": unknown_emitters(problem.scene)}
 
 
 def camera_key(cam) -> list:

@@ -29,6 +29,7 @@ from framework.render.checks import MiB, check_memory
 from framework.render.mitsuba_scene import MitsubaScene
 from methods.symbolic.basis import check_key_range
 from methods.symbolic.coefficients import PassResult, TiledCoefficients, ViewCoefficients
+from methods.symbolic.events import event_slots
 from methods.symbolic.gram import GramSystem, weighted_system
 from methods.symbolic.illumination import unknown_emitters
 from methods.symbolic.integrator import integrator_class
@@ -50,8 +51,7 @@ def event_bytes_per_pixel(spp: int, max_bounces: int, n_channels: int, tail_boun
     The path state itself never reaches memory (the tile's paths run as one kernel): measured,
     a 256-pixel tile at 4096 spp peaked 124 MiB above the process's start, this estimate 192 MiB.
     """
-    slots = 1 + (2 if n_scales else 1) * (max_bounces + tail_bounces)
-    return spp * slots * 4 * (1 + n_channels) * BYTES_COPIES
+    return spp * event_slots(max_bounces, tail_bounces, n_scales) * 4 * (1 + n_channels) * BYTES_COPIES
 
 
 def tile_pixels_for(memory_mb: float, spp: int, max_bounces: int, n_channels: int, tail_bounces: int = 0, *,

@@ -14,6 +14,8 @@ import numpy as np
 
 #: median of |N(0, 1)|
 HALF_NORMAL_MEDIAN = 0.6744897501960817
+#: Cauchy tuning constant: 95 % efficiency for Gaussian residuals
+CAUCHY_K = 2.385
 
 
 def robust_scale(d: np.ndarray, variance: np.ndarray | None = None, *, steps: int = 60) -> np.ndarray:
@@ -33,3 +35,8 @@ def robust_scale(d: np.ndarray, variance: np.ndarray | None = None, *, steps: in
         hi = np.where(too_wide, mid, hi)
         lo = np.where(too_wide, lo, mid)
     return hi
+
+
+def cauchy_weight(t: np.ndarray) -> np.ndarray:
+    """IRLS weight ``ψ(t)/t = 1 / (1 + (t / CAUCHY_K)²)`` of standardised residuals ``t``."""
+    return 1.0 / (1.0 + (t / CAUCHY_K) ** 2)

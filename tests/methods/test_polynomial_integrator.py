@@ -126,10 +126,11 @@ SEGMENTS = [[("diffuse", 0), ("diffuse", 1)],   # 0 white: two kernels (exercise
             [("specular", 4)]]                   # 3 mirror: the large box
 
 
-def cornell(rho, res=32):
-    """mi.cornell_box() with forward kernel BSDFs (framework.render.kernel_bsdf.forward_bsdf + weight_keys),
-    box filter, black emit-only light (segment -1); the large box is a pure mirror segment."""
-    d = mi.cornell_box()
+def cornell(rho, res=32, d=None):
+    """mi.cornell_box() (or the dict ``d`` made from it) with forward kernel BSDFs
+    (framework.render.kernel_bsdf.forward_bsdf + weight_keys), box filter, black emit-only light
+    (segment -1); the large box is a pure mirror segment."""
+    d = mi.cornell_box() if d is None else d
     d["sensor"]["film"].update({"width": res, "height": res, "rfilter": {"type": "box"}})
     d["light"]["bsdf"] = {"type": "diffuse", "reflectance": 0.0}
     seg_of = {"white": 0, "red": 1, "green": 2}
@@ -331,12 +332,7 @@ def _lit_cornell(rho, light_scale=1.0, res=16):
     d = mi.cornell_box()
     d["light"]["emitter"]["radiance"]["value"] = [v * light_scale for v in d["light"]["emitter"]["radiance"]["value"]]
     d["sky"] = {"type": "constant", "radiance": {"type": "rgb", "value": [0.5, 0.5, 0.5]}}
-    orig = mi.cornell_box
-    try:
-        mi.cornell_box = lambda: d
-        return cornell(rho, res)
-    finally:
-        mi.cornell_box = orig
+    return cornell(rho, res, d)
 
 
 def test_emitter_groups_carry_the_scale():
