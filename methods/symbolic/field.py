@@ -28,7 +28,7 @@ Robust weights (``method.robust``)
     σ_q)`` (``σ_q``: the median quantisation noise of the delivered 8/16-bit encoding, so that
     quantisation never makes an outlier), widened per pixel by the Monte Carlo variance ``v_{p,c}``
     of the pixel's own prediction (from its two half-sample estimates,
-    :func:`~methods.symbolic.coefficients.predicted_variance`), combined over channels into
+    :func:`~methods.symbolic.coefficients.predicted_with_variance`), combined over channels into
     ``t_p = sqrt(mean_c r_{p,c}² / (s_c² + v_{p,c}))``, and the pixel gets the weight ``ψ(t)/t`` of the Cauchy
     (``1/(1 + (t/2.385)²)``) or Huber (``min(1, 1.345/t)``) loss (95 % Gaussian efficiency
     each). A car or a pedestrian the model lacks leaves residuals many times the scale and is
@@ -55,7 +55,7 @@ from methods.symbolic.fit import Fit
 from methods.symbolic.gram import weighted_system
 from methods.symbolic.options import ROBUST_LOSSES, SymbolicOptions
 from methods.symbolic.robust_scale import cauchy_weight, robust_scale
-from methods.symbolic.coefficients import TiledCoefficients, ViewCoefficients, predicted, predicted_variance
+from methods.symbolic.coefficients import TiledCoefficients, ViewCoefficients, predicted, predicted_with_variance
 from methods.symbolic.consistency import MIN_OTHERS, ViewPairs
 from methods.symbolic.illumination import Illumination, unknown_emitters
 from methods.symbolic.vignetting import Vignetting
@@ -127,7 +127,7 @@ def robust_weights(residual: np.ndarray, used: np.ndarray, *, loss: str, floor: 
         Smallest scale per channel (the quantisation noise).
     variance : numpy.ndarray, optional
         ``(n, C)`` Monte Carlo variance of each pixel's prediction
-        (:func:`~methods.symbolic.coefficients.predicted_variance`): a pixel's residual is
+        (:func:`~methods.symbolic.coefficients.predicted_with_variance`): a pixel's residual is
         measured against ``sqrt(scale² + variance)``, so a pixel whose pass drew a rare bright
         path is not taken for an outlier. Down-weighting those would drop the very samples that
         keep the estimate unbiased (measured on the tiny scene's clean linear images: the
@@ -429,8 +429,10 @@ def _reweight(views, mu: np.ndarray, codes: np.ndarray, options: FieldOptions, *
     """Each view's robust weights at the monomials ``mu``: the views' disagreement
     (:mod:`methods.symbolic.consistency`) where a pixel has other views to compare with, else the
     per-pixel robust weights (``per_pixel=False``: 1 there, the first solve's start)."""
-    pred = {v.name: predicted(v.coeffs, mu, codes) for v in views}
-    var = {v.name: _pixel_variance(predicted_variance(v.coeffs, mu, codes), v.shape) for v in views}
+    pred, var = {}, {}
+    for v in views:
+        pred[v.name], raw = predicted_with_variance(v.coeffs, mu, codes)
+        var[v.name] = _pixel_variance(raw, v.shape)
     usable = {v.name: np.ones(len(v.y), bool) if v.scene_w is None else v.scene_w > 0 for v in views}
     agree = options.consistency.weights({v.name: v.y for v in views}, pred, usable, var) \
         if options.consistency is not None else {}
