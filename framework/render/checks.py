@@ -138,7 +138,7 @@ def check_lit_and_seen(scene: Scene, cameras: list[Camera], *, max_depth: int = 
     view none of those lit) on every seen pixel.
     """
     _check_some_emitter_shines(scene)
-    _check_one_environment(scene)
+    _check_environments_sum(scene)
     ms = MitsubaScene(scene, cameras, spp=1, integrator={"type": "path", "max_depth": int(max_depth)})
     params = scene.parameters()
     ms.set_weights(np.array([[1.0 / len(scene.segments[p.segment].kernels)] * len(scene.channels)
@@ -180,17 +180,18 @@ def view_problems(found: dict[str, tuple[int, bool]], weights: dict | None = Non
     return out
 
 
-def _check_one_environment(scene: Scene) -> None:
-    """Raise when two emitters are environments (``envmap``, ``constant``, a ``sunsky``'s sky):
-    Mitsuba renders one per scene and would raise it as a traceback while building the scene."""
-    env = [("sunsky" if e.part is not None else e.type, e.source) for e in scene.emitters
-           if e.type in ("envmap", "constant")]
-    if len(env) > 1:
-        (a, i), (b, j) = env[:2]
-        raise SceneError(f"{Path(scene.root) / 'scene.yaml'}: emitters {i} ({a}) and {j} ({b}) are both "
-                         "environments (light from infinity) and Mitsuba renders one per scene; combine them into "
-                         "one envmap, or keep one (a sky of unknown turbidity as a combination of several sunsky "
-                         "skies is not supported)")
+def _check_environments_sum(scene: Scene) -> None:
+    """Raise when two environment images (``envmap``, a ``sunsky``'s sky) differ in size: Mitsuba
+    renders one environment per scene, so several are summed into one image
+    (:func:`~framework.render.mitsuba_scene.summed_environment`), texel by texel."""
+    env = [e for e in scene.emitters if e.type == "envmap"]
+    sizes = {e.image.shape[:2] for e in env}
+    if len(sizes) > 1:
+        (a, b) = env[0], next(e for e in env if e.image.shape[:2] != env[0].image.shape[:2])
+        raise SceneError(f"{Path(scene.root) / 'scene.yaml'}: emitters {a.source} and {b.source} are environment "
+                         f"images of different sizes ({a.image.shape[1]}x{a.image.shape[0]} and "
+                         f"{b.image.shape[1]}x{b.image.shape[0]}); Mitsuba renders one environment, so they are "
+                         "summed texel by texel: resample one to the other's size")
 
 
 def _check_some_emitter_shines(scene: Scene) -> None:

@@ -61,6 +61,31 @@ def emitter_dict(e, channels: tuple[str, ...]) -> dict | None:
     return None
 
 
+#: Emitter types that are light from infinity: Mitsuba renders one of them per scene.
+ENVIRONMENT_TYPES = ("envmap", "constant")
+
+
+def environments(scene: Scene) -> list[int]:
+    """Indices into ``scene.emitters`` of the environments (``envmap``, ``constant``, a sunsky's sky)."""
+    return [j for j, e in enumerate(scene.emitters) if e.type in ENVIRONMENT_TYPES]
+
+
+def summed_environment(emitters, channels: tuple[str, ...]) -> dict:
+    """One Mitsuba environment emitting the sum of several (each at its scale): Mitsuba renders one
+    environment per scene. Envmaps must share their image size (checked when the scene is read,
+    :mod:`framework.render.checks`); a ``constant`` becomes a uniform image of that size."""
+    import mitsuba as mi
+    images = [e for e in emitters if e.type == "envmap"]
+    if not images:
+        return {"type": "constant", "radiance": K.spectrum(sum(e.radiance for e in emitters), channels)}
+    shape = images[0].image.shape
+    total = np.zeros(shape, np.float64)
+    for e in emitters:
+        total += e.scale * e.image if e.type == "envmap" else np.broadcast_to(e.radiance, shape)
+    return {"type": "envmap", "bitmap": mi.Bitmap(np.ascontiguousarray(total, np.float32)),
+            "to_world": mi.ScalarTransform4f(TO_WORLD.tolist())}
+
+
 def _mesh_shape(scene: Scene, i: int):
     """A ``mi.Mesh`` from numpy arrays, with its segment's BSDF and its area emitter, if any."""
     import drjit as dr
@@ -107,9 +132,12 @@ class MitsubaScene:
         d = {"type": "scene", "integrator": integrator or {"type": "path", "max_depth": -1}}
         for i, cam in enumerate(self.cameras):
             d[f"sensor_{i}"] = sensor_dict(cam, spp=spp, channels=scene.channels)
+        summed = environments(scene) if len(environments(scene)) > 1 else []
+        if summed:
+            d["emitter_environment"] = summed_environment([scene.emitters[j] for j in summed], scene.channels)
         for j, e in enumerate(scene.emitters):
             ed = emitter_dict(e, scene.channels)
-            if ed is not None:
+            if ed is not None and j not in summed:
                 d[f"emitter_{j}"] = ed
         for i in range(len(scene.meshes)):
             d[f"mesh_{i}"] = _mesh_shape(scene, i)
@@ -124,10 +152,17 @@ class MitsubaScene:
                               for i, m in enumerate(scene.meshes) if m.segment is not None
                               for k, key in zip(scene.segments[m.segment].kernels,
                                                 weight_keys(scene.segments[m.segment].kernels))]
+        #: with several environments, the one Mitsuba renders (their sum), else None
+        self.environment = next((e for e in self.scene.emitters() if e.id() == "emitter_environment"), None)
+        #: ``(j, mi.Emitter)`` of each environment summed into :attr:`environment`, built outside the
+        #: scene: what each contributes in a direction (the polynomial pass splits the sum by them)
+        self.environment_parts = [(j, mi.load_dict(emitter_dict(scene.emitters[j], scene.channels)))
+                                  for j in summed]
 
     def emitter_objects(self, j: int) -> list:
         """The ``mi.Emitter`` objects of ``scene.emitters[j]``: the emitter itself, or for an area
-        emitter the area light of each of its meshes."""
+        emitter the area light of each of its meshes; none for an environment summed into
+        :attr:`environment` (its light is that sum's, split by :attr:`environment_parts`)."""
         if self.model.emitters[j].type == "area":
             shapes = [shape for (shape, _), mesh in zip(self.shape_segments, self.model.meshes) if mesh.emitter == j]
             return [shape.emitter() for shape in shapes if shape.emitter() is not None]

@@ -22,11 +22,13 @@ import scipy.sparse as sp
 EMPTY = 0xFFFFFFFF   # key of an event slot that received no contribution (keys stay below it)
 
 
-def event_slots(max_bounces: int, tail_bounces: int = 0, n_scales: int = 0) -> int:
+def event_slots(max_bounces: int, tail_bounces: int = 0, n_scales: int = 0, n_parts: int = 0) -> int:
     """Event slots of one path: the camera ray's, then one per vertex, two per vertex with unknown
     emitter scales (``n_scales > 0``: next-event estimation and the emitter hit may end on
-    different emitters, each keyed by its own)."""
-    return 1 + (2 if n_scales else 1) * (int(max_bounces) + int(tail_bounces))
+    different emitters, each keyed by its own); each of these ``n_parts`` times when that many
+    environments are summed into one and split again (``n_parts >= 2``)."""
+    sites = 1 + (2 if n_scales else 1) * (int(max_bounces) + int(tail_bounces))
+    return sites * max(1, int(n_parts))
 
 
 def lane_pixel(lane, n: int, spp: int, split: int):

@@ -69,7 +69,12 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
       ``g >= 1`` (seen from the camera, reached by next-event estimation or hit) go to key
       ``κ + g (D + 1)^N_max``, each vertex's two contributions in their own slots; the host
       appends the digit of ``s_g`` to the monomial (:func:`~methods.symbolic.basis.emitter_columns`):
-      a polynomial of degree ``N_max + 1`` over ``(ρ, s)``, exact in ``s``.
+      a polynomial of degree ``N_max + 1`` over ``(ρ, s)``, exact in ``s``. Several
+      environments (say sunsky skies of turbidity 2, 4 and 6 whose non-negative combination
+      stands for a sky of unknown turbidity) are one environment to Mitsuba, their sum, which
+      next-event estimation samples; each contribution of that sum is split among the parts in
+      proportion to their radiance in its direction (``environment_parts``), each part then a
+      group of its own: ``K`` slots per contribution for ``K`` parts.
 
     Each sample has weight ``1/spp`` (box pixel filter: samples are uniform inside their pixel
     and never spread to a neighbour). Each path writes its contributions to ``N_max + T + 1``
@@ -130,6 +135,7 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
         self._set_scalars(max_bounces, prob_floor, tail_bounces)
         self._configured = False
         self.n_scales = 0
+        self._env_parts: list = []
         self._shape_tables: dict[int, mi.Int32] = {}
 
     # -- the path loop    # -- the path loop ---------------------------------------------------------------------------
@@ -146,7 +152,7 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
         seg_table = self._segment_table(scene)
         ctx = mi.BSDFContext()
         track = store is None                # the radiance at the guesses is wanted (sample())
-        store = store or (lambda slot, mono, value, act: None)
+        store = store or _no_store
 
         ray = mi.Ray3f(ray)
         active = mi.Bool(active)
@@ -159,7 +165,7 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
         # Camera ray: directly visible emitters, the constant monomial
         si = scene.ray_intersect(ray, mi.RayFlags.All, coherent=True, active=active)
         Le = β * si.emitter(scene, active).eval(si, active)
-        store(mi.UInt32(0), self._emitter_key(mi.UInt32(0), si.emitter(scene, active), active), Le, active)
+        self._store_site(store, mi.UInt32(0), mi.UInt32(0), Le, si.emitter(scene, active), ray.d, active)
         L = dr.select(active, Le, 0.0)
 
         while dr.hint(active, max_iterations=N_max + self.tail_bounces, label="Polynomial path"):
@@ -194,7 +200,8 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
             contrib_hit = dr.select(active, β * Le * mis_bsdf, 0.0)
 
             # Both contributions belong to the monomial of the path up to this vertex
-            self._store_vertex(store, depth, κ, contrib_em, ds.emitter, active_em, contrib_hit, hit_emitter, active)
+            self._store_vertex(store, depth, κ, (contrib_em, ds.emitter, ds.d, active_em),
+                               (contrib_hit, hit_emitter, ray.d, active))
             L = self._add_radiance(L, (contrib_em + contrib_hit) * ρ_path, active | active_em, track)
             stride = dr.select(exact, stride * (D + 1), stride)
             depth += 1
@@ -262,18 +269,46 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
             return κ
         return κ + self._group(emitter, active) * mi.UInt32((self.n_params + 1) ** self.max_bounces)
 
-    def _store_vertex(self, store, depth, κ, contrib_em, em_emitter, active_em, contrib_hit, hit_emitter, active):
-        """Store vertex ``depth``'s next-event and emitter-hit contributions: in one slot, or, with
-        unknown emitter scales, in two (the two emitters may differ), each keyed by its emitter."""
+    def _store_vertex(self, store, depth, κ, em, hit):
+        """Store vertex ``depth``'s next-event and emitter-hit contributions, each given as
+        ``(value, emitter, direction, active)``: in one slot, or, with unknown emitter scales, at
+        two sites (the two emitters may differ), each keyed by its emitter."""
         if not self.n_scales:
-            store(depth + 1, κ, contrib_em + contrib_hit, active | active_em)
+            store(depth + 1, κ, em[0] + hit[0], em[3] | hit[3])
             return
-        store(2 * depth + 1, self._emitter_key(κ, em_emitter, active_em), contrib_em, active_em)
-        store(2 * depth + 2, self._emitter_key(κ, hit_emitter, active), contrib_hit, active)
+        self._store_site(store, 2 * depth + 1, κ, *em)
+        self._store_site(store, 2 * depth + 2, κ, *hit)
+
+    def _store_site(self, store, site, κ, value, emitter, d, active):
+        """Store one contribution, reached along world direction ``d``, keyed by its ``emitter``.
+
+        With several environments summed into the one Mitsuba renders (``environment_parts`` of
+        :meth:`configure`), a contribution of that sum is split among its parts in proportion to
+        each part's radiance along ``d`` (the ratios sum to 1: the sum is unchanged), each part
+        keyed by its own group, in the site's ``K`` slots ``site·K .. site·K + K - 1``.
+        Plain Python branches: outside the loop's syntax."""
+        key = self._emitter_key(κ, emitter, active)
+        if not self._env_parts or store is _no_store:
+            store(site, key, value, active)
+            return
+        K = len(self._env_parts)
+        on_env = active & (dr.reinterpret_array(mi.UInt32, emitter) == self._env_id)
+        si = dr.zeros(mi.SurfaceInteraction3f)
+        si.wi = -d
+        L = [part.eval(si, on_env) for part, _ in self._env_parts]
+        total = sum(L[1:], L[0])
+        inv = dr.select(total > 0, dr.rcp(total), 0.0)
+        top = mi.UInt32((self.n_params + 1) ** self.max_bounces)
+        for k, (_, g) in enumerate(self._env_parts):
+            key_k, value_k = κ + mi.UInt32(g) * top, value * L[k] * inv
+            if k == 0:                       # the slot a contribution of any other emitter takes
+                store(site * K, dr.select(on_env, key_k, key), dr.select(on_env, value_k, value), active)
+            else:
+                store(site * K + k, key_k, value_k, on_env)
 
     def event_slots(self) -> int:
         """Event slots of one path (:func:`~methods.symbolic.events.event_slots`)."""
-        return event_slots(self.max_bounces, self.tail_bounces, self.n_scales)
+        return event_slots(self.max_bounces, self.tail_bounces, self.n_scales, len(self._env_parts))
 
     @staticmethod
     def _add_radiance(L, value, mask, track: bool):
@@ -300,6 +335,10 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
     def to_string(self):
         return (f"PolynomialPathIntegrator[max_bounces={self.max_bounces}, "
                 f"tail_bounces={self.tail_bounces}, prob_floor={self.prob_floor}]")
+
+def _no_store(slot, mono, value, active):
+    """The ``store`` of :meth:`PolynomialPathMixin._trace` when only the radiance is wanted."""
+
 
 def _emission_hit(scene, si, prev_si, prev_pdf, prev_delta, active):
     """``(Le, mis, emitter)``: radiance of the emitter hit at ``si`` by a ray sampled from the kernel at

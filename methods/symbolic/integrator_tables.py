@@ -64,7 +64,8 @@ class KernelTables:
     @classmethod
     def create(cls, shape_segments, segment_kernels, n_params, guesses, *, max_bounces: int = 3,
                prob_floor: float = 0.1, tile_pixels: int = 4096, tail_bounces: int = 0,
-               emitter_groups: Sequence[tuple] = ()) -> Self:
+               emitter_groups: Sequence[tuple] = (), environment=None,
+               environment_parts: Sequence[tuple] = ()) -> Self:
         """Build and :meth:`configure` an integrator in one call (arguments as there)."""
         props = mi.Properties("polynomial_path")
         props["max_bounces"] = int(max_bounces)
@@ -72,11 +73,13 @@ class KernelTables:
         props["tile_pixels"] = int(tile_pixels)
         props["tail_bounces"] = int(tail_bounces)
         integ = cls(props)
-        integ.configure(shape_segments, segment_kernels, n_params, guesses, emitter_groups=emitter_groups)
+        integ.configure(shape_segments, segment_kernels, n_params, guesses, emitter_groups=emitter_groups,
+                        environment=environment, environment_parts=environment_parts)
         return integ
 
     def configure(self, shape_segments: Sequence[tuple], segment_kernels: Sequence[Sequence[tuple]],
-                  n_params: int, guesses: np.ndarray, *, emitter_groups: Sequence[tuple] = ()) -> None:
+                  n_params: int, guesses: np.ndarray, *, emitter_groups: Sequence[tuple] = (),
+                  environment=None, environment_parts: Sequence[tuple] = ()) -> None:
         """Set the scene-dependent model.
 
         Parameters
@@ -94,11 +97,20 @@ class KernelTables:
             The emitters of unknown scale, each with its group ``g >= 1`` (the ``g``-th unknown
             scale; emitters not listed are group 0, known). Their contributions are kept apart:
             the path key carries the group (:func:`~methods.symbolic.basis.emitter_columns`).
+        environment : mi.Emitter, optional
+            The scene's environment when it is the sum of several (``environment_parts``).
+        environment_parts : list of (mi.Emitter, int)
+            The environments summed into ``environment``, each built outside the scene at its
+            scale, with its group (``>= 0``; 0: known): a contribution of ``environment`` is split
+            among them by their radiance in its direction. Ignored when no part has a group ``>= 1``.
         """
         D = int(n_params)
         if D < 1:
             raise ConfigError(f"n_params={n_params}: must be >= 1")
-        self.n_scales = max([int(g) for _, g in emitter_groups] + [0])
+        parts = [(em, int(g)) for em, g in environment_parts] if any(g for _, g in environment_parts) else []
+        if parts and environment is None:
+            raise ConfigError("environment_parts given without environment: pass the scene's summed environment")
+        self.n_scales = max([int(g) for _, g in emitter_groups] + [g for _, g in parts] + [0])
         g = self._checked_guesses(segment_kernels, D, guesses)
         self.n_params, self.n_channels = D, g.shape[1]
         self.guesses = g
@@ -107,6 +119,8 @@ class KernelTables:
         self._shape_segment = _shape_ids(shape_segments, len(self.segment_kernels))
         self._shape_tables = {}
         self._emitter_group = _emitter_table(emitter_groups)
+        self._env_parts = parts
+        self._env_id = mi.UInt32(_emitter_id(environment) if parts else 0)
         self._configured = True
 
     def _checked_guesses(self, segment_kernels, D: int, guesses) -> np.ndarray:
@@ -201,13 +215,18 @@ def _shape_ids(shape_segments, n_seg: int) -> dict[int, int]:
     return out
 
 
+def _emitter_id(emitter) -> int:
+    """Mitsuba's registry id of ``emitter``: the value an ``EmitterPtr`` holds for it on the device."""
+    return int(dr.reinterpret_array(mi.UInt32, mi.EmitterPtr(emitter))[0])
+
+
 def _emitter_table(emitter_groups) -> mi.UInt32:
     """Registry id -> group of the listed emitters (every other id: 0), groups checked ``>= 1``."""
     ids = {}
     for emitter, g in emitter_groups:
         if int(g) < 1:
             raise ConfigError(f"emitter {emitter.id()}: group {g} must be >= 1 (0 is every emitter not listed)")
-        ids[int(dr.reinterpret_array(mi.UInt32, mi.EmitterPtr(emitter))[0])] = int(g)
+        ids[_emitter_id(emitter)] = int(g)
     tab = np.zeros(max(ids, default=0) + 1, np.uint32)
     for eid, g in ids.items():
         tab[eid] = g

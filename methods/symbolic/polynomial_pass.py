@@ -31,7 +31,7 @@ from methods.symbolic.basis import check_key_range
 from methods.symbolic.coefficients import PassResult, TiledCoefficients, ViewCoefficients
 from methods.symbolic.events import event_slots
 from methods.symbolic.gram import GramSystem, weighted_system
-from methods.symbolic.illumination import unknown_emitters
+from methods.symbolic.illumination import split_environments, unknown_emitters
 from methods.symbolic.integrator import integrator_class
 from methods.symbolic.pass_cache import (TileWriter, cached_view, camera_key, empty_system, observed_pixels,
                                          store_tile, view_key)
@@ -42,28 +42,29 @@ MIN_TILE_PIXELS = 64
 
 
 def event_bytes_per_pixel(spp: int, max_bounces: int, n_channels: int, tail_bounces: int = 0, *,
-                          n_scales: int = 0) -> int:
+                          n_scales: int = 0, n_parts: int = 0) -> int:
     """Bytes of one pixel's event buffers in a tile.
 
     A pixel holds ``spp × (N_max + T + 1)`` event slots (``spp × (2 (N_max + T) + 1)`` with
-    ``n_scales`` unknown emitter scales: a vertex's two contributions kept apart) of one monomial index and ``C`` values
+    ``n_scales`` unknown emitter scales: a vertex's two contributions kept apart; ``n_parts`` times
+    that with ``n_parts`` environments split) of one monomial index and ``C`` values
     (4 bytes each), held about three times (Dr.Jit buffers, their compacted copy, numpy arrays).
     The path state itself never reaches memory (the tile's paths run as one kernel): measured,
     a 256-pixel tile at 4096 spp peaked 124 MiB above the process's start, this estimate 192 MiB.
     """
-    return spp * event_slots(max_bounces, tail_bounces, n_scales) * 4 * (1 + n_channels) * BYTES_COPIES
+    return spp * event_slots(max_bounces, tail_bounces, n_scales, n_parts) * 4 * (1 + n_channels) * BYTES_COPIES
 
 
 def tile_pixels_for(memory_mb: float, spp: int, max_bounces: int, n_channels: int, tail_bounces: int = 0, *,
-                    n_scales: int = 0) -> int:
+                    n_scales: int = 0, n_parts: int = 0) -> int:
     """Largest tile whose event buffers (:func:`event_bytes_per_pixel`) fit in ``memory_mb``
     (at least :data:`MIN_TILE_PIXELS` pixels)."""
-    per_pixel = event_bytes_per_pixel(spp, max_bounces, n_channels, tail_bounces, n_scales=n_scales)
+    per_pixel = event_bytes_per_pixel(spp, max_bounces, n_channels, tail_bounces, n_scales=n_scales, n_parts=n_parts)
     return max(MIN_TILE_PIXELS, int(memory_mb * MiB // per_pixel))
 
 
 def check_pass_memory(memory_mb: float, spp: int, max_bounces: int, n_channels: int, tail_bounces: int = 0,
-                      *, pixels: int, tasks_here: int = 1, n_scales: int = 0) -> None:
+                      *, pixels: int, tasks_here: int = 1, n_scales: int = 0, n_parts: int = 0) -> None:
     """Raise :class:`ConfigError` before the pass allocates tiles that cannot fit.
 
     The tile never drops below :data:`MIN_TILE_PIXELS`, so past some ``spp`` even the smallest
@@ -73,14 +74,14 @@ def check_pass_memory(memory_mb: float, spp: int, max_bounces: int, n_channels: 
 
     Parameters
     ----------
-    memory_mb, spp, max_bounces, n_channels, tail_bounces, n_scales
+    memory_mb, spp, max_bounces, n_channels, tail_bounces, n_scales, n_parts
         As :func:`tile_pixels_for`.
     pixels : int
         Pixels of the largest view to render (a tile never holds more).
     tasks_here : int
         Views rendered at once on this machine (0: elsewhere, only ``memory_mb`` is checked).
     """
-    per_pixel = event_bytes_per_pixel(spp, max_bounces, n_channels, tail_bounces, n_scales=n_scales)
+    per_pixel = event_bytes_per_pixel(spp, max_bounces, n_channels, tail_bounces, n_scales=n_scales, n_parts=n_parts)
     smallest = min(MIN_TILE_PIXELS, pixels)
     if smallest * per_pixel > memory_mb * MiB:
         need = -(-smallest * per_pixel // MiB)
@@ -90,7 +91,8 @@ def check_pass_memory(memory_mb: float, spp: int, max_bounces: int, n_channels: 
                           f"({smallest} pixels), above method.memory_mb={memory_mb:g}: "
                           f"{lower}raise method.memory_mb to at least {need}")
     if tasks_here:
-        tile = min(tile_pixels_for(memory_mb, spp, max_bounces, n_channels, tail_bounces, n_scales=n_scales), pixels)
+        tile = min(tile_pixels_for(memory_mb, spp, max_bounces, n_channels, tail_bounces, n_scales=n_scales,
+                                   n_parts=n_parts), pixels)
         check_memory(tile * per_pixel * tasks_here, f"the polynomial pass's tiles ({tasks_here} at once)",
                      "lower method.memory_mb (smaller tiles) or render.spp")
 
@@ -130,7 +132,7 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
         Its ``system`` is over the monomials that occur in some view (``system.codes``): over ρ,
         and with unknown emitter scales over ``(ρ, s)`` (:func:`~methods.symbolic.illumination.pass_basis`).
     """
-    G = len(unknown_emitters(problem.scene))
+    G, n_parts = len(unknown_emitters(problem.scene)), len(split_environments(problem.scene))
     check_key_range(len(parameters), max_bounces, G)
     executor = executor or SerialExecutor()
     C = problem.n_channels
@@ -151,8 +153,8 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
     t0 = time.perf_counter()
     if todo:
         check_pass_memory(memory_mb, spp, max_bounces, C, tail_bounces, tasks_here=executor.tasks_here,
-                          pixels=max(cam.width * cam.height for _, cam, _ in todo), n_scales=G)
-        tile = tile_pixels_for(memory_mb, spp, max_bounces, C, tail_bounces, n_scales=G)
+                          pixels=max(cam.width * cam.height for _, cam, _ in todo), n_scales=G, n_parts=n_parts)
+        tile = tile_pixels_for(memory_mb, spp, max_bounces, C, tail_bounces, n_scales=G, n_parts=n_parts)
         # workers on this machine store their tiles in the cache folder themselves; those of a
         # remote scheduler cannot reach it and send them back (tasks_here 0)
         worker_cache = cache.dir if executor.tasks_here else None
@@ -237,11 +239,14 @@ def _scene_and_integrator(task: dict, variant: str):
         ms = MitsubaScene(scene, task["cameras"], spp=task["spp"])
         segment_kernels = [[(p.kernel, p.index) for p in params if p.segment == s]
                            for s in range(len(scene.segments))]
-        groups = [(em, g + 1) for g, j in enumerate(unknown_emitters(scene)) for em in ms.emitter_objects(j)]
+        group = {j: g + 1 for g, j in enumerate(unknown_emitters(scene))}
+        groups = [(em, group[j]) for j in group for em in ms.emitter_objects(j)]
+        parts = [(em, group.get(j, 0)) for j, em in ms.environment_parts] if split_environments(scene) else []
         integrator = integrator_class().create(
             ms.shape_segments, segment_kernels, len(params), task["guesses"],
             max_bounces=task["max_bounces"], prob_floor=task["prob_floor"], tile_pixels=task["tile_pixels"],
-            tail_bounces=task.get("tail_bounces", 0), emitter_groups=groups)
+            tail_bounces=task.get("tail_bounces", 0), emitter_groups=groups, environment=ms.environment,
+            environment_parts=parts)
         _WORKER_STATE.update(key=key, value=(ms, integrator))
     return _WORKER_STATE["value"]
 

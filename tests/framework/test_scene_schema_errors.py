@@ -323,18 +323,23 @@ def test_content_hash_does_not_depend_on_the_folder_location(tiny_scene):
 
 
 
-def test_two_environments(tiny_scene):
-    """Mitsuba renders one environment emitter per scene: a second sky is refused in one line before
-    anything renders (the scene still loads: a tool may read it), not by a traceback."""
+def test_environment_images_of_different_sizes(tiny_scene):
+    """Mitsuba renders one environment per scene, so several are summed texel by texel into one
+    image: two envmaps of different sizes are refused in one line before anything renders (the
+    scene still loads: a tool may read it), not by a traceback or a silent resampling."""
     from factory import compose_config
 
     from framework.errors import SceneError
     from framework.experiment import prepare
+    from framework.images import write_exr
     from framework.scene import load_scene
-    edit_scene_yaml(tiny_scene, lambda d: d["emitters"].append({"type": "constant", "radiance": 0.1}))
-    assert len(load_scene(tiny_scene).emitters) == 3
-    with pytest.raises(SceneError, match=r"scene.yaml: emitters 0 \(constant\) and 2 \(constant\) are both "
-                                         r"environments \(light from infinity\) and Mitsuba renders one per scene; "
-                                         r"combine them into one envmap, or keep one") as info:
+    write_exr(tiny_scene / "a.exr", np.full((4, 8, 3), 0.2, np.float32))
+    write_exr(tiny_scene / "b.exr", np.full((8, 16, 3), 0.1, np.float32))
+    edit_scene_yaml(tiny_scene, lambda d: d["emitters"].extend([{"type": "envmap", "file": "a.exr"},
+                                                                 {"type": "envmap", "file": "b.exr"}]))
+    assert len(load_scene(tiny_scene).emitters) == 4
+    with pytest.raises(SceneError, match=r"scene.yaml: emitters 2 and 3 are environment images of different sizes "
+                                         r"\(8x4 and 16x8\); Mitsuba renders one environment, so they are summed "
+                                         r"texel by texel: resample one to the other's size") as info:
         prepare(compose_config(tiny_scene, "views=all"))
     assert "\n" not in str(info.value)
