@@ -100,10 +100,8 @@ def test_quick_section_runs(tmp_path):
     """``python -m bench --quick --sections survey``'s code path: the scene at 40 pixels, four
     runs at 4 spp. (c) is refused in one line (exit 2, nothing written, the line recorded with
     no machine's folder in it); (a) and (b) finish with numbers: (a) estimates no scale and no
-    lens, (b) both scales and the lens. (d) does not run today: its model has three ``sunsky``
-    skies, three environment emitters, and Mitsuba takes one per scene: the run refuses it
-    in one line (exit 2), which the row records; when the framework takes several, this
-    assertion is to become (d)'s numbers (four scales, the sky measure per channel).
+    lens, (b) both scales and the lens, (d) four scales (the three basis skies and the one sun) and
+    the sky measure per channel: Mitsuba renders the three skies as their sum, the pass splits it.
     Their accuracy at this size is not the point (the section's default size measures it)."""
     rows = survey.run(QUICK, tmp_path, log=lambda *a: None)
     by = {r["row"]: r for r in rows}
@@ -114,7 +112,9 @@ def test_quick_section_runs(tmp_path):
         assert by[key]["rc"] == 0 and by[key]["worst_diffuse"] is not None and by[key]["n_z"] > 0
     assert by["a"]["scales"] == [] and by["a"]["corner"] is None
     assert [(x["part"]) for x in by["b"]["scales"]] == ["sky", "sun"] and by["b"]["corner"]["camera"] == 1
-    assert by["d"]["rc"] == 2 and "are both environments" in by["d"]["refusal"]
+    assert by["d"]["rc"] == 0 and [(x["emitter"], x["part"]) for x in by["d"]["scales"]] == [
+        (0, "sky"), (1, "sky"), (1, "sun"), (2, "sky")]
+    assert len(by["d"]["sky_irradiance_error"]) == 3 and np.all(np.isfinite(by["d"]["sky_rms_error"]))
     assert len(list((tmp_path / "scenes" / "d_turbidity" / "images").glob("*.exr"))) == 9
     text = "\n".join(survey.markdown(rows))
     assert "## 10. Survey unknowns" in text and "refused (exit 2)" in text
