@@ -66,6 +66,9 @@ class MethodResult:
     parameters: list[Parameter] | None = None  # the unknowns estimated; None: problem.parameters
     #: view -> (H, W) weight of each pixel in the final fit (scene weights times robust ones)
     pixel_weights: dict[str, np.ndarray] | None = None
+    #: view -> (H, W) uint8: why the fit left each pixel out, a code of
+    #: ``framework.scene.model.EXCLUSION_REASONS`` (0: used); None: the scene's reasons only
+    pixel_reasons: dict[str, np.ndarray] | None = None
     #: one entry per iterate: {"time_s": since the method started, "renders": spent so far,
     #: "estimate": (P, C) nested lists in ``parameters`` order, None where unobservable}
     trace: list[dict] = field(default_factory=list)

@@ -274,11 +274,29 @@ def write_view_images(run_dir: Path, problem: Problem, result: MethodResult, seg
         if weights is not None:                 # the fit's weight of each pixel (robust, masks)
             write_exr(run_dir / f"{base}.weights.exr", np.asarray(weights, np.float32)[..., None], ("Y",))
             entry["weights"] = f"{base}.weights.exr"
+        reasons = (result.pixel_reasons or {}).get(cam.name)
+        if reasons is None:
+            reasons = (getattr(problem.scene, "excluded", None) or {}).get(cam.name)
+        if reasons is not None:                 # why each pixel was left out
+            entry.update(excluded_entry(run_dir, base, reasons))
         if cam.name in segment_maps:
             np.save(run_dir / f"{base}.segments.npy", segment_maps[cam.name].astype(np.int32))
             entry["segments"] = f"{base}.segments.npy"
         entries.append(entry)
     return entries
+
+
+def excluded_entry(run_dir: Path, base: str, reasons: np.ndarray) -> dict:
+    """Write ``<base>.excluded.png`` (8-bit codes of ``EXCLUSION_REASONS``, 0: used) and return
+    the view's ``excluded`` (pixels per reason, the reasons that occur) and ``excluded_map``."""
+    from PIL import Image
+
+    from framework.scene.model import EXCLUSION_REASONS
+    codes = np.asarray(reasons, np.uint8)
+    Image.fromarray(codes).save(run_dir / f"{base}.excluded.png")
+    counts = np.bincount(codes.ravel(), minlength=len(EXCLUSION_REASONS))
+    return {"excluded": {r: int(n) for r, n in zip(EXCLUSION_REASONS[1:], counts[1:]) if n},
+            "excluded_map": f"{base}.excluded.png"}
 
 
 def write_relit_images(run_dir: Path, problem: Problem, result: MethodResult) -> list[dict]:

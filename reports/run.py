@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from framework import images
+from framework.scene.model import EXCLUSION_REASONS
 from reports.data import RESULTS_NAME, as_list, check_results, fmt_num, kernel_label, load_results, seed_of
 from reports.doc import Doc, staged
 from reports.plots import plot_convergence, plot_correlation, plot_difference, plot_segments
@@ -227,6 +228,13 @@ def _view_panel(doc: Doc, ctx: _RunContext, view: dict, index: int) -> None:
         path, src = ctx.out(f"{stem}_weights.png")
         images.write_png(path, np.round(255 * np.clip(weights[..., 0], 0.0, 1.0)).astype(np.uint8))
         items.append((src, "pixel weight in the fit (black: ignored or outlier)"))
+    reasons = _load_reasons(doc, ctx, view)
+    if reasons is not None:
+        path, src = ctx.out(f"{stem}_excluded.png")
+        images.write_png(path, REASON_COLOURS[reasons][..., :3])
+        counts = view.get("excluded") or {}
+        legend = ", ".join(f"{r} {counts[r]} ({REASON_NAMES[r]})" for r in EXCLUSION_REASONS[1:] if counts.get(r))
+        items.append((src, "pixels left out and why: " + (legend or "none") + "; light grey: used"))
     seg = _load_segments(doc, ctx, view.get("segments"))
     if seg is not None:
         path, src = ctx.out(f"{stem}_segments.png")
@@ -234,6 +242,28 @@ def _view_panel(doc: Doc, ctx: _RunContext, view: dict, index: int) -> None:
         items.append((src, "segment map"))
     if items:
         doc.figures(items)
+
+
+#: RGB of each code of EXCLUSION_REASONS in the report's map, and its colour's name
+REASON_COLOURS = np.array([[200, 200, 200], [0, 0, 0], [230, 200, 0], [40, 80, 200], [110, 110, 110],
+                           [220, 40, 40], [190, 0, 190]], np.uint8)
+REASON_NAMES = dict(zip(EXCLUSION_REASONS, ("light grey", "black", "yellow", "blue", "dark grey", "red", "magenta")))
+
+
+def _load_reasons(doc: Doc, ctx: _RunContext, view: dict):
+    """The view's map of exclusion codes (``excluded_map``), or None (a note when unreadable)."""
+    rel = view.get("excluded_map")
+    if not rel:
+        return None
+    try:
+        from PIL import Image
+        codes = np.asarray(Image.open(ctx.run_dir / rel))
+        if codes.ndim != 2 or codes.max(initial=0) >= len(EXCLUSION_REASONS):
+            raise ValueError(f"expected a 2-D map of codes below {len(EXCLUSION_REASONS)}, got {codes.shape}")
+        return codes
+    except Exception as exc:  # noqa: BLE001 - shown in the report
+        doc.para(f"excluded: cannot read {rel} ({type(exc).__name__}: {exc})", note=True)
+        return None
 
 
 def _load_segments(doc: Doc, ctx: _RunContext, rel):

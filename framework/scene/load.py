@@ -82,6 +82,7 @@ def load_scene(directory: str | os.PathLike, *, observations: bool = True) -> Sc
                  images=None if photos is None else photos.images, content_hash=_content_hash(inputs),
                  pose_source=model.pose_source, weights=None if photos is None else photos.weights,
                  noise=None if photos is None else photos.noise, photometry=spec.photometry,
+                 excluded=None if photos is None else photos.excluded,
                  origin=spec.origin)
 
 

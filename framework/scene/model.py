@@ -81,6 +81,14 @@ class Emitter:
     part: str | None = None                  # "sun" | "sky" for the parts of a ``sunsky``, else None
 
 
+#: Why a pixel is left out of a fit, by code (the index): the scene's (``mask``, ``saturated``: an
+#: encoded value at the saturation limit or a code 0, ``outside``: outside the delivered image after
+#: undistortion) and the fit's (``boundary``: on a material boundary, ``inconsistent``: its
+#: observation disagrees with the other views of the same surface point, ``outlier``: its residual
+#: is beyond the noise). Code 0 is a pixel the fit used.
+EXCLUSION_REASONS = ("used", "mask", "saturated", "outside", "boundary", "inconsistent", "outlier")
+
+
 @dataclass(frozen=True)
 class Camera:
     """A pinhole camera of the COLMAP model: ``cam_from_world`` (3, 4), x right, y down, z forward.
@@ -162,6 +170,9 @@ class Scene:
     #: view -> (H, W) float32: 1 = use the pixel, 0 = ignore it (masked, saturated, black-clipped,
     #: outside the delivered image after undistortion); None when every pixel of every view is usable
     weights: dict[str, np.ndarray] | None = field(default=None, compare=False)
+    #: view -> (H, W) uint8: why a pixel of weight 0 is unusable, an index into
+    #: :data:`EXCLUSION_REASONS` (0: usable); None when every pixel of every view is usable
+    excluded: dict[str, np.ndarray] | None = field(default=None, compare=False)
     #: view -> (H, W, C) float32: the standard deviation of the quantisation of the delivered
     #: 8/16-bit encoding, in linear units (0 for an EXR view); None when no view is integer-coded
     noise: dict[str, np.ndarray] | None = field(default=None, compare=False)

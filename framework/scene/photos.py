@@ -18,7 +18,10 @@ EXR). An alpha channel is dropped (it does not mask: give ``masks/<name>.png`` f
 A pixel is unusable when masked, saturated (an encoded value >= ``saturation`` in any channel;
 0.99 by default for 8/16-bit files, no limit for EXR unless given), black-clipped (a code 0 in
 any channel, 8/16-bit files only) or, after undistortion, when the point it samples lies outside
-the delivered image or interpolates an unusable pixel. Unusable pixels get weight 0 and value 0.
+the delivered image or interpolates an unusable pixel. Unusable pixels get weight 0 and value 0,
+and the reason, the first that applies of outside, mask, saturated (black-clipped counts as
+saturated: both are the encoding's ends), in :attr:`Photos.excluded`
+(:data:`~framework.scene.model.EXCLUSION_REASONS`).
 
 The quantisation of an 8/16-bit file is a uniform error of one code step: its standard deviation
 in linear units is ``|d linear / d code| * step / sqrt(12)`` with ``step = 1 / (2^bits - 1)``,
@@ -36,7 +39,7 @@ import numpy as np
 from framework.errors import SceneError
 from framework.images import srgb_decode
 from framework.scene.exr import read_exr_checked
-from framework.scene.model import Camera, Photometry
+from framework.scene.model import EXCLUSION_REASONS, Camera, Photometry
 from framework.scene.values import one_line
 from framework.scene.undistort import Resampling
 
@@ -57,6 +60,9 @@ class Photos:
     weights: dict[str, np.ndarray] | None      # view -> (H, W) float32 in {0, 1}; None: all usable
     noise: dict[str, np.ndarray] | None        # view -> (H, W, C) float32; None: no 8/16-bit file
     files: tuple[Path, ...]                    # every image and mask read
+    #: view -> (H, W) uint8: why a pixel is unusable, a code of EXCLUSION_REASONS (0: usable);
+    #: None when every pixel is usable
+    excluded: dict[str, np.ndarray] | None = None
 
 
 @dataclass(frozen=True)
@@ -143,35 +149,49 @@ def read_photos(root: Path, cameras: tuple[Camera, ...], channels: tuple[str, ..
     if not (root / "images").is_dir():
         return None
     _check_distinct(root, cameras)
-    images, weights, noise, files = {}, {}, {}, []
+    images, weights, noise, files, excluded = {}, {}, {}, [], {}
     resamplings: dict[tuple, Resampling] = {}
     for c in cameras:
         path = _existing_image(root, c.name)
         decoded = _decode(path, channels=channels, photometry=photometry, size=(c.height, c.width))
         files.append(path)
         usable = decoded.usable
+        unmasked = np.ones_like(usable)
         mask = mask_file(root, c.name)
         if mask is not None:
-            usable = usable & _read_mask(mask, image=path, shape=usable.shape)
+            unmasked = _read_mask(mask, image=path, shape=usable.shape)
+            usable = usable & unmasked
             files.append(mask)
         std = decoded.std
         if c.distortion is None:
             image, ok = np.where(usable[..., None], decoded.linear, 0.0), usable
+            reason = _reason(np.ones_like(ok), unmasked, decoded.usable)
         else:
             key = (c.distortion, c.width, c.height, c.f, c.cx, c.cy)
             if key not in resamplings:
                 resamplings[key] = Resampling(source=c.delivered(), target=c.pinhole())
-            image, ok = resamplings[key].apply(decoded.linear, valid=usable)
-            std = None if std is None else resamplings[key].apply_std(std)
+            r = resamplings[key]
+            image, ok = r.apply(decoded.linear, valid=usable)
+            std = None if std is None else r.apply_std(std)
+            reason = _reason(r.ok(), r.ok(unmasked), r.ok(decoded.usable))
         images[c.name] = image.astype(np.float32)
         weights[c.name] = ok.astype(np.float32)
+        excluded[c.name] = np.where(ok, 0, reason).astype(np.uint8)
         if std is not None:
             noise[c.name] = np.where(ok[..., None], std, 0.0).astype(np.float32)
     _warn_unused(root, files)
     if noise:
         noise = {c.name: noise.get(c.name, np.zeros_like(images[c.name])) for c in cameras}
     all_usable = all(w.all() for w in weights.values())
-    return Photos(images, None if all_usable else weights, noise or None, tuple(files))
+    return Photos(images, None if all_usable else weights, noise or None, tuple(files),
+                  None if all_usable else excluded)
+
+
+def _reason(inside: np.ndarray, unmasked: np.ndarray, decodable: np.ndarray) -> np.ndarray:
+    """``(H, W)`` code of :data:`EXCLUSION_REASONS` of the first that applies: outside the delivered
+    image, masked, saturated or black-clipped (0 where none does)."""
+    code = {r: i for i, r in enumerate(EXCLUSION_REASONS)}
+    return np.select([~inside, ~unmasked, ~decodable], [code["outside"], code["mask"], code["saturated"]], 0)
 
 
 def _check_distinct(root: Path, cameras) -> None:

@@ -193,6 +193,9 @@ class FieldOptions:
     consistency : ViewPairs or None
         The views' correspondences when pixels are weighed by the views' disagreement
         (``method.consistency``, :mod:`methods.symbolic.consistency`); None when off.
+    boundary : dict or None
+        View name -> ``(H·W,)`` bool: the material-boundary pixels ``weights`` leaves out (for
+        the reasons of :func:`exclusion_reasons`); None without a boundary.
     """
 
     weights: dict | None
@@ -204,6 +207,7 @@ class FieldOptions:
     vignetting: str = "none"
     scales: int = 0
     consistency: ViewPairs | None = None
+    boundary: dict | None = None
 
     @property
     def active(self) -> bool:
@@ -230,8 +234,8 @@ class FieldOptions:
         use = options.weights == "scene" and problem.weights is not None
         weights = {n: np.asarray(w, np.float64).ravel() for n, w in problem.weights.items()} if use else None
         boundary = _boundary_width(options.boundary, problem) if boundaries else 0
-        if boundary:
-            edges = segment_boundaries(problem, boundary)
+        edges = segment_boundaries(problem, boundary) if boundary else None
+        if edges is not None:
             weights = {n: (1.0 if weights is None else weights[n]) * ~edges[n] for n in names}
         noise = getattr(scene, "noise", None) or {}
         floors = {n: np.median(np.asarray(noise[n], float).reshape(-1, noise[n].shape[-1]), axis=0)
@@ -244,7 +248,7 @@ class FieldOptions:
         compare = robust != "none" and options.consistency == "auto" and len(names) > MIN_OTHERS
         pairs = ViewPairs.of(problem) if compare and boundaries else None
         return cls(weights, floors, reference, robust, iterations, options.irls.tol, vignetting,
-                   len(unknown_emitters(scene)), pairs)
+                   len(unknown_emitters(scene)), pairs, edges)
 
     def describe(self, fit: Fit) -> dict:
         """``extras["field"]``: what the fit did (JSON-able)."""
@@ -296,6 +300,7 @@ class _View:
     scene_w: np.ndarray | None   # (n,)
     gain: int | None             # index of its gain parameter
     robust_w: np.ndarray | None = None
+    compared: np.ndarray | None = None   # (n,) bool: robust_w is the views' agreement there
 
     @property
     def weights(self) -> np.ndarray | None:
@@ -402,6 +407,7 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
         mu = np.stack([basis.evaluate(x[:, c]) for c in range(C)])
         _reweight(views, mu, system.codes, options)
     out = _field_outputs(fit, views, used, basis, system, gains, P, C, round_ + 1, stopped, iterates)
+    out = out.replace(pixel_reasons=exclusion_reasons(problem, options, views))
     if light is not None:
         out = out.replace(illumination=light.report(fit.estimate, fit.std))
     return out if lens is None else out.replace(vignetting=lens.report(fit.estimate, fit.std, fit.correlation))
@@ -440,9 +446,41 @@ def _reweight(views, mu: np.ndarray, codes: np.ndarray, options: FieldOptions, *
         w = robust_weights(pred[v.name] - v.y, usable[v.name], loss=options.robust,
                            floor=options.floors.get(v.name, 0.0), variance=var[v.name]) \
             if per_pixel else np.ones(len(v.y))
-        if v.name in agree:
-            w = np.where(np.isnan(agree[v.name]), w, agree[v.name])
+        v.compared = ~np.isnan(agree[v.name]) if v.name in agree else None
+        if v.compared is not None:
+            w = np.where(v.compared, agree[v.name], w)
         v.robust_w = w
+
+
+#: robust weight below which the report counts a pixel as left out (the Cauchy weight
+#: 1 / (1 + (r / cσ)²) is 1/2 at a residual of cσ: beyond it a pixel counts less than half)
+LEFT_OUT = 0.5
+
+
+def exclusion_reasons(problem, options: FieldOptions, views) -> dict[str, np.ndarray]:
+    """View name -> ``(H, W)`` uint8 code of :data:`~framework.scene.model.EXCLUSION_REASONS`
+    for each pixel the fit left out, the first that applies: the scene's reason (mask, saturated,
+    outside), a material boundary, then a robust weight below :data:`LEFT_OUT` set by the views'
+    disagreement (inconsistent) or by the pixel's own residual (outlier); 0 where used."""
+    from framework.scene.model import EXCLUSION_REASONS
+    code = {r: i for i, r in enumerate(EXCLUSION_REASONS)}
+    scene_reasons = getattr(problem.scene, "excluded", None) or {}
+    out = {}
+    for v in views:
+        n = len(v.y)
+        base = scene_reasons.get(v.name)
+        r = np.zeros(n, np.uint8) if base is None else np.asarray(base, np.uint8).ravel().copy()
+        free = r == 0
+        if options.boundary is not None:
+            edge = free & options.boundary[v.name]
+            r[edge], free = code["boundary"], free & ~edge
+        if v.robust_w is not None:
+            low = free & (v.robust_w < LEFT_OUT)
+            compared = v.compared if v.compared is not None else np.zeros(n, bool)
+            r[low & compared] = code["inconsistent"]
+            r[low & ~compared] = code["outlier"]
+        out[v.name] = r.reshape(v.shape)
+    return out
 
 
 def _field_outputs(fit: Fit, views, used, basis, system, gains, P, C, rounds, stopped, iterates) -> Fit:

@@ -58,6 +58,10 @@ class Fit:
     pixel_weights, robust_weights : dict or None
         The field path: view -> ``(H, W)`` weights of the last solve; view -> the robust weights
         after the last round (a refinement pass starts from them).
+    pixel_reasons : dict or None
+        The field path: view -> ``(H, W)`` uint8, why each pixel left out was left out (a code of
+        :data:`~framework.scene.model.EXCLUSION_REASONS`, 0: used;
+        :func:`~methods.symbolic.field.exclusion_reasons`).
     irls_rounds : int or None
     irls_stopped : str or None
         The field path's robust rounds and why they stopped.
@@ -86,6 +90,7 @@ class Fit:
     illumination: list | None = None
     pixel_weights: dict | None = None
     robust_weights: dict | None = None
+    pixel_reasons: dict | None = None
     irls_rounds: int | None = None
     irls_stopped: str | None = None
     clusters: dict | None = None

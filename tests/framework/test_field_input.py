@@ -11,6 +11,7 @@ from factory import distorted, edit_scene_yaml, make_field_scene, write_png8, wr
 from framework.images import srgb_decode, srgb_encode, write_exr
 from framework.scene import Camera, load_scene
 from framework.scene.undistort import Resampling, pinhole_for, resample
+from framework.scene.model import EXCLUSION_REASONS
 
 SQRT12 = np.sqrt(12.0)
 
@@ -147,6 +148,11 @@ def test_saturated_black_and_masked_pixels_weigh_zero(tiny_scene):
         assert (scene.images[name][expected[i] == 0] == 0).all()
         assert (scene.noise[name][expected[i] == 0] == 0).all()
         assert (scene.images[name][expected[i] == 1] > 0).all()
+    # why: saturated (code 2: 255, 253 and the black-clipped 0), masked (code 1)
+    reasons = np.zeros((16, 16), np.uint8)
+    reasons[[1, 3, 7], [2, 4, 8]] = EXCLUSION_REASONS.index("saturated")
+    assert np.array_equal(scene.excluded["view_0.png"], reasons)
+    assert np.array_equal(scene.excluded["view_1.png"], np.where(mask > 0, 0, EXCLUSION_REASONS.index("mask")))
     assert scene.images["view_0.png"][5, 6, 2] == pytest.approx(srgb_decode(252 / 255), rel=1e-6)
     before = scene.content_hash
     mask[0, 0] = 0
@@ -187,11 +193,14 @@ def test_undistortion_reads_the_photo_where_the_ray_meets_it(tmp_path):
         weight = scene.weights[c.name] > 0
         np.testing.assert_allclose(scene.images[c.name][weight], expected[weight], atol=1e-6)
         assert (scene.images[c.name][~weight] == 0).all()
+        reason = np.asarray(EXCLUSION_REASONS)[scene.excluded[c.name]]
         if c.distortion[0] == "SIMPLE_RADIAL":       # pincushion: the corners see outside the photo
             assert np.array_equal(weight, inside) and not weight[0, 0] and weight.mean() > 0.5
+            assert set(reason[~weight]) == {"outside"} and set(reason[weight]) == {"used"}
         else:                                        # barrel: all inside, but for the masked pixel
             near = (np.abs(at - 8.5) < 1).all(axis=2)
             assert np.array_equal(weight, ~near) and near.sum() >= 1
+            assert set(reason[near]) == {"mask"} and set(reason[~near]) == {"used"}
 
 
 # ----------------------------------------------------------------------------------------------

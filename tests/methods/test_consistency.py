@@ -82,3 +82,23 @@ def test_cauchy_of_the_disagreement_by_hand():
     w = _cauchy(d, robust_scale(d))
     t = np.abs(d[:, 0]) * 0.6744897501960817      # / (median |d| / median |N(0, 1)|), median |d| = 1
     np.testing.assert_allclose(w, 1 / (1 + (t / 2.385) ** 2))
+
+
+def test_exclusion_reasons_by_hand():
+    """A 2 x 3 view: the scene masks pixel 0 and clips pixel 1; pixel 2 is on a material boundary;
+    pixels 3 and 4 weigh 0.2 < LEFT_OUT, 3 set by the views' disagreement (inconsistent), 4 by its
+    own residual (outlier); pixel 5 weighs 0.6 and is used. The scene's reason wins over the fit's
+    (pixel 1 also weighs 0.2)."""
+    from types import SimpleNamespace
+
+    from framework.scene.model import EXCLUSION_REASONS
+    from methods.symbolic.field import LEFT_OUT, _View, exclusion_reasons
+    code = EXCLUSION_REASONS.index
+    scene = SimpleNamespace(excluded={"v": np.array([[code("mask"), code("saturated"), 0], [0, 0, 0]], np.uint8)})
+    view = _View("v", (2, 3), None, np.zeros((6, 3)), np.array([0, 0, 0, 1, 1, 1.0]), None,
+                 robust_w=np.array([1, 0.2, 1, 0.2, 0.2, 0.6]), compared=np.array([0, 0, 0, 1, 0, 1], bool))
+    options = SimpleNamespace(boundary={"v": np.array([0, 0, 1, 0, 0, 0], bool)})
+    assert LEFT_OUT == 0.5
+    got = exclusion_reasons(SimpleNamespace(scene=scene), options, [view])["v"]
+    assert [EXCLUSION_REASONS[c] for c in got.ravel()] == ["mask", "saturated", "boundary", "inconsistent",
+                                                           "outlier", "used"]

@@ -158,3 +158,28 @@ def test_illumination_and_vignetting_sections(tmp_path):
     assert "## Illumination" in md and "| 1 (sun) | 1.1200 ± 0.0100 | 1.1000 ± 0.0200 | — |" in md
     assert "## Vignetting" in md
     assert "| 1 | no | -0.3000 ± 0.0300 | 0.0000 ± 0.1000 | 0.0100 ± 0.1000 | 0.7100 ± 0.0200 |" in md
+
+
+def test_excluded_pixels_map_and_legend(tmp_path):
+    """results.json's ``excluded`` counts and ``excluded_map`` (framework.results.excluded_entry,
+    codes by hand: 3 masked, 2 inconsistent, 1 outlier of 16 pixels) become a coloured map and a
+    legend naming each reason with its count and colour."""
+    from framework.results import excluded_entry
+    from framework.scene.model import EXCLUSION_REASONS
+    run = make_fake_run(tmp_path / "run", correlation=False)
+    res = json.loads((run / "results.json").read_text())
+    codes = np.zeros((4, 4), np.uint8)
+    codes[0, :3] = EXCLUSION_REASONS.index("mask")
+    codes[2, 1:3] = EXCLUSION_REASONS.index("inconsistent")
+    codes[3, 3] = EXCLUSION_REASONS.index("outlier")
+    entry = excluded_entry(run, "images/v0", codes)
+    assert entry == {"excluded": {"mask": 3, "inconsistent": 2, "outlier": 1}, "excluded_map": "images/v0.excluded.png"}
+    from PIL import Image
+    assert np.array_equal(np.asarray(Image.open(run / entry["excluded_map"])), codes)
+    res["views"][0].update(entry)
+    (run / "results.json").write_text(json.dumps(res))
+    md = write_run_report(run)[0].read_text()
+    assert ("pixels left out and why: mask 3 (black), inconsistent 2 (red), outlier 1 (magenta); light grey: used"
+            in md)
+    drawn = [p for p in run.rglob("*_excluded.png")]
+    assert len(drawn) == 1 and np.asarray(Image.open(drawn[0])).shape == (4, 4, 3)
