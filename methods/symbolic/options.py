@@ -92,9 +92,11 @@ class SymbolicOptions(StartOptions):
         "cap on further passes, each re-rendered at the previous estimate (one render each): the "
         "tail's linearisation and the kernel selection move to the estimate", number(0, 8, integer=True))
     refine_tol: float = option(
-        "refinement stops once no weight moved more than `refine_tol` + 2 std between two passes (a "
-        "pass cannot settle closer than its Monte Carlo noise; weights without a finite std, which "
-        "the data do not pin, are not waited for); results.json `refine_moves`, `refine_stopped`",
+        "refinement stops once no weight moved more than `refine_tol` + z_n √2 std between two passes: "
+        "a pass cannot settle closer than its Monte Carlo noise, and z_n (1.96 for one weight, 3.82 for "
+        "384) is the bound all n compared weights keep with probability 0.95 when only that noise moves "
+        "them; weights without a finite std, which the data do not pin, are not waited for; results.json "
+        "`refine_moves` (the largest move in units of that bound), `refine_stopped`",
         number(0.0))
     align: str = option(
         "views aligned to the model between refinement passes (needs `refine` >= 1): each observed "
