@@ -83,15 +83,17 @@ def rotated(cam: Camera, offset: dict) -> Camera:
 
 
 def image_motion(cam: Camera, offset: dict) -> dict[str, float]:
-    """How far the rotation moves the image, in pixels: at the principal point, RMS and largest
-    over the pixel centres."""
+    """How far the rotation moves the image, in pixels: at the principal point (``centre``, and
+    ``centre_shift`` [dx, dy]: where the photograph shows what the COLMAP camera shows at the
+    principal point, minus the principal point), RMS and largest over the pixel centres."""
     q = rotation(offset["axis"], offset["angle"])
     xs, ys = np.meshgrid(np.arange(cam.width) + 0.5, np.arange(cam.height) + 0.5)
     d = np.stack([(xs - cam.cx) / cam.f, (ys - cam.cy) / cam.f, np.ones_like(xs)], -1).reshape(-1, 3)
     d = np.vstack([[0.0, 0.0, 1.0], d])
     moved = d @ q.T
-    shift = cam.f * np.linalg.norm(moved[:, :2] / moved[:, 2:] - d[:, :2], axis=1)
-    return {"centre": float(shift[0]), "rms": float(np.sqrt(np.mean(shift[1:] ** 2))), "max": float(shift[1:].max())}
+    delta = cam.f * (moved[:, :2] / moved[:, 2:] - d[:, :2])
+    shift = np.linalg.norm(delta, axis=1)
+    return {"centre": float(shift[0]), "centre_shift": [float(x) for x in delta[0]], "rms": float(np.sqrt(np.mean(shift[1:] ** 2))), "max": float(shift[1:].max())}
 
 
 # ----------------------------------------------------------------------------------------------
