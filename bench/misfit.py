@@ -106,7 +106,8 @@ def run(sizes, work: Path, log=print) -> list[dict]:
         path = run_dir / "results.json"
         res = json.loads(path.read_text()) if path.is_file() else {}
         row = {"row": key, "label": label, "rc": out["rc"], "wall_s": out["wall_s"], "maxrss_mib": out["maxrss_mib"]}
-        row.update(summarise(res, gains, shifts) if res else {"met": False, "refusal": failure(out["stderr_tail"], work)})
+        row.update(summarise(res, gains, shifts) if res
+                   else {"met": False, "refusal": failure(out["stderr_tail"], work)})
         rows.append(row)
         log(f"[misfit] {key}: rc {out['rc']}, worst diffuse {row.get('worst_diffuse')}, specular "
             f"{row.get('worst_specular')}, gains {row.get('gain_error')}, RMS z {row.get('rms_z')}, beyond "

@@ -93,7 +93,8 @@ def image_motion(cam: Camera, offset: dict) -> dict[str, float]:
     moved = d @ q.T
     delta = cam.f * (moved[:, :2] / moved[:, 2:] - d[:, :2])
     shift = np.linalg.norm(delta, axis=1)
-    return {"centre": float(shift[0]), "centre_shift": [float(x) for x in delta[0]], "rms": float(np.sqrt(np.mean(shift[1:] ** 2))), "max": float(shift[1:].max())}
+    return {"centre": float(shift[0]), "centre_shift": [float(x) for x in delta[0]],
+            "rms": float(np.sqrt(np.mean(shift[1:] ** 2))), "max": float(shift[1:].max())}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -130,7 +131,8 @@ def tile_pieces(mesh: g.Mesh, size: float = TILE) -> list[tuple[tuple[int, int, 
         for axis in range(3):
             lo, hi = tri[:, axis].min(), tri[:, axis].max()
             cuts = np.arange(np.floor(lo / size) + 1, np.ceil(hi / size)) * size
-            polys = [piece for poly in polys for piece in _cut(poly, axis, cuts[(cuts > lo + 1e-9) & (cuts < hi - 1e-9)])]
+            cuts = cuts[(cuts > lo + 1e-9) & (cuts < hi - 1e-9)]
+            polys = [piece for poly in polys for piece in _cut(poly, axis, cuts)]
         out += [(tuple(np.floor(p.mean(0) / size).astype(int).tolist()), p) for p in polys if _area(p) > 1e-12]
     return out
 
@@ -330,14 +332,17 @@ def _truth(cams, models, view_gains, stats, offsets, measured, delta, tile_stats
         "clipped_pixels": {n: stats[n]["clipped"] for n in names},
         "saturated_pixels": {n: stats[n]["saturated"] for n in names},
         "car": {"masked": False, "origin": list(CAR_ORIGIN), "size_m": [4.2, 1.8, 1.5],
-                "boxes": {k: [{"lo": _r(lo), "hi": _r(hi)} for lo, hi in b] for k, b in field.car_boxes(CAR_ORIGIN).items()},
+                "boxes": {k: [{"lo": _r(lo), "hi": _r(hi)} for lo, hi in b]
+                          for k, b in field.car_boxes(CAR_ORIGIN).items()},
                 "materials": {k: field.EXTRA_MATERIALS[k] for k in CAR},
                 "pixels": {n: stats[n]["car"] for n in names},
                 "asphalt_share": _r(shares, 4),
                 "views": [n for n in names if SHARE_RANGE[0] <= shares[n] <= SHARE_RANGE[1]]},
-        "pedestrian": {"masked": False, "box": {k: _r(v) for k, v in zip(("origin", "ex", "ey", "ez"), field.pedestrian_box())},
+        "pedestrian": {"masked": False,
+                       "box": {k: _r(v) for k, v in zip(("origin", "ex", "ey", "ez"), field.pedestrian_box())},
                        "pixels": {n: stats[n]["pedestrian"] for n in names}},
-        "pose": {n: {"axis": _r(offsets[n]["axis"]), "angle_rad": _r(offsets[n]["angle"], 8), "px": _r(offsets[n]["px"], 4),
+        "pose": {n: {"axis": _r(offsets[n]["axis"]), "angle_rad": _r(offsets[n]["angle"], 8),
+                     "px": _r(offsets[n]["px"], 4),
                      "image_motion_px": _r(measured["motion"][n], 4)} for n in names},
         "facade": {"side": "north", "shift_m": [0.0, FACADE_SIDE * FACADE_SHIFT, 0.0],
                    "meshes": [f"{seg}_north" for seg in uc.side_meshes(FACADE_SIDE)],
