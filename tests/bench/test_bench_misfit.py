@@ -78,12 +78,15 @@ def test_rows_and_targets_match_the_brief():
 @pytest.mark.slow
 def test_quick_section_runs(tmp_path):
     """``python -m bench --quick --sections misfit``'s code path: the scene built at 40 pixels,
-    five runs at 4 spp with one refinement pass; every row finishes with numbers, the two that
-    align report a pose error, the others none. Their accuracy at this size is not the point."""
+    five runs at 4 spp with one refinement pass; every row finishes with gains, the two that
+    align report a pose error, the others none. Their accuracy at this size is not the point: at
+    4 spp most weights are ill-determined (measured: 11 of 12 in rows a-d, all 12 in row e, whose
+    worst errors are then n/a)."""
     rows = misfit.run(QUICK, tmp_path, log=lambda *a: None)
     assert [r["row"] for r in rows] == list(misfit.ROWS)
     for r in rows:
-        assert r["rc"] == 0 and r["worst_diffuse"] is not None and r["gain_error"] is not None and r["n_z"] > 0
+        assert r["rc"] == 0 and r["gain_error"] is not None and r["ill_determined"] >= 1
         assert (r["pose_error"] is not None) == (r["row"] in ("c", "e"))
+    assert any(r["worst_diffuse"] is not None for r in rows)
     text = "\n".join(misfit.markdown(rows))
     assert "## 11. Misfit" in text and text.count("| (") == 5
