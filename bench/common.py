@@ -158,7 +158,7 @@ def gain_error(results: dict, gains: dict[str, np.ndarray]) -> float | None:
     without per-view exposure)."""
     rel = [abs(e / t - 1) for x in results.get("exposure") or [] if x.get("estimate") and x["view"] in gains
            for e, t in zip(x["estimate"], gains[x["view"]]) if e is not None]
-    return max(rel) if rel else None
+    return float(max(rel)) if rel else None
 
 
 def failure(stderr: str, work: Path) -> str:
