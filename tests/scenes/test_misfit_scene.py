@@ -131,3 +131,17 @@ def test_truth_parts_move_the_north_building_and_texture_the_walls(truth):
     wall4 = next(s for s in segs if s["name"] == "wall_4")
     np.testing.assert_allclose(wall4["reference"]["diffuse"], ref * (1 + delta[4]))
     assert wall4["reference"]["specular"] == uc.REFERENCES["wall"][1]
+
+
+def test_bundled_truth():
+    """The bundled folder (200 px) states what the builder promises: the car over 30-60 % of the
+    asphalt in street_001 and street_005 (measured 0.507 and 0.426) and at most 10 % elsewhere,
+    pose offsets of 0.5-1 px, the tiles' area-weighted mean δ within 1e-3 of 0, no masks."""
+    folder = BUNDLED_DIR / "urban_canyon_misfit"
+    truth = _truth(folder)
+    car = truth["car"]
+    assert truth["image_size"] == [200, 200] and not (folder / "masks").exists()
+    assert car["views"] == ["street_001.jpg", "street_005.jpg"]
+    assert all(v <= 0.10 for k, v in car["asphalt_share"].items() if k not in car["views"])
+    assert all(0.5 <= p["px"] <= 1.0 for p in truth["pose"].values())
+    assert abs(truth["tiles"]["area_weighted_mean_delta"]) <= 1e-3 and max(map(abs, truth["tiles"]["delta"])) <= 0.2
