@@ -5,7 +5,8 @@ Sections: ``ratio`` (1, pass vs render), ``megapixel`` (1, a 1920x1080 view), ``
 learning-rate sweep), ``paper`` (4, Tables 1 and 2), ``materials`` (5), ``defaults`` (6,
 accurate by default), ``field`` (7, field photographs), ``glossy`` (8, glossy kernels), ``geometry``
 (9, geometry as a survey delivers it), ``survey`` (10, unknown sun and sky scales, vignetting and a
-calibration panel on ``urban_canyon_survey``). Each
+calibration panel on ``urban_canyon_survey``), ``misfit`` (11, what the model lacks: an unmasked car,
+rotated poses, a facade off its mesh and textured walls on ``urban_canyon_misfit``). Each
 section's numbers are stored in ``bench/results/<section>.json`` (with the date, the commit and
 the wall time of the run that measured them) and BENCHMARKS.md is rendered from every stored
 section, so ``--sections field`` re-measures one section and keeps the others; each section of
@@ -21,8 +22,8 @@ import sys
 import time
 from pathlib import Path
 
-from bench import (accuracy, compare, field, geometry, glossy, materials, megapixel, memory, paper, render_ratio,
-                   survey)
+from bench import (accuracy, compare, field, geometry, glossy, materials, megapixel, memory, misfit, paper,
+                   render_ratio, survey)
 from bench.common import ROOT
 from bench.machine import describe
 from bench.markdown import README, readme_block, render, with_readme_block
@@ -30,7 +31,7 @@ from bench.sizes import DEFAULT, QUICK
 from reports import write_comparison
 
 SECTIONS = ("ratio", "megapixel", "memory", "compare", "paper", "materials", "defaults", "field", "glossy",
-            "geometry", "survey")
+            "geometry", "survey", "misfit")
 RESULTS = ROOT / "bench" / "results"
 
 
@@ -95,6 +96,8 @@ def measure(name: str, sizes, root: Path, resume: bool = False):
         return geometry.run(sizes, root / "geometry", log)
     if name == "survey":
         return survey.run(sizes, root / "survey", log)
+    if name == "misfit":
+        return misfit.run(sizes, root / "misfit", log)
     return glossy.run(sizes, root / "glossy", log)
 
 

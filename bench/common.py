@@ -105,3 +105,68 @@ def resized_copy(src: Path, dest: Path, image: int) -> Path:
     shutil.copytree(src, dest, ignore=shutil.ignore_patterns("preview.png"))
     downsample_scene(src, dest, image)
     return dest
+
+
+# ----------------------------------------------------------------------------------------------
+# What a run got right (shared by the sections that judge results.json against a truth)
+# ----------------------------------------------------------------------------------------------
+
+Z, SLACK = 3.0, 0.005        # an error is beyond its std when |error| > Z std + SLACK
+
+
+def determined_errors(results: dict) -> tuple[dict[str, list[float]], list[tuple], int]:
+    """The errors of the determined weights (observable, not ill-determined, not known).
+
+    Returns
+    -------
+    (errors, pairs, n_ill)
+        ``errors``: kernel -> |error| per channel; ``pairs``: ``(error, std or None)`` per channel;
+        ``n_ill``: observable weights the run called ill-determined (left out).
+    """
+    errs: dict[str, list[float]] = {"diffuse": [], "specular": []}
+    pairs, n_ill = [], 0
+    for p in results.get("parameters", []):
+        if p.get("known") or p.get("error") is None or p.get("observable") is False:
+            continue
+        if p.get("ill_determined"):
+            n_ill += 1
+            continue
+        for e, s in zip(p["error"], p.get("std") or [None] * len(p["error"])):
+            if e is not None:
+                errs.setdefault(p["kernel"], []).append(abs(e))
+                pairs.append((e, s))
+    return errs, pairs, n_ill
+
+
+def z_stats(pairs: list[tuple]) -> dict:
+    """``rms_z`` (RMS of error / std over the pairs with a positive std; None without any),
+    ``n_z`` (their count) and ``beyond`` (pairs without a std or with |error| > Z std + SLACK)."""
+    z = [e / s for e, s in pairs if s is not None and s > 0]
+    beyond = sum(int(s is None or abs(e) > Z * s + SLACK) for e, s in pairs)
+    return {"rms_z": float(np.sqrt(np.mean(np.square(z)))) if z else None, "n_z": len(z), "beyond": beyond}
+
+
+def true_gains(folder: Path) -> dict[str, np.ndarray]:
+    """View -> (C,) true gains from a scene's ``truth.yaml``."""
+    import yaml
+    truth = yaml.safe_load((Path(folder) / "truth.yaml").read_text())
+    return {view: np.asarray(g, float) for view, g in truth["gains"].items()}
+
+
+def gain_error(results: dict, gains: dict[str, np.ndarray]) -> float | None:
+    """Worst |estimate / truth - 1| of results.json ``exposure`` over views and channels (None
+    without per-view exposure)."""
+    rel = [abs(e / t - 1) for x in results.get("exposure") or [] if x.get("estimate") and x["view"] in gains
+           for e, t in zip(x["estimate"], gains[x["view"]]) if e is not None]
+    return float(max(rel)) if rel else None
+
+
+def failure(stderr: str, work: Path) -> str:
+    """The line that says why a run wrote no results: the one-line ``error: ...`` of a refusal,
+    else the exception's last line (a traceback's end), else the last line; the run folder
+    ``work`` written ``<work>`` (the stored results name no machine's folders)."""
+    lines = [x.strip() for x in stderr.splitlines() if x.strip()]
+    refused = [x for x in lines if x.startswith("error:")]
+    raised = [x for x in lines if x.split(":", 1)[0].endswith(("Error", "Exception"))]
+    line = (refused or raised or lines or [""])[-1]
+    return line.replace(str(work), "<work>")

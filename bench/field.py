@@ -22,8 +22,8 @@ import shutil
 from pathlib import Path
 
 import numpy as np
-import yaml
 
+from bench.common import gain_error, true_gains
 from bench.memory import run_child
 from scenes import BUNDLED_DIR
 from bench.tables import f, table, yes
@@ -39,12 +39,6 @@ VARIANTS = (  # label, overrides
 )
 
 
-def true_gains(folder: Path) -> dict[str, np.ndarray]:
-    """View -> (C,) true gains from the scene's ``truth.yaml``."""
-    truth = yaml.safe_load((folder / "truth.yaml").read_text())
-    return {view: np.asarray(g, float) for view, g in truth["gains"].items()}
-
-
 def summarise(res: dict, gains: dict[str, np.ndarray]) -> dict:
     """Worst and median |error| of the determined parameters per kernel, worst relative gain error."""
     errs = {"diffuse": [], "specular": []}
@@ -52,11 +46,7 @@ def summarise(res: dict, gains: dict[str, np.ndarray]) -> dict:
         if p.get("error") is None or p.get("ill_determined", False) or p["kernel"] not in errs:
             continue
         errs[p["kernel"]] += [abs(e) for e in p["error"] if e is not None]
-    gain_err = None
-    if res.get("exposure"):
-        rel = [abs(e / t - 1) for x in res["exposure"] if x.get("estimate") and x["view"] in gains
-               for e, t in zip(x["estimate"], gains[x["view"]]) if e is not None]
-        gain_err = max(rel) if rel else None
+    gain_err = gain_error(res, gains)
     worst = {k: max(v) if v else None for k, v in errs.items()}
     met = bool(worst["diffuse"] is not None and worst["diffuse"] <= DIFFUSE_TOL
            and (worst["specular"] is None or worst["specular"] <= SPECULAR_TOL)

@@ -76,6 +76,14 @@ class Sizes:
         fit's std covers the photographs' noise: the sandwich takes the image residual).
     survey_extra : tuple of str
         Overrides added to the "survey" section's runs (the real one runs the shipped settings).
+    misfit_image : int or None
+        Width of the "misfit" section's views: None, the bundled ``urban_canyon_misfit`` (200);
+        else the scene built at that size (its JPEG photographs cannot be box-averaged).
+    misfit_photo_spp : int
+        Samples per pixel of the photographs of that build (``misfit_image`` not None).
+    misfit_extra : tuple of str
+        Overrides added to the "misfit" section's runs (the real one runs the shipped settings;
+        its alignment rows need ``method.refine`` >= 1).
     """
 
     name: str = "default"
@@ -111,6 +119,9 @@ class Sizes:
     survey_image: int | None = None
     survey_photo_spp: int = 256
     survey_extra: tuple = field(default_factory=tuple)
+    misfit_image: int | None = None
+    misfit_photo_spp: int = 16
+    misfit_extra: tuple = field(default_factory=tuple)
 
 
 DEFAULT = Sizes()
@@ -123,4 +134,6 @@ QUICK = Sizes(name="quick", ratio_spps=(4,), ratio_reps=1, mem_views=(1, 2), mem
               field_extra=("render.spp=4", "method.refine=0", "method.irls.iterations=2"),
               geometry_triangles=(2_000, 20_000), geometry_spp=4, geometry_reps=1,
               survey_image=40, survey_photo_spp=4,
-              survey_extra=("render.spp=4", "method.refine=0", "render.tail_bounces=0"))
+              survey_extra=("render.spp=4", "method.refine=0", "render.tail_bounces=0"),
+              misfit_image=40, misfit_photo_spp=8,
+              misfit_extra=("render.spp=4", "method.refine=1", "render.tail_bounces=0", "method.irls.iterations=2"))

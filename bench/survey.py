@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from bench.common import resized_copy
+from bench.common import determined_errors, failure, resized_copy, z_stats
 from bench.memory import run_child
 from bench.tables import f, table, yes
 from framework.scene.write import write_scene_yaml
@@ -50,7 +50,6 @@ from scenes import urban_canyon_survey as survey
 
 SCENE = "urban_canyon_survey"
 DIFFUSE_TOL, SPECULAR_TOL, SCALE_TOL, CORNER_TOL = 0.02, 0.03, 0.03, 0.02
-Z, SLACK = 3.0, 0.005
 HAZY, BASIS, SUN_BASIS = 3.3, (2.0, 4.0, 6.0), 4.0
 ROWS = ("a", "b", "c", "d")
 RUN_ORDER = ("b", "c", "a", "d")         # the bundled scene's row first: the one with targets
@@ -140,27 +139,7 @@ def _sun_vector() -> np.ndarray:
 
 def summarise(res: dict, row: str) -> dict:
     """The row's numbers (module docstring) from a results.json."""
-    errs = {"diffuse": [], "specular": []}
-    z, bad = [], 0
-
-    def score(err, std):
-        nonlocal bad
-        if std is not None and std > 0:
-            z.append(err / std)
-        bad += int(std is None or abs(err) > Z * std + SLACK)
-
-    n_ill = 0
-    for p in res.get("parameters", []):
-        if p.get("known") or p.get("error") is None or p.get("observable") is False:
-            continue
-        if p.get("ill_determined"):
-            n_ill += 1
-            continue
-        for e, s in zip(p["error"], p.get("std") or [None] * len(p["error"])):
-            if e is None:
-                continue
-            errs.setdefault(p["kernel"], []).append(abs(e))
-            score(e, s)
+    errs, pairs, n_ill = determined_errors(res)
     truth = light_truth(row)
     scales = []
     for entry in res.get("illumination") or []:
@@ -170,8 +149,7 @@ def summarise(res: dict, row: str) -> dict:
         item = {"emitter": entry["emitter"], "part": entry["part"], "estimate": est, "std": entry["std"],
                 "error_pct": None if t is None else [100 * (e / tt - 1) for e, tt in zip(est, t)]}
         if t is not None:
-            for e, s, tt in zip(est, entry["std"], t):
-                score(e - tt, s)
+            pairs += [(e - tt, s) for e, s, tt in zip(est, entry["std"], t)]
         scales.append(item)
     corner = None
     for lens in res.get("vignetting") or []:
@@ -179,11 +157,10 @@ def summarise(res: dict, row: str) -> dict:
         corner = {"camera": lens["camera"], "estimate": c, "std": cs,
                   "error": None if c is None else c - float(survey.falloff(1.0))}
         if c is not None:
-            score(corner["error"], cs)
+            pairs.append((corner["error"], cs))
     worst = {k: max(v) if v else None for k, v in errs.items()}
     out = {"worst_diffuse": worst.get("diffuse"), "worst_specular": worst.get("specular"),
-           "ill_determined": n_ill, "scales": scales, "corner": corner,
-           "rms_z": float(np.sqrt(np.mean(np.square(z)))) if z else None, "n_z": len(z), "beyond": bad,
+           "ill_determined": n_ill, "scales": scales, "corner": corner, **z_stats(pairs),
            "renders": res.get("renders")}
     out["met"] = _targets(out)
     if row == "d":
@@ -229,17 +206,6 @@ def sky_match(scales: list[dict]) -> dict:
 # ----------------------------------------------------------------------------------------------
 # The runs
 # ----------------------------------------------------------------------------------------------
-
-def failure(stderr: str, work: Path) -> str:
-    """The line that says why a run wrote no results: the one-line ``error: ...`` of a refusal,
-    else the exception's last line (a traceback's end), else the last line; the run folder
-    ``work`` written ``<work>`` (the stored results name no machine's folders)."""
-    lines = [x.strip() for x in stderr.splitlines() if x.strip()]
-    refused = [x for x in lines if x.startswith("error:")]
-    raised = [x for x in lines if x.split(":", 1)[0].endswith(("Error", "Exception"))]
-    line = (refused or raised or lines or [""])[-1]
-    return line.replace(str(work), "<work>")
-
 
 def run(sizes, work: Path, log=print) -> list[dict]:
     """The rows of :data:`ROWS`; a row dict each."""

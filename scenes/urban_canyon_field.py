@@ -73,9 +73,10 @@ CAR_ORIGIN = (-3.6, 2.7)             # (x, y) of the car's corner: x in [-3.6, 0
 PEDESTRIAN_AT = (4.5, 2.1)           # centre of the pedestrian's footprint, in the sun
 
 
-def car_boxes() -> dict[str, list[tuple[list[float], list[float]]]]:
-    """The parked car, ~4.2 x 1.8 x 1.5 m, as axis-aligned boxes ``(lo, hi)`` by material."""
-    x, y = CAR_ORIGIN
+def car_boxes(origin=CAR_ORIGIN) -> dict[str, list[tuple[list[float], list[float]]]]:
+    """The parked car, ~4.2 x 1.8 x 1.5 m, as axis-aligned boxes ``(lo, hi)`` by material;
+    ``origin``: (x, y) of its lowest corner."""
+    x, y = origin
     body = ([x, y, 0.30], [x + 4.2, y + 1.8, 0.95])
     cabin = ([x + 1.0, y + 0.1, 0.95], [x + 3.3, y + 1.7, 1.50])
     wheels = [([x + x0, y + y0, 0.0], [x + x0 + 0.66, y + y0 + 0.22, 0.62])
@@ -94,9 +95,9 @@ def pedestrian_box() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     return centre - ex / 2 - ey / 2, ex, ey, ez
 
 
-def extra_meshes() -> dict[str, g.Mesh]:
-    """Material name -> mesh of the objects the model lacks (car and pedestrian)."""
-    out = {k: g.merge([g.aabox(lo, hi) for lo, hi in boxes]) for k, boxes in car_boxes().items()}
+def extra_meshes(car_origin=CAR_ORIGIN) -> dict[str, g.Mesh]:
+    """Material name -> mesh of the objects the model lacks (car at ``car_origin``, pedestrian)."""
+    out = {k: g.merge([g.aabox(lo, hi) for lo, hi in boxes]) for k, boxes in car_boxes(car_origin).items()}
     out["pedestrian"] = g.box(*pedestrian_box())
     return out
 
@@ -216,17 +217,18 @@ def _reference(value) -> np.ndarray:
 
 
 def photo_scene(folder: Path, segments: list[dict], emitters: list[dict], parts: dict[str, list],
-                cameras: list[Camera]) -> Scene:
+                cameras: list[Camera], car_origin=CAR_ORIGIN) -> Scene:
     """The in-memory scene the photographs are rendered from: the delivered segments (meshes as
     ``parts`` holds them, emitters as written, the sky read back from ``sky.exr``) plus the
-    render-only materials of :data:`EXTRA_MATERIALS` on :func:`extra_meshes`."""
+    render-only materials of :data:`EXTRA_MATERIALS` on :func:`extra_meshes` (the car at
+    ``car_origin``)."""
     segs, meshes = [], []
     for s, seg in enumerate(segments):
         segs.append(Segment(seg["name"], tuple(seg["meshes"]), tuple(seg["kernels"]),
                             {k: _reference(v) for k, v in seg["reference"].items()}))
         for path, (_, (v, f)) in zip(seg["meshes"], parts[seg["name"]]):
             meshes.append(Mesh(path, np.asarray(v, float), np.asarray(f, np.int32), s))
-    for name, mesh in extra_meshes().items():
+    for name, mesh in extra_meshes(car_origin).items():
         ref = EXTRA_MATERIALS[name]
         segs.append(Segment(name, (f"<{name}>",), tuple(ref), {k: _reference(v) for k, v in ref.items()}))
         meshes.append(Mesh(f"<{name}>", np.asarray(mesh[0], float), np.asarray(mesh[1], np.int32), len(segs) - 1))
@@ -325,6 +327,30 @@ def build(folder: Path, *, image: int = IMAGE, spp: int = SPP, seed: int = SEED)
     """
     t0 = time.perf_counter()
     folder = Path(folder)
+    parts, emitters, segments, cams, models = write_model(folder, image, seed, _comment())
+    renders = [render_camera(c, *m) for c, m in zip(cams, models)]
+    view_gains = gains([c.name for c in cams], seed)
+    codes, masks, stats = photographs(photo_scene(folder, segments, emitters, parts, renders), cams, models,
+                                      renders, view_gains, spp=spp, seed=seed)
+    write_images(folder, cams, codes, stats, masks)
+    truth = _truth(cams, models, view_gains, stats, image=image, spp=spp, seed=seed)
+    (folder / "truth.yaml").write_text(_TRUTH_HEAD + yaml.safe_dump(truth, sort_keys=False, width=100,
+                                                                     default_flow_style=None))
+    (folder / "README.md").write_text(_readme(truth))
+    log.info("%s built in %.1f s", folder.name, time.perf_counter() - t0)
+    return folder
+
+
+def write_model(folder: Path, image: int, seed: int, comment: str):
+    """Write the model: meshes, ``sky.exr``, the distorted COLMAP cameras and ``scene.yaml``
+    (urban_canyon's segments under :func:`_brighter` light, field photometry).
+
+    Returns
+    -------
+    (parts, emitters, segments, cams, models)
+        :func:`scenes.urban_canyon.meshes`, scene.yaml's emitters and segments, the views
+        (:func:`views`) and their COLMAP intrinsics (:func:`camera_models`).
+    """
     parts = uc.meshes()
     files = {seg: uc.write_mesh_files(folder, p) for seg, p in parts.items()}
     emitters = _brighter(uc.write_lighting(folder, "rgb"))
@@ -335,24 +361,21 @@ def build(folder: Path, *, image: int = IMAGE, spp: int = SPP, seed: int = SEED)
     photometry = {"encoding": "srgb", "exposure": "per_view", "reference_view": REFERENCE_VIEW,
                   "saturation": SATURATION}
     write_scene_yaml(folder / "scene.yaml", {"name": folder.name, "channels": "rgb", "segments": segments,
-                                             "emitters": emitters, "photometry": photometry}, _comment())
-    renders = [render_camera(c, *m) for c, m in zip(cams, models)]
-    view_gains = gains([c.name for c in cams], seed)
-    codes, masks, stats = photographs(photo_scene(folder, segments, emitters, parts, renders), cams, models,
-                                      renders, view_gains, spp=spp, seed=seed)
+                                             "emitters": emitters, "photometry": photometry}, comment)
+    return parts, emitters, segments, cams, models
+
+
+def write_images(folder: Path, cams: list[Camera], codes: dict, stats: dict, masks: dict | None = None) -> None:
+    """Write ``images/<view>`` (JPEG) and, where given, ``masks/<view>.png``; adds each view's
+    ``saturated`` count (decoded pixels with a channel >= ``SATURATION`` x 255) to ``stats``."""
     from PIL import Image
     for c in cams:
         path = write_jpeg(folder / "images" / c.name, codes[c.name])
-        (folder / "masks").mkdir(exist_ok=True)
-        Image.fromarray(masks[c.name], "L").save(folder / "masks" / f"{c.name}.png", format="PNG")
+        if masks is not None:
+            (folder / "masks").mkdir(exist_ok=True)
+            Image.fromarray(masks[c.name], "L").save(folder / "masks" / f"{c.name}.png", format="PNG")
         decoded = np.asarray(Image.open(path).convert("RGB"))
         stats[c.name]["saturated"] = int((decoded >= SATURATION * 255).any(axis=-1).sum())
-    truth = _truth(cams, models, view_gains, stats, image=image, spp=spp, seed=seed)
-    (folder / "truth.yaml").write_text(_TRUTH_HEAD + yaml.safe_dump(truth, sort_keys=False, width=100,
-                                                                     default_flow_style=None))
-    (folder / "README.md").write_text(_readme(truth))
-    log.info("%s built in %.1f s", folder.name, time.perf_counter() - t0)
-    return folder
 
 
 def _truth(cams, models, view_gains, stats, *, image, spp, seed) -> dict:
