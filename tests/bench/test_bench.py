@@ -74,6 +74,7 @@ def test_markdown_renders_from_fake_numbers():
     text = markdown.render(machine, "python -m bench --quick", sizes, stored)
     assert "## 6. Accurate by default" in text and "## 7. Field photographs" in text
     assert "_Measured today at commit g (quick sizes, 1.0 min)._" in text
+    assert "| all 6 sections | | g | 6.0 |" in text     # one commit: the six sections' 1.0 min summed
     assert "python -m bench --quick" in text and "Table 2" in text and "**not met**" in text
     # every method ends at the same error 0.01 at t = 2 s: the baselines reach the symbolic's there
     assert "| differentiable | 0.010 | 2.0 s (1 renders), 1.0 x symbolic | 0.010 (too few iterates to tell) |" in text
