@@ -119,7 +119,7 @@ def main(argv=None) -> int:
                   "wall_s": time.perf_counter() - t0, "data": data}
         (store / f"{name}.json").write_text(json.dumps(_relative(_light(record)), indent=1, default=str))
         log(f"[{name}] done in {record['wall_s'] / 60:.1f} min")
-    stored = {p.stem: json.loads(p.read_text()) for p in store.glob("*.json") if p.stem in SECTIONS}
+    stored = {n: json.loads((store / f"{n}.json").read_text()) for n in SECTIONS if (store / f"{n}.json").is_file()}
     command = "python -m bench" + (" --quick" if args.quick else "")
     out = Path(args.out) if args.out else (root / "BENCHMARKS.md" if args.quick else ROOT / "BENCHMARKS.md")
     out.write_text(render(machine, command, sizes, stored), encoding="utf-8")
