@@ -10,8 +10,12 @@ from framework.optim.feasible import group_matrix, project_feasible
 from framework.optim.nlopt_solver import METRIC_FLOOR
 from framework.optim.result import OptimResult, StopOptimization
 
-#: :func:`minimize_sqp` recomputes the Hessian when a step is more than this times the previous one
-SQP_SHRINK = 0.25
+#: :func:`minimize_sqp` recomputes the Hessian when a step is more than this times the previous one.
+#: Near a minimum where weights are flat (a weight the data barely see, sliding to 0) even a
+#: fresh exact Hessian only shrinks the steps linearly; measured on a 228-weight street (its first
+#: pass, 3 channels): with 0.25 every one of those steps took a new Hessian (38 in all, 41 s),
+#: with 0.5 22 (22 s), the minimiser the same within 5e-6 and its cost within 1e-9 relative.
+SQP_SHRINK = 0.5
 
 
 def minimize_sqp(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndarray | None]],

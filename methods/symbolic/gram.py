@@ -6,7 +6,10 @@ observed pixels ``y_i``, the cost of one channel is
     ε²(ρ) = Σ_i (γ_i·μ - y_i)² = μᵀ G μ - 2 bᵀ μ + yy,   G = Σ_i γ_i γ_iᵀ,  b = Σ_i y_i γ_i,  yy = Σ_i y_i²
 
 so the pixels are summed once; the solver never touches them again and memory does not depend
-on the pixel count. G lives over the monomials that occur only, as one sparse matrix per channel.
+on the pixel count. G lives over the monomials that occur only, as one sparse matrix per channel,
+and only its upper triangle (diagonal included) is stored: G is symmetric, and the triangle holds
+half the entries (a 228-weight street: 13.6M instead of 27.1M a channel) and makes the
+Gauss-Newton product ``Jᵀ G J`` about 3x faster (:meth:`GramSystem.dot`, :func:`sandwich`).
 """
 from __future__ import annotations
 
@@ -33,8 +36,10 @@ class GramSystem:
     Attributes
     ----------
     G : list of scipy.sparse.csr_matrix
-        One ``(N, N)`` float64 matrix ``Σ_i γ_i γ_iᵀ`` per channel (``N = len(codes)``, the
-        monomials that occur: most pairs never share a pixel, so G is sparse).
+        One ``(N, N)`` float64 matrix per channel, the **upper triangle** (diagonal included) of
+        the symmetric ``Σ_i γ_i γ_iᵀ`` (``N = len(codes)``, the monomials that occur: most pairs
+        never share a pixel, so G is sparse). Given full (symmetric) to the constructor, it is
+        cut to its triangle; :meth:`matrix` gives the whole matrix back, :meth:`dot` its product.
     b : numpy.ndarray
         ``(C, N)`` float64, ``Σ_i y_i γ_i``.
     yy : numpy.ndarray
@@ -59,7 +64,7 @@ class GramSystem:
     def __post_init__(self):
         if self.codes is None:
             self.codes = np.arange(self.b.shape[1], dtype=np.int64)
-        self.G = [sp.csr_matrix(g, dtype=np.float64) for g in self.G]
+        self.G = [upper(g) for g in self.G]
 
     @classmethod
     def zeros(cls, codes, n_channels: int) -> "GramSystem":
@@ -79,8 +84,17 @@ class GramSystem:
 
     @property
     def nnz(self) -> int:
-        """Stored entries of G, all channels."""
+        """Stored entries of G (one triangle), all channels."""
         return int(sum(g.nnz for g in self.G))
+
+    def matrix(self, c: int) -> sp.csr_matrix:
+        """The whole symmetric ``G_c`` (both triangles): for inspection and tests."""
+        g = self.G[c]
+        return (g + g.T - sp.diags(g.diagonal())).tocsr()
+
+    def dot(self, c: int, x: np.ndarray) -> np.ndarray:
+        """``G_c x`` from the stored triangle (:func:`symmetric_dot`)."""
+        return symmetric_dot(self.G[c], x)
 
     def accumulate(self, coeffs: np.ndarray, observed: np.ndarray, mask: np.ndarray | None = None, *,
                    coeffs_b: np.ndarray | None = None) -> "GramSystem":
@@ -127,11 +141,11 @@ class GramSystem:
         for c in range(self.n_channels):
             y = observed[:, c]
             if B is None:
-                self.G[c] = (self.G[c] + A[c].T @ A[c]).tocsr()
+                self.G[c] = (self.G[c] + triangle(A[c].T @ A[c])).tocsr()
                 self.b[c] += A[c].T @ y
             else:
                 AB = A[c].T @ B[c]
-                self.G[c] = (self.G[c] + 0.5 * (AB + AB.T)).tocsr()
+                self.G[c] = (self.G[c] + triangle(0.5 * (AB + AB.T))).tocsr()
                 self.b[c] += 0.5 * (A[c].T @ y + B[c].T @ y)
             self.yy[c] += float(y @ y)
         self.n_pixels += A[0].shape[0]
@@ -164,8 +178,9 @@ class GramSystem:
         """Indices of the monomials some pixel depends on (a non-zero row of G or entry of b, any
         channel). The others do not change the cost: a solver may leave them out."""
         used = np.any(self.b != 0, axis=0)
-        for g in self.G:
+        for g in self.G:                   # a triangle's entry (m, n) is in row m and column n
             used |= np.diff(g.indptr) > 0
+            used[g.indices] = True
         return np.flatnonzero(used)
 
     def reindexed(self, codes: np.ndarray) -> "GramSystem":
@@ -233,7 +248,7 @@ class GramSystem:
             ``(C,)`` costs (sum them for the total, eq. 6 squared with p = 2).
         """
         mu = np.asarray(mu, dtype=np.float64).reshape(self.n_channels, self.n_monomials)
-        quad = np.array([m @ (g @ m) for g, m in zip(self.G, mu)])
+        quad = np.array([2.0 * (m @ (g @ m)) - g.diagonal() @ (m * m) for g, m in zip(self.G, mu)])
         return quad - 2 * np.einsum("ci,ci->c", self.b, mu) + self.yy
 
 
@@ -321,14 +336,63 @@ def _block_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSyst
 
 
 def principal(g: sp.spmatrix, idx: np.ndarray) -> sp.csr_matrix:
-    """``g[idx][:, idx]`` of a symmetric ``g`` (G is, by construction), ``g`` itself when ``idx``
-    is every row: rows taken twice with a transpose between, as scipy's column fancy-indexing of
-    CSR is several times slower and holds more temporaries."""
-    g = g.tocsr()
+    """``g[idx][:, idx]`` for an increasing ``idx`` (so the triangle of G stays a triangle), ``g``
+    itself when ``idx`` is every row. The rows are taken by scipy, the columns by a lookup of each
+    kept entry (scipy's column fancy-indexing of CSR is several times slower and holds more
+    temporaries)."""
+    g, idx = g.tocsr(), np.asarray(idx, dtype=np.int64)
     if len(idx) == g.shape[0] and np.array_equal(idx, np.arange(g.shape[0])):
         return g
+    if np.any(np.diff(idx) <= 0):
+        raise ValueError("principal: idx must be strictly increasing")
+    new = np.full(g.shape[1], -1, dtype=np.int64)
+    new[idx] = np.arange(len(idx))
     rows = g[idx]
-    return rows.T.tocsr()[idx]
+    col = new[rows.indices]
+    keep = col >= 0
+    row = np.repeat(np.arange(len(idx)), np.diff(rows.indptr))[keep]
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(row, minlength=len(idx)))])
+    index = np.int32 if max(len(idx), int(keep.sum())) < 2**31 else np.int64
+    return sp.csr_matrix((rows.data[keep], col[keep].astype(index), indptr.astype(index)),
+                         shape=(len(idx), len(idx)))
+
+
+def upper(g) -> sp.csr_matrix:
+    """The upper triangle (diagonal included) of a symmetric ``g`` as float64 CSR: ``g`` itself
+    when it has no entry below the diagonal (checked on each row's first column, O(rows))."""
+    g = sp.csr_matrix(g, dtype=np.float64)
+    g.sum_duplicates()                                   # sorted column indices, no duplicates
+    filled = np.flatnonzero(np.diff(g.indptr) > 0)
+    if np.all(g.indices[g.indptr[filled]] >= filled):
+        return g
+    return triangle(g)
+
+
+def triangle(g) -> sp.csr_matrix:
+    """The upper triangle (diagonal included) of ``g`` as CSR, built by filtering its entries."""
+    g = g.tocsr()
+    n = g.shape[0]
+    row = np.repeat(np.arange(n, dtype=np.int64), np.diff(g.indptr))
+    keep = g.indices >= row
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(row[keep], minlength=n))])
+    return sp.csr_matrix((g.data[keep], g.indices[keep], indptr), shape=g.shape)
+
+
+def symmetric_dot(u: sp.csr_matrix, x: np.ndarray, diagonal: np.ndarray | None = None) -> np.ndarray:
+    """``G x`` for the symmetric ``G`` whose upper triangle is ``u``: ``U x + Uᵀ x - diag(U) x``
+    (``x``: ``(N,)`` or ``(N, k)``; ``diagonal``: ``u.diagonal()`` when the caller keeps it)."""
+    d = u.diagonal() if diagonal is None else diagonal
+    return u @ x + u.T @ x - (d * x if np.ndim(x) == 1 else d[:, None] * x)
+
+
+def sandwich(u: sp.csr_matrix, J: sp.csr_matrix, diagonal: np.ndarray | None = None) -> np.ndarray:
+    """Dense ``Jᵀ G J`` for the symmetric ``G`` whose upper triangle is ``u``:
+    ``S + Sᵀ - Jᵀ diag(U) J`` with ``S = Jᵀ U J``. Measured on a 228-weight street (221,235
+    monomials, 13.6M stored entries a channel): 0.51 s, against 1.59 s for ``Jᵀ (G J)`` with
+    both triangles stored (scipy's sparse products, 2 cores)."""
+    S = (J.T @ (u @ J)).toarray()
+    D = (J.T @ sp.diags(u.diagonal() if diagonal is None else diagonal) @ J).toarray()
+    return S + S.T - D
 
 
 def _spread(g: sp.csr_matrix, pos: np.ndarray, n: int) -> sp.csr_matrix:
@@ -346,8 +410,9 @@ def _spread(g: sp.csr_matrix, pos: np.ndarray, n: int) -> sp.csr_matrix:
 
 
 def _psd_components(g: sp.csr_matrix, limit: int) -> tuple[sp.csr_matrix, list[int]]:
-    """``g`` with each connected component of at most ``limit`` monomials replaced by its PSD
-    projection (dense eigh of the component), and the sizes of the larger ones."""
+    """``g`` (an upper triangle) with each connected component of at most ``limit`` monomials
+    replaced by (the triangle of) its PSD projection (dense eigh of the component), and the sizes
+    of the larger ones."""
     g = g.tocsr()
     n_comp, labels = connected_components(g, directed=False)
     sizes = np.bincount(labels, minlength=n_comp)
@@ -365,14 +430,14 @@ def _psd_components(g: sp.csr_matrix, limit: int) -> tuple[sp.csr_matrix, list[i
     order = np.argsort(labels, kind="stable")                  # each component: a contiguous run
     bounds = np.concatenate([[0], np.cumsum(sizes)])
     for k in np.flatnonzero(sizes > 1):
-        idx = order[bounds[k]:bounds[k + 1]]
+        idx = order[bounds[k]:bounds[k + 1]]           # increasing: the argsort is stable
         if len(idx) > limit:                                      # kept sparse, never densified
             skipped.append(len(idx))
             kept[idx] = True
             continue
-        block = g[idx][:, idx].toarray()
-        w, V = np.linalg.eigh(0.5 * (block + block.T))
-        block = (V * np.maximum(w, 0.0)) @ V.T
+        block = principal(g, idx).toarray()                      # the component's triangle
+        w, V = np.linalg.eigh(block + block.T - np.diag(np.diag(block)))
+        block = np.triu((V * np.maximum(w, 0.0)) @ V.T)
         r, c = np.nonzero(block)
         rows.append(idx[r]), cols.append(idx[c]), vals.append(block[r, c])
     coo = g.tocoo()

@@ -211,7 +211,8 @@ class Substitution:
         G, b = [], np.zeros((system.n_channels, len(self.codes)))
         for c in range(system.n_channels):
             M = self.matrix(c, rows)
-            G.append((M.T @ system.G[c] @ M).tocsr())
+            S = M.T @ system.G[c] @ M                 # G's triangle: Mᵀ G M = S + Sᵀ - Mᵀ diag(G) M
+            G.append(S + S.T - M.T @ sp.diags(system.G[c].diagonal()) @ M)
             b[c] = M.T @ system.b[c]
         return GramSystem(G, b, system.yy.copy(), system.n_pixels, self.codes)
 

@@ -23,7 +23,7 @@ from framework.errors import ConfigError
 from framework.optim import check_algorithm, minimize, minimize_sqp, project_feasible
 from framework.render.checks import check_memory
 from methods.symbolic.basis import MonomialBasis
-from methods.symbolic.gram import GramSystem, principal
+from methods.symbolic.gram import GramSystem, principal, sandwich, symmetric_dot
 
 
 
@@ -72,21 +72,26 @@ class ChannelCost:
     """``ε²_c(x)`` and its exact gradient ``2 Jᵀ(G_c μ - b_c)`` for one channel.
 
     Only the monomials some pixel depends on (:meth:`GramSystem.used_monomials`) enter the
-    products, and ``G_c`` is sparse: an evaluation costs O(nnz(G_c)).
+    products, and ``G_c`` is sparse (its upper triangle stored): an evaluation costs O(nnz(G_c)).
     """
 
     def __init__(self, system: GramSystem, basis: MonomialBasis, c: int, used: np.ndarray | None = None):
         self.basis = basis
         self.used = system.used_monomials() if used is None else np.asarray(used)
         self.G = principal(system.G[c], self.used)
+        self.diagonal = self.G.diagonal()
         self.b = system.b[c][self.used]
         self.yy = float(system.yy[c])
+        self._last = None          # (x, r, μ) of the last residual: the Hessian follows the gradient
 
     def _residual(self, x: np.ndarray) -> np.ndarray:
         """``(size,)`` residual ``G_c μ - b_c`` on the used monomials, 0 elsewhere, and ``μ_used``."""
+        if self._last is not None and np.array_equal(self._last[0], x):
+            return self._last[1], self._last[2]
         m = self.basis.evaluate(x)[self.used]
         r = np.zeros(self.basis.size)
-        r[self.used] = self.G @ m - self.b
+        r[self.used] = symmetric_dot(self.G, m, self.diagonal) - self.b
+        self._last = (np.array(x, dtype=float, copy=True), r, m)
         return r, m
 
     def __call__(self, x: np.ndarray) -> tuple[float, np.ndarray]:
@@ -96,9 +101,9 @@ class ChannelCost:
 
     def gauss_newton(self, x: np.ndarray) -> np.ndarray:
         """``(D, D)`` Gauss-Newton part ``2 Jᵀ G_c J`` of the Hessian (PSD when ``G_c`` is), with
-        the sparse Jacobian."""
+        the sparse Jacobian, from G's triangle (:func:`~methods.symbolic.gram.sandwich`)."""
         J = self.basis.jacobian_sparse(x)[self.used]
-        return 2.0 * (J.T @ (self.G @ J)).toarray()
+        return 2.0 * sandwich(self.G, J, self.diagonal)
 
     def _residual_curvature(self, x: np.ndarray) -> np.ndarray:
         """``(D, D)`` second-order part ``2 Σ_m (G_c μ - b_c)_m ∇²μ_m`` of the Hessian

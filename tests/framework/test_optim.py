@@ -113,6 +113,26 @@ def test_minimize_sqp_agrees_with_slsqp_on_a_polynomial():
     assert sqp.f <= ref.f + 1e-12 and sqp.x[2] + sqp.x[3] <= 1 + 1e-12
 
 
+def test_minimize_sqp_keeps_its_hessian_where_even_newton_is_linear():
+    """f = (x0 - 0.3)² + x1^2.5 on [0, 1]²: Newton on x^2.5 shrinks each step by 1/3 (by hand:
+    x - (2.5 x^1.5) / (3.75 x^0.5) = x / 3), so a fresh Hessian per step buys nothing. The minimiser
+    (0.3, 0) is reached to 1e-6 with fewer Hessians than steps (:data:`SQP_SHRINK` = 0.5 keeps it)."""
+    from framework.optim import minimize_sqp
+    calls = []
+
+    def f(x, need):
+        x1 = max(x[1], 0.0)
+        return float((x[0] - 0.3) ** 2 + x1 ** 2.5), np.array([2 * (x[0] - 0.3), 2.5 * x1 ** 1.5])
+
+    def hess(x):
+        calls.append(1)
+        return np.diag([2.0, max(3.75 * max(x[1], 0.0) ** 0.5, 1e-12)])
+
+    res = minimize_sqp(f, hess, np.array([0.9, 0.9]), xtol=1e-9, ftol_rel=1e-16)
+    np.testing.assert_allclose(res.x, [0.3, 0.0], atol=1e-6)
+    assert len(calls) < res.n_eval / 2
+
+
 def test_minimize_sqp_stop_keeps_last_accepted():
     """StopOptimization at the second evaluation (the first step's line search): status
     FORCED_STOP, the start (the last accepted iterate) and its cost."""

@@ -15,7 +15,7 @@ def _data(seed=0, n=300, N_e=20, C=3, density=0.05):
 
 def _dense(s: GramSystem) -> np.ndarray:
     """The dense ``(C, N, N)`` reference of a system's sparse G."""
-    return np.stack([g.toarray() for g in s.G])
+    return np.stack([s.matrix(c).toarray() for c in range(s.n_channels)])
 
 
 def test_tiles_equal_all_at_once():

@@ -7,7 +7,9 @@ import pytest
 from factory import run_street_cli
 from framework.errors import ConfigError
 from methods.symbolic.basis import MonomialBasis, check_key_range
-from methods.symbolic.gram import GramSystem
+import scipy.sparse as sp
+
+from methods.symbolic.gram import GramSystem, principal, sandwich, symmetric_dot
 from methods.symbolic.solve import ChannelCost, check_solve_memory, solve_polynomial
 
 
@@ -118,10 +120,39 @@ def test_psd_per_component_equals_dense_projection_and_skips_large_ones():
     dense[4:8, 4:8] = blocks[1] + blocks[1].T
     system = GramSystem([dense], np.zeros((1, 8)), np.zeros(1))
     w, V = np.linalg.eigh(dense)
-    np.testing.assert_allclose(system.psd().G[0].toarray(), (V * np.maximum(w, 0)) @ V.T, atol=1e-10)
+    np.testing.assert_allclose(system.psd().matrix(0).toarray(), (V * np.maximum(w, 0)) @ V.T, atol=1e-10)
     partial = system.psd(limit=3)
     assert partial.psd_skipped == (4,)
-    np.testing.assert_allclose(partial.G[0].toarray()[4:, 4:], dense[4:, 4:])
+    np.testing.assert_allclose(partial.matrix(0).toarray()[4:, 4:], dense[4:, 4:])
+
+
+def test_one_triangle_stored_and_its_products_equal_the_whole_matrix():
+    """G is stored as its upper triangle; the products the solve takes from it (``G x``,
+    ``Jᵀ G J``, the cost, a principal submatrix) equal numpy's on the whole dense matrix (1e-12),
+    and a triangle given to the constructor is kept as it is."""
+    rng = np.random.default_rng(11)
+    gamma = rng.normal(size=(40, 9)) * (rng.uniform(size=(40, 9)) < 0.4)
+    dense = gamma.T @ gamma
+    system = GramSystem([dense], rng.normal(size=(1, 9)), np.ones(1))
+    stored = system.G[0]
+    assert stored.nnz == np.count_nonzero(np.triu(dense))
+    np.testing.assert_allclose(system.matrix(0).toarray(), dense, rtol=1e-12)
+    again = GramSystem([stored], system.b, system.yy)
+    assert again.G[0] is stored or np.array_equal(again.G[0].toarray(), stored.toarray())
+    x = rng.normal(size=9)
+    np.testing.assert_allclose(symmetric_dot(stored, x), dense @ x, rtol=1e-12)
+    J = sp.csr_matrix(rng.normal(size=(9, 4)) * (rng.uniform(size=(9, 4)) < 0.5))
+    np.testing.assert_allclose(sandwich(stored, J), J.toarray().T @ dense @ J.toarray(), rtol=1e-12, atol=1e-12)
+    cost = x @ dense @ x - 2 * system.b[0] @ x + 1.0
+    np.testing.assert_allclose(system.cost(x[None]), [cost], rtol=1e-12)
+    idx = np.array([1, 4, 5, 8])
+    np.testing.assert_allclose(GramSystem([principal(stored, idx)], np.zeros((1, 4)), np.ones(1)).matrix(0).toarray(),
+                               dense[np.ix_(idx, idx)], rtol=1e-12)
+
+
+def test_principal_errors():
+    with pytest.raises(ValueError, match="increasing"):
+        principal(sp.eye(4, format="csr"), np.array([2, 1]))
 
 
 def test_too_large_problems_fail_with_one_line(monkeypatch):

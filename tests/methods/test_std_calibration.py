@@ -103,7 +103,7 @@ def test_sandwich_matches_spread_of_noisy_coefficients():
         a, b = (gamma + rng.normal(0, 0.15, gamma.shape) for _ in range(2))
         y = gamma @ basis.evaluate(rho) + rng.normal(0, 0.02, n)
         system = GramSystem.zeros(basis.size, 1).accumulate(a[:, :, None], y[:, None], coeffs_b=b[:, :, None])
-        G, g = system.G[0].toarray(), system.b[0]
+        G, g = system.matrix(0).toarray(), system.b[0]
         est = np.linalg.solve(G[1:, 1:], g[1:] - G[1:, 0])[:, None]       # the exact minimum
         coeffs = ViewCoefficients([sp.csr_matrix(a)], [sp.csr_matrix(b)], 0.5, basis.codes)
         meat = score_meat(basis, est, [(coeffs, y[:, None])], np.arange(basis.size), basis.codes)
