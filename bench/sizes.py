@@ -103,8 +103,8 @@ class Sizes:
     cmp_budget_all_differentiable: int = 800
     cmp_all_image: int | None = 100
     all_views: int = 0
-    mat_buildings: tuple = (1, 2, 4, 8, 9, 16)
-    mat_default_buildings: tuple = (1, 2, 9, 16)
+    mat_buildings: tuple = (1, 2, 4, 8, 9, 16, 21)
+    mat_default_buildings: tuple = (1, 2, 9, 16, 21)
     mat_image: int = 200
     mat_timeout_s: float = 1800.0
     extra: tuple = field(default_factory=tuple)
