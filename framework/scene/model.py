@@ -150,6 +150,9 @@ class Photometry:
     #: diagonal); "known": that profile with ``vignetting_profile``'s coefficients
     vignetting: str = "none"
     vignetting_profile: tuple[float, float, float] | None = None   # (a1, a2, a3) with "known"
+    #: interpolation of a distorted photograph onto its pinhole camera: "bilinear" or "cubic"
+    #: (:class:`framework.scene.undistort.Resampling`)
+    resampling: str = "bilinear"
 
 
 @dataclass(frozen=True)

@@ -167,9 +167,10 @@ def read_photos(root: Path, cameras: tuple[Camera, ...], channels: tuple[str, ..
             image, ok = np.where(usable[..., None], decoded.linear, 0.0), usable
             reason = _reason(np.ones_like(ok), unmasked, decoded.usable)
         else:
-            key = (c.distortion, c.width, c.height, c.f, c.cx, c.cy)
+            key = (c.distortion, c.width, c.height, c.f, c.cx, c.cy, photometry.resampling)
             if key not in resamplings:
-                resamplings[key] = Resampling(source=c.delivered(), target=c.pinhole())
+                resamplings[key] = Resampling(source=c.delivered(), target=c.pinhole(),
+                                              kernel=photometry.resampling)
             r = resamplings[key]
             image, ok = r.apply(decoded.linear, valid=usable)
             std = None if std is None else r.apply_std(std)

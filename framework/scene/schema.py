@@ -25,11 +25,12 @@ TOP_KEYS = {"name": False, "channels": False, "origin": False, "segments": True,
             "photometry": False}
 SEGMENT_KEYS = {"name": True, "meshes": True, "kernels": False, "reference": False, "known": False}
 PHOTOMETRY_KEYS = {"encoding": False, "exposure": False, "reference_view": False, "saturation": False,
-                   "vignetting": False}
+                   "vignetting": False, "resampling": False}
 VIGNETTING = {"none": "no lens falloff", "estimate": "one unknown profile per camera",
               "[a1, a2, a3]": "a known profile"}
 ENCODINGS = {"linear": "pixel values are radiance", "srgb": "8/16-bit camera output, decoded to linear"}
 EXPOSURES = {"known": "pixel = radiance", "per_view": "one unknown gain per view and channel"}
+RESAMPLINGS = {"bilinear": "2 x 2 pixels", "cubic": "Keys' cubic convolution, 4 x 4 pixels, less blur"}
 DEFAULT_KERNELS = ("diffuse",)
 # Σ ρ ≤ 1 up to the rounding of the 7 decimals scene.yaml is written with
 SUM_TOLERANCE = 1e-9
@@ -240,8 +241,12 @@ def _photometry(value: object, where: str) -> Photometry:
             raise SceneError(f"{where} saturation = {saturation:g} must lie in (0, 1] (a fraction of the "
                              "largest encoded value, e.g. 0.99; 1 ignores only pixels at the maximum)")
     vignetting, profile = _vignetting(p["vignetting"], f"{where} vignetting") if "vignetting" in p else ("none", None)
+    resampling = p.get("resampling", Photometry.resampling)
+    if resampling not in RESAMPLINGS:
+        raise SceneError(f"{where} resampling {quoted(resampling)} unknown; use "
+                         + " or ".join(f"{k} ({v})" for k, v in RESAMPLINGS.items()))
     return Photometry(encoding=encoding, exposure=exposure, reference_view=reference, saturation=saturation,
-                      vignetting=vignetting, vignetting_profile=profile)
+                      vignetting=vignetting, vignetting_profile=profile, resampling=resampling)
 
 
 def _vignetting(value: object, where: str) -> tuple[str, tuple[float, float, float] | None]:

@@ -152,7 +152,8 @@ def test_unknown_encoding(tiny_scene):
 
 @pytest.mark.parametrize("photometry, match", [
     ({"encodng": "srgb"}, r"photometry: unknown key 'encodng' \(did you mean 'encoding'\?\); allowed keys: "
-                          r"encoding, exposure, reference_view, saturation, vignetting$"),
+                          r"encoding, exposure, reference_view, saturation, vignetting, resampling$"),
+    ({"resampling": "lanczos"}, r"photometry resampling 'lanczos' unknown; use bilinear \(2 x 2 pixels\) or cubic"),
     ({"exposure": "auto"}, r"photometry exposure 'auto' unknown; use known \(pixel = radiance\) or per_view"),
     ({"reference_view": "view_0.png"}, r"photometry reference_view is used only with exposure: per_view"),
     ({"saturation": 1.5}, r"photometry saturation = 1.5 must lie in \(0, 1\]"),
@@ -168,9 +169,11 @@ def test_other_photometry_problems(tiny_scene, photometry, match):
 
 def test_photometry_is_read(tiny_scene):
     edit_scene_yaml(tiny_scene, lambda d: d.update(photometry={"encoding": "srgb", "exposure": "per_view",
-                                                               "reference_view": "view_1.png", "saturation": 0.95}))
+                                                               "reference_view": "view_1.png", "saturation": 0.95,
+                                                               "resampling": "cubic"}))
     p = load_scene(tiny_scene).photometry
     assert (p.encoding, p.exposure, p.reference_view, p.saturation) == ("srgb", "per_view", "view_1.png", 0.95)
+    assert p.resampling == "cubic"
 
 
 # ----------------------------------------------------------------------------------------------

@@ -203,6 +203,50 @@ def test_undistortion_reads_the_photo_where_the_ray_meets_it(tmp_path):
             assert set(reason[near]) == {"mask"} and set(reason[~near]) == {"used"}
 
 
+def _shifted_pinholes(dx: float, dy: float, size: int = 24):
+    """A source and a target pinhole camera whose pixel grids differ by (dx, dy) source pixels:
+    the target pixel centre (x, y) is the source position (x + dx, y + dy)."""
+    import pycolmap
+    make = lambda cx, cy: pycolmap.Camera(model="PINHOLE", width=size, height=size,  # noqa: E731
+                                          params=[30.0, 30.0, cx, cy])
+    return make(size / 2, size / 2), make(size / 2 - dx, size / 2 - dy)
+
+
+@pytest.mark.parametrize("kernel, kept", [("bilinear", 0.5), ("cubic", 0.6875)])
+def test_resampling_keeps_what_its_kernel_keeps_of_a_fine_pattern(kernel, kept):
+    """A cosine of period 3 pixels moved by half a pixel: bilinear keeps cos(π/3) = 0.5 of its
+    amplitude, cubic (Keys, a = -0.5: weights -1/16, 9/16, 9/16, -1/16 at the half pixel)
+    2 (9/16 cos(π/3) - 1/16 cos(π)) = 0.6875; both by hand, asserted to 1e-12 away from the
+    border."""
+    source, target = _shifted_pinholes(0.5, 0.0)
+    x = np.arange(24)[None, :].repeat(24, axis=0).astype(float)
+    pattern = np.cos(2 * np.pi * x / 3)
+    out, ok = Resampling(source=source, target=target, kernel=kernel).apply(pattern)
+    expected = kept * np.cos(2 * np.pi * (x + 0.5) / 3)
+    np.testing.assert_allclose(out[2:-3, 2:-3], expected[2:-3, 2:-3], atol=1e-12)
+    assert ok[2:-3, 2:-3].all()
+
+
+def test_cubic_resampling_is_exact_on_a_quadratic():
+    """Keys' cubic convolution reproduces polynomials of degree 2 (third-order accurate), which
+    bilinear interpolation does not: a quadratic surface moved by (0.3, 0.7) pixels, away from
+    the border, to 1e-10."""
+    source, target = _shifted_pinholes(0.3, 0.7)
+    ys, xs = np.mgrid[0:24, 0:24].astype(float)
+    f = lambda x, y: 0.2 + 0.01 * x + 0.003 * x * x - 0.002 * x * y + 0.004 * y * y  # noqa: E731
+    cubic, _ = Resampling(source=source, target=target, kernel="cubic").apply(f(xs, ys))
+    linear, _ = Resampling(source=source, target=target).apply(f(xs, ys))
+    inner = (slice(2, -3), slice(2, -3))
+    np.testing.assert_allclose(cubic[inner], f(xs + 0.3, ys + 0.7)[inner], atol=1e-10)
+    assert np.abs(linear[inner] - f(xs + 0.3, ys + 0.7)[inner]).max() > 1e-4
+
+
+def test_resampling_errors():
+    source, target = _shifted_pinholes(0.5, 0.0)
+    with pytest.raises(ValueError, match="kernel='lanczos': must be one of bilinear, cubic"):
+        Resampling(source=source, target=target, kernel="lanczos")
+
+
 # ----------------------------------------------------------------------------------------------
 # An undistorted synthetic photograph against the pinhole render
 # ----------------------------------------------------------------------------------------------
