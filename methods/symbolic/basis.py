@@ -164,6 +164,7 @@ class MonomialBasis:
         # holding k, so repeated parameters give their exponents.
         self._jm, self._jpos = np.nonzero(self.digits)
         self._jk = self.digits[self._jm, self._jpos] - 1
+        self._pair_cache = None          # :meth:`_pair_index`, built on first use
 
     @property
     def incidence(self) -> tuple[np.ndarray, np.ndarray]:
@@ -236,26 +237,36 @@ class MonomialBasis:
         """``J(ρ)ᵀ r`` (``(D,)``) for a ``(size,)`` vector ``r`` without forming ``J``."""
         return np.bincount(self._jk, weights=self._jacobian_values(rho) * r[self._jm], minlength=self.n_params)
 
+    def _pair_index(self) -> tuple:
+        """``(monomial, k, l, others)`` of every non-zero of the monomial Hessians, one per ordered
+        pair of distinct non-empty digit positions (summing them gives the exponents' factors);
+        ``others``: ``(n, N_max)`` the monomial's digits with the pair's two positions emptied.
+        Built once per basis: a Hessian then costs one gather and product (a solve takes tens)."""
+        if getattr(self, "_pair_cache", None) is None:      # (absent from bases pickled before it)
+            N = self.max_degree
+            parts = []
+            for j in range(N):
+                on = (self.digits[self._jm, j] > 0) & (self._jpos != j)
+                m, pos = self._jm[on], self._jpos[on]
+                skip = (np.arange(N)[None, :] == pos[:, None]) | (np.arange(N)[None, :] == j)
+                parts.append((m, self._jk[on], self.digits[m, j] - 1, np.where(skip, 0, self.digits[m])))
+            if not parts:
+                parts = [(np.zeros(0, int), np.zeros(0, int), np.zeros(0, int), np.zeros((0, N), int))]
+            self._pair_cache = tuple(np.concatenate(a) for a in zip(*parts))
+        return self._pair_cache
+
     def _pairs(self, rho: np.ndarray) -> tuple:
-        """Non-zeros of the monomial Hessians ``(monomial, k, l, value)``, one per ordered pair of
-        distinct non-empty digit positions (summing them gives the exponents' factors)."""
-        factors, N = self._factors(rho), self.max_degree
-        parts = []
-        for j in range(N):
-            on = (self.digits[self._jm, j] > 0) & (self._jpos != j)
-            m, pos = self._jm[on], self._jpos[on]
-            skip = (np.arange(N)[None, :] == pos[:, None]) | (np.arange(N)[None, :] == j)
-            parts.append((m, self._jk[on], self.digits[m, j] - 1, np.where(skip, 1.0, factors[m]).prod(axis=1)))
-        if not parts:
-            return tuple(np.zeros(0, int) for _ in range(3)) + (np.zeros(0),)
-        return tuple(np.concatenate(a) for a in zip(*parts))
+        """``(monomial, k, l, value)`` of every non-zero of the monomial Hessians at ``rho``
+        (:meth:`_pair_index`): the value is the product of the monomial's other factors."""
+        m, k, l, others = self._pair_index()
+        padded = np.concatenate([[1.0], np.asarray(rho, dtype=float)])
+        return m, k, l, padded[others].prod(axis=1)
 
     def hessian_dot(self, rho: np.ndarray, r: np.ndarray) -> np.ndarray:
         """``(D, D)``: ``Σ_m r_m ∇²μ_m(ρ)``, the residual part of the cost's Hessian."""
         m, k, l, vals = self._pairs(rho)
-        H = np.zeros((self.n_params, self.n_params))
-        np.add.at(H, (k, l), vals * r[m])
-        return H
+        D = self.n_params
+        return np.bincount(k * D + l, weights=vals * r[m], minlength=D * D).reshape(D, D)
 
     def hessian(self, rho: np.ndarray) -> np.ndarray:
         """Dense ``(size, D, D)`` second derivatives (small bases and tests)."""
