@@ -52,7 +52,7 @@ import scipy.sparse as sp
 
 from methods.symbolic.basis import MonomialBasis, code_digits, encode_digits, merge_codes
 from methods.symbolic.coefficients import ViewCoefficients
-from methods.symbolic.gram import GramSystem
+from methods.symbolic.gram import GramSystem, sandwich
 
 log = logging.getLogger(__name__)
 
@@ -211,8 +211,7 @@ class Substitution:
         G, b = [], np.zeros((system.n_channels, len(self.codes)))
         for c in range(system.n_channels):
             M = self.matrix(c, rows)
-            S = M.T @ system.G[c] @ M                 # G's triangle: Mᵀ G M = S + Sᵀ - Mᵀ diag(G) M
-            G.append(S + S.T - M.T @ sp.diags(system.G[c].diagonal()) @ M)
+            G.append(sandwich(system.G[c], M))           # Mᵀ G M from G's triangle
             b[c] = M.T @ system.b[c]
         return GramSystem(G, b, system.yy.copy(), system.n_pixels, self.codes)
 

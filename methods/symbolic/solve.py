@@ -103,7 +103,7 @@ class ChannelCost:
         """``(D, D)`` Gauss-Newton part ``2 Jᵀ G_c J`` of the Hessian (PSD when ``G_c`` is), with
         the sparse Jacobian, from G's triangle (:func:`~methods.symbolic.gram.sandwich`)."""
         J = self.basis.jacobian_sparse(x)[self.used]
-        return 2.0 * sandwich(self.G, J, self.diagonal)
+        return 2.0 * sandwich(self.G, J, self.diagonal).toarray()
 
     def _residual_curvature(self, x: np.ndarray) -> np.ndarray:
         """``(D, D)`` second-order part ``2 Σ_m (G_c μ - b_c)_m ∇²μ_m`` of the Hessian

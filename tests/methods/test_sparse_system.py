@@ -142,7 +142,7 @@ def test_one_triangle_stored_and_its_products_equal_the_whole_matrix():
     x = rng.normal(size=9)
     np.testing.assert_allclose(symmetric_dot(stored, x), dense @ x, rtol=1e-12)
     J = sp.csr_matrix(rng.normal(size=(9, 4)) * (rng.uniform(size=(9, 4)) < 0.5))
-    np.testing.assert_allclose(sandwich(stored, J), J.toarray().T @ dense @ J.toarray(), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(sandwich(stored, J).toarray(), J.toarray().T @ dense @ J.toarray(), rtol=1e-12, atol=1e-12)
     cost = x @ dense @ x - 2 * system.b[0] @ x + 1.0
     np.testing.assert_allclose(system.cost(x[None]), [cost], rtol=1e-12)
     idx = np.array([1, 4, 5, 8])
