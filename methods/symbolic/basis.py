@@ -165,6 +165,7 @@ class MonomialBasis:
         self._jm, self._jpos = np.nonzero(self.digits)
         self._jk = self.digits[self._jm, self._jpos] - 1
         self._pair_cache = None          # :meth:`_pair_index`, built on first use
+        self._jacobian_cache = None      # :meth:`_other_digits`, built on first use
 
     @property
     def incidence(self) -> tuple[np.ndarray, np.ndarray]:
@@ -220,10 +221,18 @@ class MonomialBasis:
 
     def _jacobian_values(self, rho: np.ndarray) -> np.ndarray:
         """Per Jacobian non-zero (monomial, digit position): the product of the monomial's
-        other factors (no division: exact also at ``ρ = 0``)."""
-        f = self._factors(rho)[self._jm]                                  # (nnz, N_max)
-        own = np.arange(self.max_degree)[None, :] == self._jpos[:, None]
-        return np.where(own, 1.0, f).prod(axis=1)
+        other factors (no division: exact also at ``ρ = 0``), gathered from the ``D + 1`` padded
+        weights by the cached digits (:meth:`_other_digits`; gathering each monomial's factors
+        row by row took 4x longer: 50 ms of a 120 ms evaluation at 296 weights)."""
+        return _product_of_factors(rho, self._other_digits(), len(self._jm))
+
+    def _other_digits(self) -> np.ndarray:
+        """``(N_max, nnz)`` int32: per Jacobian non-zero, its monomial's digits with its own
+        position emptied (0: factor 1), one row per position. Built once per basis."""
+        if getattr(self, "_jacobian_cache", None) is None:  # (absent from bases pickled before it)
+            own = np.arange(self.max_degree)[None, :] == self._jpos[:, None]
+            self._jacobian_cache = np.ascontiguousarray(np.where(own, 0, self.digits[self._jm]).T, dtype=np.int32)
+        return self._jacobian_cache
 
     def jacobian_sparse(self, rho: np.ndarray) -> sp.csr_matrix:
         """``(size, D)`` sparse Jacobian ``∂μ_m/∂ρ_k`` (at most ``N_max`` non-zeros a row)."""
@@ -240,7 +249,7 @@ class MonomialBasis:
     def _pair_index(self) -> tuple:
         """``(monomial, k, l, others)`` of every non-zero of the monomial Hessians, one per ordered
         pair of distinct non-empty digit positions (summing them gives the exponents' factors);
-        ``others``: ``(n, N_max)`` the monomial's digits with the pair's two positions emptied.
+        ``others``: ``(N_max, n)`` the monomial's digits with the pair's two positions emptied.
         Built once per basis: a Hessian then costs one gather and product (a solve takes tens)."""
         if getattr(self, "_pair_cache", None) is None:      # (absent from bases pickled before it)
             N = self.max_degree
@@ -252,21 +261,22 @@ class MonomialBasis:
                 parts.append((m, self._jk[on], self.digits[m, j] - 1, np.where(skip, 0, self.digits[m])))
             if not parts:
                 parts = [(np.zeros(0, int), np.zeros(0, int), np.zeros(0, int), np.zeros((0, N), int))]
-            self._pair_cache = tuple(np.concatenate(a) for a in zip(*parts))
+            # int32: half the memory of int64 (about 6 pairs a monomial; 75 MB at 296 weights)
+            m, k, l, others = (np.concatenate(a).astype(np.int32) for a in zip(*parts))
+            self._pair_cache = (m, k, l, np.ascontiguousarray(others.T))
         return self._pair_cache
 
     def _pairs(self, rho: np.ndarray) -> tuple:
         """``(monomial, k, l, value)`` of every non-zero of the monomial Hessians at ``rho``
         (:meth:`_pair_index`): the value is the product of the monomial's other factors."""
         m, k, l, others = self._pair_index()
-        padded = np.concatenate([[1.0], np.asarray(rho, dtype=float)])
-        return m, k, l, padded[others].prod(axis=1)
+        return m, k, l, _product_of_factors(rho, others, len(m))
 
     def hessian_dot(self, rho: np.ndarray, r: np.ndarray) -> np.ndarray:
         """``(D, D)``: ``Σ_m r_m ∇²μ_m(ρ)``, the residual part of the cost's Hessian."""
         m, k, l, vals = self._pairs(rho)
         D = self.n_params
-        return np.bincount(k * D + l, weights=vals * r[m], minlength=D * D).reshape(D, D)
+        return np.bincount(k.astype(np.int64) * D + l, weights=vals * r[m], minlength=D * D).reshape(D, D)
 
     def hessian(self, rho: np.ndarray) -> np.ndarray:
         """Dense ``(size, D, D)`` second derivatives (small bases and tests)."""
@@ -277,3 +287,14 @@ class MonomialBasis:
 
     def __repr__(self) -> str:
         return f"MonomialBasis(n_params={self.n_params}, max_degree={self.max_degree}, size={self.size})"
+
+
+def _product_of_factors(rho: np.ndarray, digits: np.ndarray, n: int) -> np.ndarray:
+    """``(n,)`` products ``Π_j ρ_{digits[j] - 1}`` (digit 0: factor 1) over the rows of the
+    ``(N_max, n)`` ``digits``: one gather from the ``D + 1`` padded weights a row (contiguous
+    gathers; the ``(n, N_max)`` gather and ``prod(axis=1)`` took 4x longer)."""
+    padded = np.concatenate([[1.0], np.asarray(rho, dtype=float)])
+    out = np.ones(n)
+    for row in digits:
+        out *= padded[row]
+    return out

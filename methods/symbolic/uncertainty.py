@@ -69,6 +69,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from framework.threads import run_threads
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.clusters import cr1_factor
 from methods.symbolic.gram import GramSystem, principal, row_blocks
@@ -242,15 +243,17 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
         # a tiled view: one block in memory at a time
         for coeffs, y, w_pix in row_blocks(view, y_view, weights[0] if weights else None):
             own = None if owned is None else owned[v][start:start + coeffs.n_rows]
-            for c, s in enumerate(_scores(coeffs, y, w_pix, mu, J, codes, own)):
-                total[c] += np.asarray(s.sum(axis=0)).ravel()
-                if ids is None:
-                    outer[c] += (s.T @ s).toarray()
-                    continue
-                rows = ids[start:start + coeffs.n_rows]
-                member = sp.csr_matrix((np.ones(len(rows)), (rows, np.arange(len(rows)))),
-                                       shape=(n_groups, len(rows)))
-                sums[c] = member @ s if sums[c] is None else sums[c] + member @ s
+            rows = None if ids is None else ids[start:start + coeffs.n_rows]
+            member = None if rows is None else sp.csr_matrix(
+                (np.ones(len(rows)), (rows, np.arange(len(rows)))), shape=(n_groups, len(rows)))
+            # the channels on threads: their sparse products release the GIL
+            tasks = [lambda c=c: _block_terms(_score(coeffs, y, w_pix, mu, J, codes, own, c), member) for c in range(C)]
+            for c, (total_c, term) in enumerate(run_threads(tasks)):
+                total[c] += total_c
+                if member is None:
+                    outer[c] += term
+                else:
+                    sums[c] = term if sums[c] is None else sums[c] + term
             start += coeffs.n_rows
         for c in range(C):
             if sums[c] is not None:
@@ -259,26 +262,31 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
     return meat if clusters is None else cr1_factor(groups, n, D) * meat
 
 
-def _scores(coeffs, y, w_pix, mu, J, codes, own=None):
-    """Per channel, the ``(n, D)`` sparse scores ``s_p`` of one block's pixels (:func:`score_meat`)."""
+def _block_terms(s: sp.csr_matrix, member: sp.csr_matrix | None) -> tuple[np.ndarray, object]:
+    """A block's scores ``s`` summed over its pixels, and their outer product ``sᵀs`` (dense) or,
+    with the ``(clusters, n)`` 0/1 ``member``, their sums per cluster (sparse)."""
+    return np.asarray(s.sum(axis=0)).ravel(), (s.T @ s).toarray() if member is None else member @ s
+
+
+def _score(coeffs, y, w_pix, mu, J, codes, own, c: int) -> sp.csr_matrix:
+    """The ``(n, D)`` sparse scores ``s_p`` of one block's pixels in channel ``c`` (:func:`score_meat`)."""
     at = np.searchsorted(codes, coeffs.codes)                # the block's columns in ``codes``
-    for c in range(len(coeffs.a)):
-        mu_v, J_v = mu[c, at], J[c][at]
-        # sparse scores: a pixel's paths touch a few of the D parameters, so sᵀs costs
-        # Σ_p nnz(s_p)² instead of pixels × D² (dense)
-        A = coeffs.a[c]
-        ra, aJ = A @ mu_v - y[:, c], (A @ J_v).tocsr()
-        if coeffs.b is None:
-            s = sp.diags(2.0 * ra) @ aJ
-        else:
-            B = coeffs.b[c]
-            rb, bJ = B @ mu_v - y[:, c], (B @ J_v).tocsr()
-            s = sp.diags(rb) @ aJ + sp.diags(ra) @ bJ
-        if w_pix is not None:            # the weighted cost's term: w_p times the unweighted one
-            s = sp.diags(w_pix) @ s
-        if own is not None:              # estimating equations: a pixel scores its owners only
-            s = s.multiply(own).tocsr()
-        yield s.tocsr()
+    mu_v, J_v = mu[c, at], J[c][at]
+    # sparse scores: a pixel's paths touch a few of the D parameters, so sᵀs costs
+    # Σ_p nnz(s_p)² instead of pixels × D² (dense)
+    A = coeffs.a[c]
+    ra, aJ = A @ mu_v - y[:, c], (A @ J_v).tocsr()
+    if coeffs.b is None:
+        s = sp.diags(2.0 * ra) @ aJ
+    else:
+        B = coeffs.b[c]
+        rb, bJ = B @ mu_v - y[:, c], (B @ J_v).tocsr()
+        s = sp.diags(rb) @ aJ + sp.diags(ra) @ bJ
+    if w_pix is not None:            # the weighted cost's term: w_p times the unweighted one
+        s = sp.diags(w_pix) @ s
+    if own is not None:              # estimating equations: a pixel scores its owners only
+        s = s.multiply(own).tocsr()
+    return s.tocsr()
 
 
 def parameter_uncertainty(system: GramSystem, basis: MonomialBasis, rho: np.ndarray, *,

@@ -1,0 +1,34 @@
+"""Threads of this process for work whose heavy part releases the GIL (scipy's sparse kernels,
+numpy's large array operations): the symbolic solve's sparse products and its per-pixel scores.
+
+The number of tasks a caller splits its work into is the caller's and fixed, so results do not
+depend on the thread count of the machine (only on which tasks there are, summed in their order).
+"""
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from typing import Callable
+
+#: most threads of the pool (the solve's tasks come in 2-4 parts)
+MAX_THREADS = 4
+
+_POOL: ThreadPoolExecutor | None = None
+
+
+def cores() -> int:
+    """Cores this process may run on (its CPU affinity where the platform has it)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def run_threads(tasks: list[Callable[[], object]]) -> list:
+    """The values of the callables ``tasks``, in order: on a shared pool of up to
+    ``min(cores(), MAX_THREADS)`` threads, or in turn on one core or for a single task. A task
+    must not itself call :func:`run_threads` (it would wait on the pool it occupies)."""
+    global _POOL
+    n = min(cores(), MAX_THREADS)
+    if n < 2 or len(tasks) < 2:
+        return [task() for task in tasks]
+    if _POOL is None:
+        _POOL = ThreadPoolExecutor(max_workers=n, thread_name_prefix="symbolic")
+    return [future.result() for future in [_POOL.submit(task) for task in tasks]]
