@@ -213,7 +213,8 @@ def _city_block(rows: list[dict]) -> list[str]:
               "is one block (its G is one connected component"
               + (f": {blocks[0] // 3 if blocks and blocks[0] else 1} per channel on every run above D = {CITY_D}" if blocks else "")
               + "), so its predicted "
-              f"{at['solve_s']:,.0f} s and {at['maxrss_mib']:,.0f} MiB stay on one process: at 1,000 materials the "
+              f"{at['solve_s']:,.0f} s and {at['maxrss_mib']:,.0f} MiB stay on one process (whose sparse products "
+              "already run on its cores: `framework/threads.py`): at 1,000 materials the "
               "solve, not the pass, would set the wall time and the memory. Splitting it would need the street cut "
               "into weakly coupled stretches (block coordinate sweeps), which is not implemented.", ""]
     return lines
