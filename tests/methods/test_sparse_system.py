@@ -150,6 +150,34 @@ def test_one_triangle_stored_and_its_products_equal_the_whole_matrix():
                                dense[np.ix_(idx, idx)], rtol=1e-12)
 
 
+@pytest.mark.parametrize("rows", [2, 3, 9, 40])
+def test_sandwich_is_the_same_on_one_thread_and_on_several(monkeypatch, rows):
+    """``Jᵀ G J`` and ``G x`` are summed over a fixed number of row parts of G's triangle, so the
+    result is bit-for-bit the same whatever the thread count (1 core, 2 cores), equals numpy's
+    on the dense matrix (1e-12), also with fewer rows than parts and with empty rows."""
+    import framework.threads as threads
+    rng = np.random.default_rng(rows)
+    gamma = rng.normal(size=(3 * rows, rows)) * (rng.uniform(size=(3 * rows, rows)) < 0.4)
+    gamma[:, rows // 2] = 0.0                        # an empty row and column
+    dense = gamma.T @ gamma
+    stored = GramSystem([dense], np.zeros((1, rows)), np.ones(1)).G[0]
+    J = sp.csr_matrix(rng.normal(size=(rows, 5)) * (rng.uniform(size=(rows, 5)) < 0.5))
+    x = rng.normal(size=rows)
+    out = {}
+    for cores in (1, 2):
+        monkeypatch.setattr(threads, "cores", lambda cores=cores: cores)
+        out[cores] = sandwich(stored, J).toarray(), symmetric_dot(stored, x)
+    assert np.array_equal(out[1][0], out[2][0]) and np.array_equal(out[1][1], out[2][1])
+    np.testing.assert_allclose(out[2][0], J.toarray().T @ dense @ J.toarray(), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(out[2][1], dense @ x, rtol=1e-12, atol=1e-12)
+
+
+def test_run_threads_keeps_the_tasks_order(monkeypatch):
+    import framework.threads as threads
+    monkeypatch.setattr(threads, "cores", lambda: 2)
+    assert threads.run_threads([lambda i=i: i * i for i in range(7)]) == [i * i for i in range(7)]
+
+
 def test_principal_errors():
     with pytest.raises(ValueError, match="increasing"):
         principal(sp.eye(4, format="csr"), np.array([2, 1]))
