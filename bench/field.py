@@ -13,10 +13,11 @@ path switched off at a time, so the gain from each part shows:
 * the default without leaving out the pixels next to a change of segment (``method.boundary=0``);
 * the default on a copy of the scene whose ``photometry`` resamples the distorted photographs by
   Keys' cubic convolution instead of bilinear interpolation (``resampling: cubic``): the blur the
-  bilinear resampling adds to the photographs, which the model's pixels lack, is what trades the
-  window's mirror weight for its diffuse one (measured: the same photographs from pinhole cameras,
-  blurred by a Gaussian of 0.41 px, the mean blur of bilinear interpolation, move the window's
-  errors from +0.012 / -0.018 back to +0.019 / -0.031, those of the distorted photographs).
+  bilinear resampling adds to the photographs, which the model's pixels lack, trades the window's
+  mirror weight for its diffuse one (measured, window ρ_d / ρ_s averaged over channels: the same
+  scene from pinhole cameras, no resampling, +0.012 / -0.018; those photographs blurred by a
+  Gaussian of 0.41 px, the mean blur of bilinear interpolation, +0.018 / -0.026; the distorted
+  photographs resampled bilinearly +0.022 / -0.034, by cubic convolution +0.015 / -0.023).
 
 Targets (default row): every parameter the run calls determined within 0.03 (diffuse) / 0.05
 (specular) of its reference, every gain within 3 % of the truth (``truth.yaml`` of the scene).
