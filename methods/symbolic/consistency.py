@@ -31,8 +31,8 @@ Breakdown
 
 What it cannot find
     What every view shows alike. Measured on urban_canyon_field (200², all views): the window's
-    ρ_d / ρ_s bias (+0.02 / −0.035), which comes from the blur the resampling of distorted photographs
-    adds to every one of them (the model's pixels lack it), and the asphalt's (−0.005), from the
+    ρ_d / ρ_s bias (+0.02 / −0.035), much of it from a blur every photograph has and the model's
+    pixels lack (the resampling of distorted photographs, JPEG), and the asphalt's (−0.005), from the
     masked car's shadow and the sky it hides, are unchanged with ``method.consistency=auto``; a
     wall's (0.003 → 0.0015) is what it removes there.
 
