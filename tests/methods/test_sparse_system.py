@@ -279,3 +279,23 @@ def test_blocks_as_executor_tasks_give_the_same_minimiser(where):
     np.testing.assert_allclose(tasks.estimate, loop.estimate, atol=1e-10)
     np.testing.assert_allclose(tasks.cost, loop.cost, rtol=1e-12)
     assert len(tasks.iterates) == 2 * system.n_channels and tasks.n_evals == loop.n_evals
+
+
+def test_a_forked_child_runs_threads_of_its_own(monkeypatch):
+    """A process forked after the pool started has none of its threads: it forgets the parent's
+    pool (``os.register_at_fork``) and starts its own, which runs the tasks."""
+    import multiprocessing
+    import framework.threads as threads
+    monkeypatch.setattr(threads, "cores", lambda: 2)
+    assert threads.run_threads([lambda: 1, lambda: 2]) == [1, 2]          # the parent's pool exists
+    if "fork" not in multiprocessing.get_all_start_methods():
+        pytest.skip("no fork on this platform")
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        assert pool.apply(_two_tasks_on_threads) == (True, [3, 4])
+
+
+def _two_tasks_on_threads():
+    import framework.threads as threads
+    threads.cores = lambda: 2
+    forgotten = threads._POOL is None
+    return forgotten, threads.run_threads([lambda: 3, lambda: 4])
