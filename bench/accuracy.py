@@ -21,6 +21,7 @@ import json
 import shutil
 from pathlib import Path
 
+from bench.common import edited_copy
 from bench.memory import run_child
 from bench.tables import f, table, yes
 
@@ -80,14 +81,11 @@ def diffuse_truth(work: Path) -> Path:
     import yaml
 
     from scenes import BUNDLED_DIR
-    folder = work / "urban_canyon_diffuse_truth"
-    shutil.rmtree(folder, ignore_errors=True)
-    shutil.copytree(BUNDLED_DIR / "urban_canyon", folder)
-    desc = yaml.safe_load((folder / "scene.yaml").read_text())
+    desc = yaml.safe_load((BUNDLED_DIR / "urban_canyon" / "scene.yaml").read_text())
     for seg in desc["segments"]:
         seg["reference"]["specular"] = 0.0
-    (folder / "scene.yaml").write_text(yaml.safe_dump(desc, sort_keys=False))
-    return folder
+    return edited_copy(BUNDLED_DIR / "urban_canyon", work / "urban_canyon_diffuse_truth", desc,
+                       "urban_canyon with every specular reference 0 (bench/accuracy.py)")
 
 
 def run(sizes, work: Path, log=print) -> list[dict]:

@@ -9,7 +9,7 @@ import numpy as np
 from framework.config import BUNDLED_SCENES, compose
 from framework.images import read_exr, write_exr
 from framework.scene import load_scene
-from framework.scene.write import write_colmap
+from framework.scene.write import write_colmap, write_scene_yaml
 from scenes.cameras import resized
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -97,6 +97,14 @@ def downsample_scene(src: Path, dest: Path, image: int) -> None:
         img = read_exr(path)
         h, w, ch = img.shape
         write_exr(path, img.reshape(h // k, k, w // k, k, ch).mean((1, 3)))
+
+
+def edited_copy(base: Path, dest: Path, desc: dict, comment: str) -> Path:
+    """``base`` copied to ``dest`` (replaced) with scene.yaml ``desc`` (its first line ``comment``)."""
+    shutil.rmtree(dest, ignore_errors=True)
+    shutil.copytree(base, dest, ignore=shutil.ignore_patterns("preview.png"))
+    write_scene_yaml(dest / "scene.yaml", desc, comment)
+    return dest
 
 
 def resized_copy(src: Path, dest: Path, image: int) -> Path:

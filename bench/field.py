@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.common import determined_errors, gain_error, true_gains, z_stats
+from bench.common import determined_errors, edited_copy, gain_error, true_gains, z_stats
 from bench.memory import run_child
 from scenes import BUNDLED_DIR
 from bench.tables import f, table, yes
@@ -94,12 +94,9 @@ def _copy_with(folder: Path, to: Path, photometry: dict) -> Path:
     """A copy of the scene ``folder`` at ``to`` whose scene.yaml ``photometry`` has ``photometry``'s
     entries (the bundled scene stays as it is)."""
     import yaml
-    shutil.rmtree(to, ignore_errors=True)
-    shutil.copytree(folder, to)
-    spec = yaml.safe_load((to / "scene.yaml").read_text())
+    spec = yaml.safe_load((folder / "scene.yaml").read_text())
     spec["photometry"] = {**spec.get("photometry", {}), **photometry}
-    (to / "scene.yaml").write_text(yaml.safe_dump(spec, sort_keys=False))
-    return to
+    return edited_copy(folder, to, spec, f"bench.field variant of {SCENE} (see bench/field.py)")
 
 
 # ----------------------------------------------------------------------------------------------

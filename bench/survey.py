@@ -41,10 +41,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from bench.common import determined_errors, failure, resized_copy, z_stats
+from bench.common import determined_errors, edited_copy, failure, resized_copy, z_stats
 from bench.memory import run_child
 from bench.tables import f, table, yes
-from framework.scene.write import write_scene_yaml
 from scenes import BUNDLED_DIR
 from scenes import urban_canyon_survey as survey
 
@@ -73,10 +72,7 @@ def base_folder(sizes, work: Path) -> Path:
 
 def _edit(base: Path, dest: Path, desc: dict) -> Path:
     """``base`` copied to ``dest`` (replaced) with scene.yaml ``desc``."""
-    shutil.rmtree(dest, ignore_errors=True)
-    shutil.copytree(base, dest, ignore=shutil.ignore_patterns("preview.png"))
-    write_scene_yaml(dest / "scene.yaml", desc, f"bench.survey variant of {SCENE} (see bench/survey.py)")
-    return dest
+    return edited_copy(base, dest, desc, f"bench.survey variant of {SCENE} (see bench/survey.py)")
 
 
 def _panel_unknown(desc: dict) -> dict:
