@@ -10,6 +10,8 @@ directions agree with COLMAP); only the interpolation is ours, in float64, becau
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 #: COLMAP camera models the loader resamples (pinhole ones need no resampling unless fx != fy)
@@ -83,6 +85,28 @@ def resample(image: np.ndarray, *, source, target, valid: np.ndarray | None = No
     return Resampling(source=source, target=target).apply(image, valid=valid)
 
 
+@dataclass(frozen=True)
+class Footprint:
+    """The source pixels behind resampled target pixels, in target coordinates
+    (:meth:`Resampling.footprint`): a resampled pixel is ``sum_k weight[k]`` times the mean
+    radiance over the parallelogram ``position[k] + jacobian[k] @ [-1/2, 1/2]^2``.
+
+    Attributes
+    ----------
+    position : numpy.ndarray
+        ``(N, K, 2)`` target coordinates (x right, y down, centres at .5) of the ``K`` source
+        pixel centres each of ``N`` target pixels weighs.
+    weight : numpy.ndarray
+        ``(N, K)`` their interpolation weights (sum 1; Keys' cubic has negative ones).
+    jacobian : numpy.ndarray
+        ``(N, K, 2, 2)`` d(target) / d(source) there: a source pixel's sides in the target.
+    """
+
+    position: np.ndarray
+    weight: np.ndarray
+    jacobian: np.ndarray
+
+
 class Resampling:
     """The interpolation from ``source``'s pixels to ``target``'s (same pose), computed once and
     applied to an image, its validity and the standard deviation of its noise.
@@ -123,10 +147,11 @@ class Resampling:
         y = np.clip(np.where(self.inside, y, 0.0), 0, hs - 1)
         x0 = np.clip(np.floor(x), 0, max(ws - 2, 0))
         y0 = np.clip(np.floor(y), 0, max(hs - 2, 0))
-        fx, fy = self._snap(x - x0), self._snap(y - y0)
-        xi, yi = x0.astype(np.int64), y0.astype(np.int64)
+        self.kernel, self.source, self.target = kernel, source, target
+        #: per target pixel: the source pixel below and left of the position, the fractions past it
+        self._base = (x0.astype(np.int64), y0.astype(np.int64), self._snap(x - x0), self._snap(y - y0))
         #: (row index, column index, weight) of the source pixels each target pixel weighs
-        self.taps = self._taps(xi, yi, fx, fy, kernel)
+        self.taps = self._taps(*self._base, kernel)
 
     def _taps(self, xi, yi, fx, fy, kernel: str) -> list:
         hs, ws = self.shape
@@ -143,6 +168,45 @@ class Resampling:
             for i, dx in enumerate(offsets):
                 taps.append((np.clip(yi + dy, 0, hs - 1), np.clip(xi + dx, 0, ws - 1), wx[i] * wy[j]))
         return taps
+
+    def footprint(self, start: int = 0, stop: int | None = None) -> "Footprint":
+        """Where the resampled values of the target pixels ``[start, stop)`` (row-major) come
+        from, in the target's own image: the :class:`Footprint` a renderer of the target camera
+        integrates over to predict them (the source pixels' centres, their weights and
+        the shape of a source pixel there), so the prediction carries the interpolation's blur.
+
+        A source pixel is the image of a unit box around its centre; in the target it is
+        ``jacobian @ box`` around ``position`` (the mapping linearised at the target pixel: over
+        a pixel the distortion of a camera COLMAP accepts is affine to < 1e-3 px). Target pixels
+        outside the delivered image keep their own box (they are never used).
+        """
+        n = self.inside.size
+        stop = n if stop is None else stop
+        if not 0 <= start <= stop <= n:
+            raise ValueError(f"pixels [{start}, {stop}) outside the target's {n}")
+        base = [a.ravel()[start:stop] for a in self._base]
+        taps = self._taps(*base, self.kernel)
+        inside = self.inside.ravel()[start:stop]
+        hs, ws = self.shape
+        centres = np.stack([np.stack([xi + 0.5, yi + 0.5], axis=-1) for yi, xi, _ in taps], axis=1)
+        position = self._to_target(centres.reshape(-1, 2)).reshape(centres.shape)
+        weight = np.stack([w for _, _, w in taps], axis=1)
+        at = np.stack([base[0] + base[2] + 0.5, base[1] + base[3] + 0.5], axis=-1)   # the point sampled
+        h = 0.25
+        jacobian = np.stack([(self._to_target(at + h * e) - self._to_target(at - h * e)) / (2 * h)
+                             for e in (np.array([1.0, 0.0]), np.array([0.0, 1.0]))], axis=-1)
+        own = np.stack([np.arange(start, stop) % int(self.target.width) + 0.5,
+                        np.arange(start, stop) // int(self.target.width) + 0.5], axis=-1)
+        position = np.where(inside[:, None, None], position, own[:, None, :])
+        weight = np.where(inside[:, None], weight, np.eye(1, weight.shape[1])[0])
+        jacobian = np.where(inside[:, None, None], jacobian, np.eye(2))
+        return Footprint(position, weight, np.repeat(jacobian[:, None], weight.shape[1], axis=1))
+
+    def _to_target(self, pixels: np.ndarray) -> np.ndarray:
+        """Continuous target coordinates (centres at .5) of source coordinates ``(N, 2)``."""
+        rays = np.asarray(self.source.cam_from_img(pixels), dtype=np.float64)
+        points = np.concatenate([rays, np.ones((len(rays), 1))], axis=1)
+        return np.asarray(self.target.img_from_cam(points), dtype=np.float64)
 
     @classmethod
     def _snap(cls, frac: np.ndarray) -> np.ndarray:

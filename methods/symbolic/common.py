@@ -10,6 +10,7 @@ import warnings
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from framework.errors import ConfigError
 
@@ -56,23 +57,74 @@ def _tile_seed(seed: int, start: int) -> int:
     return x & 0xFFFFFFFF
 
 
-def camera_rays(sensor, sampler, pix):
+class TileFootprint:
+    """A :class:`framework.scene.undistort.Footprint` of a tile's pixels as Dr.Jit arrays, for
+    :func:`camera_rays`: each sample picks one of a pixel's ``K`` source pixels with probability
+    ``|w_k| / sum |w|`` and weighs its radiance by ``sign(w_k) sum |w|`` (an unbiased estimate of
+    ``sum_k w_k L_k`` with Keys' negative weights too).
+
+    Parameters
+    ----------
+    footprint : Footprint
+        Of the pixels ``[start, start + N)``.
+    start : int
+        The tile's first pixel (row-major in the crop window).
+    """
+
+    def __init__(self, footprint, start: int):
+        w = np.asarray(footprint.weight, np.float64)
+        self.K = w.shape[1]
+        total = np.abs(w).sum(axis=1, keepdims=True)
+        cum = np.cumsum(np.abs(w), axis=1) / total
+        cum[:, -1] = 1.0                                  # round-off must not leave u above the last
+        self.start = int(start)
+        self.cum = mi.Float(cum.ravel().astype(np.float32))
+        self.scale = mi.Float((np.sign(w) * total).ravel().astype(np.float32))
+        p, j = np.asarray(footprint.position), np.asarray(footprint.jacobian)
+        self.position = [mi.Float(p[..., a].ravel().astype(np.float32)) for a in range(2)]
+        self.jacobian = [mi.Float(j[..., a, b].ravel().astype(np.float32)) for a in range(2) for b in range(2)]
+
+    def sample(self, local, u, box):
+        """``(film position, weight)`` of lanes of the tile's pixels ``local`` (from 0), ``u`` and
+        ``box`` uniform samples (the source pixel's choice and a point in its box)."""
+        chosen = mi.UInt32(self.K - 1)
+        for k in reversed(range(self.K - 1)):          # the first k whose cumulative weight is above u
+            c = dr.gather(mi.Float, self.cum, local * self.K + k)
+            chosen = dr.select(u < c, k, chosen)
+        at = local * self.K + chosen
+        d = box - 0.5
+        j = [dr.gather(mi.Float, a, at) for a in self.jacobian]
+        x = dr.gather(mi.Float, self.position[0], at) + j[0] * d.x + j[1] * d.y
+        y = dr.gather(mi.Float, self.position[1], at) + j[2] * d.x + j[3] * d.y
+        return mi.Vector2f(x, y), dr.gather(mi.Float, self.scale, at)
+
+
+def camera_rays(sensor, sampler, pix, footprint: TileFootprint | None = None):
     """``(ray, weight)`` through pixels ``pix`` (row-major in the crop window), one per lane.
 
     As ``ADIntegrator.sample_rays`` with a box filter and no border: the position is uniform
     inside the pixel, so a sample never contributes to a neighbour. Draws from ``sampler`` in
     Mitsuba's order: position, aperture (if needed), time (if the shutter is open), wavelength
-    (spectral variants).
+    (spectral variants). With a ``footprint`` (a resampled photograph's pixels) the position is
+    drawn from it instead (one more draw, first: the source pixel) and ``weight`` carries its
+    sign and scale.
     """
     film = sensor.film()
     W = int(film.crop_size()[0])
     crop_size = mi.ScalarVector2f(film.crop_size())
     crop_offset = mi.ScalarVector2f(film.crop_offset())
-    pos = mi.Vector2i()
-    pos.y = mi.Int32(pix // dr.opaque(mi.UInt32, W))
-    pos.x = mi.Int32(pix) - pos.y * dr.opaque(mi.Int32, W)
-    pos += mi.Vector2i(film.crop_offset())
-    pos_f = mi.Vector2f(pos) + sampler.next_2d()
+    share = 1.0                         # the footprint's sign and scale of the source pixel drawn
+    if footprint is None:
+        pos = mi.Vector2i()
+        pos.y = mi.Int32(pix // dr.opaque(mi.UInt32, W))
+        pos.x = mi.Int32(pix) - pos.y * dr.opaque(mi.Int32, W)
+        pos += mi.Vector2i(film.crop_offset())
+        pos_f = mi.Vector2f(pos) + sampler.next_2d()
+    else:
+        u = sampler.next_1d()
+        if any(int(v) for v in film.crop_offset()):
+            raise ConfigError("a footprint (resampled photographs) needs a film without a crop offset")
+        pos_f, share = footprint.sample(pix - dr.opaque(mi.UInt32, footprint.start), u, sampler.next_2d())
     scale = dr.rcp(crop_size)
     offset = -crop_offset * scale
     pos_adjusted = dr.fma(pos_f, scale, offset)
@@ -81,5 +133,6 @@ def camera_rays(sensor, sampler, pix):
     if sensor.shutter_open_time() > 0:
         time += sampler.next_1d() * sensor.shutter_open_time()
     wavelength_sample = sampler.next_1d() if mi.is_spectral else 0.0
-    return sensor.sample_ray_differential(time=time, sample1=wavelength_sample,
-                                          sample2=pos_adjusted, sample3=aperture)
+    ray, weight = sensor.sample_ray_differential(time=time, sample1=wavelength_sample,
+                                                 sample2=pos_adjusted, sample3=aperture)
+    return ray, weight * share

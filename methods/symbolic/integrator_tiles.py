@@ -9,7 +9,7 @@ import numpy as np
 
 from framework.errors import ConfigError
 from methods.symbolic.basis import emitter_columns, merge_codes, monomial_columns
-from methods.symbolic.common import camera_rays, pixel_window, tile_sampler
+from methods.symbolic.common import TileFootprint, camera_rays, pixel_window, tile_sampler
 from methods.symbolic.events import EventBuffer, lane_pixel, reindex_columns, stack_tiles, tile_matrices
 
 
@@ -29,7 +29,7 @@ class CoefficientTiles:
         return codes, np.stack([m.toarray() for m in mats], axis=-1).astype(np.float32)
 
     def coefficients_sparse(self, scene: mi.Scene, sensor=0, *, spp: int, seed: int = 0,
-                            pixel_range: tuple[int, int] | None = None) -> tuple[np.ndarray, list]:
+                            pixel_range: tuple[int, int] | None = None, footprint=None) -> tuple[np.ndarray, list]:
         """Polynomial coefficients ``γ`` (eq. 8) of the pixels of one view, one sparse matrix per channel.
 
         Parameters
@@ -44,6 +44,11 @@ class CoefficientTiles:
             Sampler seed; tiles after the first derive their own seed from it.
         pixel_range : (int, int), optional
             Pixels ``[start, stop)`` in row-major order of the film's crop window; default all.
+        footprint : framework.scene.undistort.Resampling, optional
+            The view's photographs were resampled from another camera (a distorted lens): each
+            pixel integrates over the source pixels its resampled value weighs
+            (:meth:`~framework.scene.undistort.Resampling.footprint`), so the polynomials carry
+            the interpolation's blur. Default: each pixel's own box.
 
         Returns
         -------
@@ -52,11 +57,12 @@ class CoefficientTiles:
             :class:`~methods.symbolic.basis.MonomialBasis`), and ``C`` matrices of shape
             ``(stop - start, len(codes))``, float64, canonical (sorted indices, no duplicates).
         """
-        codes, gamma = self._tiled(scene, sensor, spp, seed, pixel_range, halves=False)
+        codes, gamma = self._tiled(scene, sensor, spp, seed, pixel_range, halves=False, footprint=footprint)
         return codes, gamma
 
     def coefficients_halves(self, scene: mi.Scene, sensor=0, *, spp: int, seed: int = 0,
-                            pixel_range: tuple[int, int] | None = None) -> tuple[np.ndarray, list, list, list]:
+                            pixel_range: tuple[int, int] | None = None, footprint=None
+                            ) -> tuple[np.ndarray, list, list, list]:
         """``(codes, A, B, Γ)``: two independent estimates of the coefficients and their mean, from
         one render, over the monomial ``codes`` that occur.
 
@@ -69,9 +75,9 @@ class CoefficientTiles:
         """
         if int(spp) < 2:
             raise ConfigError(f"spp={spp}: two independent halves need spp >= 2")
-        return self._tiled(scene, sensor, spp, seed, pixel_range, halves=True)
+        return self._tiled(scene, sensor, spp, seed, pixel_range, halves=True, footprint=footprint)
 
-    def _tiled(self, scene, sensor, spp, seed, pixel_range, halves: bool) -> tuple:
+    def _tiled(self, scene, sensor, spp, seed, pixel_range, halves: bool, footprint=None) -> tuple:
         """Checks, then the tiles of ``tile_pixels`` pixels over their merged codes, stacked:
         ``(codes, Γ)`` or ``(codes, A, B, Γ)``."""
         self._check()
@@ -82,13 +88,13 @@ class CoefficientTiles:
         spp = int(spp)
         start, stop = pixel_window(sensor.film(), pixel_range)
         split = spp // 2 if halves else spp
-        tiles = [self._tile(scene, sensor, spp, seed, t0, min(stop, t0 + self.tile_pixels), split)
+        tiles = [self._tile(scene, sensor, spp, seed, t0, min(stop, t0 + self.tile_pixels), split, footprint)
                  for t0 in range(start, stop, self.tile_pixels)]
         codes = merge_codes([0], *(codes for codes, _ in tiles))
         mats = [reindex_columns(t, np.searchsorted(codes, c), len(codes)) for c, t in tiles]
         return (codes,) + stack_tiles(mats, 3 if halves else 1, self.n_channels, len(codes))
 
-    def _tile(self, scene, sensor, spp, seed, start, stop, split) -> tuple:
+    def _tile(self, scene, sensor, spp, seed, start, stop, split, footprint=None) -> tuple:
         """Trace the pixels ``[start, stop)``, ``spp`` samples each, as one kernel: the codes of
         their monomials and their matrices ``(Γ,)``, or ``(A, B, Γ)`` with the first
         ``split < spp`` samples of each pixel in ``A``."""
@@ -97,7 +103,8 @@ class CoefficientTiles:
             raise ConfigError(f"tile of {n} pixels x {spp} spp too large for 32-bit indices: lower tile_pixels")
         sampler = tile_sampler(sensor, spp, seed, start, n)
         pix = lane_pixel(dr.arange(mi.UInt32, n * spp), n, spp, split) + dr.opaque(mi.UInt32, start)
-        ray, weight = camera_rays(sensor, sampler, pix)
+        tile_footprint = None if footprint is None else TileFootprint(footprint.footprint(start, stop), start)
+        ray, weight = camera_rays(sensor, sampler, pix, tile_footprint)
         events = EventBuffer(n * spp, self.event_slots(), self.n_channels)
         β = mi.Spectrum(weight) * dr.opaque(mi.Float, 1.0 / spp)      # box filter: 1/spp per sample
         self._trace(scene, sampler, mi.Ray3f(ray), β, mi.Bool(True), events.store)

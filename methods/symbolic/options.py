@@ -130,6 +130,13 @@ class SymbolicOptions(StartOptions):
         "ground in one of 4 views, the per-pixel weights, whose scale includes each pixel's Monte Carlo "
         "variance, erred 0.009-0.018 and `auto` 0.015-0.020, seeds 0-2). results.json "
         "`field.consistency`", choice("auto", "none"))
+    footprint: str = option(
+        "`resampled`: a view whose photographs the loader resampled from a distorted camera renders "
+        "each pixel over the source pixels its interpolation weighs (each a source pixel's "
+        "parallelogram in the pinhole image, drawn with the interpolation's weight), so the prediction "
+        "carries the interpolation's blur, which the mirror kernel's weight would otherwise absorb; "
+        "`pixel`: each pixel's own box (on the bundled field scene the window's ρ_s then reads "
+        "0.01-0.02 low, see BENCHMARKS.md)", choice("resampled", "pixel"))
     boundary: int | str = option(
         "leave out pixels within this many pixels of a change of segment (a photograph resampled from "
         "a distorted camera mixes the two materials there); `auto`: 1 when some view has a distorted "

@@ -90,15 +90,31 @@ def tile_key(key: dict, k: int) -> dict:
 
 
 def view_key(problem, cam, parameters, guesses, spp, seed, prob_floor, max_bounces, *, view: int, cross_gram: bool,
-         tail_bounces: int) -> dict:
+             tail_bounces: int, footprint: str | None = None) -> dict:
     return {"scene": problem.scene.content_hash, "view": cam.name, "view_index": view, "spp": int(spp),
             "seed": int(seed), "max_bounces": int(max_bounces),
             "parameters": [[p.segment, p.kernel] for p in parameters],
             "guesses": np.round(np.asarray(guesses, float), 9).tolist(), "prob_floor": float(prob_floor),
             "observed": _digest(problem.observed[cam.name]),
             "variant": problem.settings.variant, "cross_gram": bool(cross_gram),
-            "tail_bounces": int(tail_bounces), "version": 8, "camera": camera_key(cam),
+            "tail_bounces": int(tail_bounces), "version": 9, "camera": camera_key(cam),
+            "footprint": [footprint, _distortion(cam) if footprint else None],
             "unknown_scales": unknown_emitters(problem.scene)}
+
+
+def footprint_kernel(problem, cam) -> str | None:
+    """The interpolation (``photometry.resampling``) the loader resampled ``cam``'s photographs
+    with, which the pass then integrates over
+    (:meth:`framework.scene.undistort.Resampling.footprint`); None where the photographs are used
+    as they are (a pinhole camera, or observations rendered by the framework with the pinhole)."""
+    if problem.scene.images is None or getattr(cam, "distortion", None) is None:
+        return None
+    return problem.scene.photometry.resampling
+
+
+def _distortion(cam) -> list | None:
+    d = getattr(cam, "distortion", None)
+    return None if d is None else [d[0], [float(x) for x in d[1]]]
 
 
 def camera_key(cam) -> list:

@@ -33,8 +33,8 @@ from methods.symbolic.events import event_slots
 from methods.symbolic.gram import GramSystem, weighted_system
 from methods.symbolic.illumination import split_environments, unknown_emitters
 from methods.symbolic.integrator import integrator_class
-from methods.symbolic.pass_cache import (TileWriter, cached_view, camera_key, empty_system, observed_pixels,
-                                         store_tile, view_key)
+from methods.symbolic.pass_cache import (TileWriter, cached_view, camera_key, empty_system, footprint_kernel,
+                                         observed_pixels, store_tile, view_key)
 
 log = logging.getLogger(__name__)
 BYTES_COPIES = 3   # an event buffer lives in Dr.Jit, compacted on the device, and in numpy
@@ -99,7 +99,7 @@ def check_pass_memory(memory_mb: float, spp: int, max_bounces: int, n_channels: 
 
 def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, *, spp: int,
                     seed: int, prob_floor: float, memory_mb: float, cache: Cache, executor=None,
-                    cross_gram: bool = True, tail_bounces: int = 0) -> PassResult:
+                    cross_gram: bool = True, tail_bounces: int = 0, footprint: bool = True) -> PassResult:
     """Gram systems and coefficients of every view of ``problem`` (one render in total).
 
     Parameters
@@ -117,6 +117,10 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
         Build G from two independent half-sample estimates (unbiased by Monte Carlo noise).
     tail_bounces : int
         Reflections traced beyond N_max at the guesses (:class:`PolynomialPathIntegrator`).
+    footprint : bool
+        Render the pixels of views whose photographs were resampled from a distorted camera over
+        the source pixels their interpolation weighs (:func:`footprint_kernel`); False: each
+        pixel's own box.
     cache : Cache
         Each view's tiles of coefficients are written to it as they are rendered (by the worker
         when it runs on this machine, else by this process), then the view's index by this
@@ -139,11 +143,12 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
     views, cached, todo = {}, [], []
     total = TreeSum()
     for i, cam in enumerate(problem.cameras):
+        kernel = footprint_kernel(problem, cam) if footprint else None
         key = view_key(problem, cam, parameters, guesses, spp, seed, prob_floor, max_bounces, view=i, cross_gram=cross_gram,
-                   tail_bounces=tail_bounces)
+                       tail_bounces=tail_bounces, footprint=kernel)
         hit = cached_view(cache, key, observed_pixels(problem, cam), C)
         if hit is None:
-            todo.append((i, cam, key))
+            todo.append((i, cam, key, kernel))
             continue
         system, views[cam.name] = hit
         total.add(system)
@@ -153,18 +158,18 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
     t0 = time.perf_counter()
     if todo:
         check_pass_memory(memory_mb, spp, max_bounces, C, tail_bounces, tasks_here=executor.tasks_here,
-                          pixels=max(cam.width * cam.height for _, cam, _ in todo), n_scales=G, n_parts=n_parts)
+                          pixels=max(cam.width * cam.height for _, cam, _, _ in todo), n_scales=G, n_parts=n_parts)
         tile = tile_pixels_for(memory_mb, spp, max_bounces, C, tail_bounces, n_scales=G, n_parts=n_parts)
         # workers on this machine store their tiles in the cache folder themselves; those of a
         # remote scheduler cannot reach it and send them back (tasks_here 0)
         worker_cache = cache.dir if executor.tasks_here else None
         tasks = [view_task(problem, parameters, guesses, max_bounces, i, spp=spp, seed=seed, prob_floor=prob_floor,
                            tile_pixels=tile, cross_gram=cross_gram, tail_bounces=tail_bounces,
-                           cache_dir=worker_cache, key=key)
-                 for i, _, key in todo]
+                           cache_dir=worker_cache, key=key, footprint=kernel)
+                 for i, _, key, kernel in todo]
         variant = problem.settings.variant
         results = executor.imap(render_view_task, tasks, variant=variant, threads=executor.threads_per_worker)
-        for (i, cam, key), (system, coeffs) in zip(todo, results):
+        for (i, cam, key, _), (system, coeffs) in zip(todo, results):
             total.add(system)                     # consumed: the sum may reuse its memory
             if cache.dir is not None:             # the tiles are stored (by the worker); then the index
                 if worker_cache is None:
@@ -183,10 +188,11 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
 
 def view_task(problem, parameters, guesses, max_bounces: int, i: int, *, spp: int, seed: int, prob_floor: float,
               tile_pixels: int, cross_gram: bool = True, tail_bounces: int = 0, cache_dir=None,
-              key: dict | None = None) -> dict:
+              key: dict | None = None, footprint: str | None = None) -> dict:
     """Everything a worker needs to render view ``i``: plain picklable data (numpy Scene model).
     With ``cache_dir`` the worker stores each tile's coefficients there under ``key`` (the view's
-    cache key) as it goes, and keeps none of them."""
+    cache key) as it goes, and keeps none of them; with ``footprint`` (an interpolation kernel,
+    :func:`footprint_kernel`) it renders each pixel over the source pixels that kernel weighs."""
     cam = problem.cameras[i]
     return {"scene": problem.scene, "cameras": list(problem.cameras), "view": int(i),
             "parameters": list(parameters), "guesses": np.asarray(guesses, float),
@@ -194,7 +200,22 @@ def view_task(problem, parameters, guesses, max_bounces: int, i: int, *, spp: in
             "seed": inversion_seed(seed, i), "prob_floor": float(prob_floor), "tile_pixels": int(tile_pixels),
             "observed": np.asarray(problem.observed[cam.name]), "cross_gram": bool(cross_gram),
             "tail_bounces": int(tail_bounces), "cache_dir": None if cache_dir is None else str(cache_dir),
-            "key": key}
+            "key": key, "footprint": footprint}
+
+
+def _footprint(task: dict):
+    """The view's :class:`~framework.scene.undistort.Resampling` (kept per camera), or None."""
+    kernel = task.get("footprint")
+    if kernel is None:
+        return None
+    from framework.scene.undistort import Resampling
+    cam = task["cameras"][task["view"]]
+    key = (cam.distortion, cam.width, cam.height, cam.f, cam.cx, cam.cy, kernel)
+    kept = _WORKER_STATE.setdefault("footprints", {})
+    if key not in kept:
+        kept.clear()                 # one camera at a time: a street's views mostly share one
+        kept[key] = Resampling(source=cam.delivered(), target=cam.pinhole(), kernel=kernel)
+    return kept[key]
 
 
 _WORKER_STATE: dict = {}    # per process: the last (MitsubaScene, integrator), reused across views
@@ -216,7 +237,7 @@ def render_view_task(task: dict, *, variant: str, threads: int | None = None
         store = TileWriter(Cache(task["cache_dir"]), task["key"], task["observed"].shape[-1])
     try:
         return _render_view(integrator, ms, task["view"], cam, task["observed"], task["spp"], task["seed"],
-                            cross=task.get("cross_gram", True), store=store)
+                            cross=task.get("cross_gram", True), store=store, footprint=_footprint(task))
     finally:
         if store is not None:
             store.close()          # every tile on disk before the view is reported done
@@ -251,7 +272,7 @@ def _scene_and_integrator(task: dict, variant: str):
     return _WORKER_STATE["value"]
 
 
-def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True, store=None
+def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True, store=None, footprint=None
                  ) -> tuple[GramSystem, TiledCoefficients]:
     """Tile by tile: each tile's sparse coefficients, and the view's Gram system from them.
 
@@ -260,7 +281,8 @@ def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True, store=
     G free of Monte Carlo noise (:func:`~methods.symbolic.gram.weighted_system`); both halves
     are kept (:class:`ViewCoefficients`). ``store(k, block)``: called with each tile's
     :class:`ViewCoefficients`, which is then not kept: the result holds what it returns (a
-    :class:`TileLoader`) instead.
+    :class:`TileLoader`) instead. ``footprint``: the view's photographs were resampled with it
+    (:func:`footprint_kernel`); its pixels integrate over their source pixels.
     """
     from tqdm import tqdm
     C = observed.shape[-1]
@@ -272,7 +294,7 @@ def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True, store=
     system, blocks = empty_system(C), []
     for k, start in enumerate(tqdm(starts, desc=f"polynomial pass {cam.name}", unit="tile", leave=False)):
         stop = min(n_pix, start + integrator.tile_pixels)
-        tile = dict(spp=spp, seed=seed, pixel_range=(start, stop))
+        tile = dict(spp=spp, seed=seed, pixel_range=(start, stop), footprint=footprint)
         if halves:
             codes, a, b, _ = integrator.coefficients_halves(ms.scene, i, **tile)
             block = ViewCoefficients(a, b, split, codes)

@@ -95,7 +95,7 @@ def render_pass(problem, params, x0: np.ndarray, options: SymbolicOptions, *, se
         return polynomial_pass(problem, params, x0, settings.max_bounces, spp=settings.spp,
                                tail_bounces=settings.tail_bounces, seed=seed, prob_floor=options.prob_floor,
                                memory_mb=options.memory_mb, cache=Cache(settings.cache_dir), executor=executor,
-                               cross_gram=options.gram == "cross")
+                               cross_gram=options.gram == "cross", footprint=options.footprint == "resampled")
 
 
 def fit_pass(result, params, x0: np.ndarray, problem, options: SymbolicOptions, field: FieldOptions, *,

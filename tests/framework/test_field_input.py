@@ -245,6 +245,57 @@ def test_resampling_errors():
     source, target = _shifted_pinholes(0.5, 0.0)
     with pytest.raises(ValueError, match="kernel='lanczos': must be one of bilinear, cubic"):
         Resampling(source=source, target=target, kernel="lanczos")
+    with pytest.raises(ValueError, match=r"pixels \[5, 3\) outside the target's 576"):
+        Resampling(source=source, target=target).footprint(5, 3)
+    with pytest.raises(ValueError, match=r"pixels \[0, 577\) outside the target's 576"):
+        Resampling(source=source, target=target).footprint(0, 577)
+
+
+def test_footprint_of_a_shift_is_the_shifted_source_pixels():
+    """Grids shifted by (0.3, 0.7) source pixels (same focal length): a target pixel's footprint
+    is the source pixels around its point, each a unit box (jacobian the identity), at the
+    target's coordinates of their centres (the source centre minus the shift), weighted as the
+    loader weighs them; by hand for the pixel (5, 4), centre (5.5, 4.5), the source point
+    (5.8, 5.2): sources (5, 4), (6, 4), (5, 5), (6, 5), centres (5.5, 4.5) + offsets, at
+    (5.2, 3.8) + offsets in the target, weights 0.7 · 0.3, 0.3 · 0.3, 0.7 · 0.7, 0.3 · 0.7."""
+    source, target = _shifted_pinholes(0.3, 0.7)
+    r = Resampling(source=source, target=target)
+    fp = r.footprint()
+    i = 4 * 24 + 5
+    np.testing.assert_allclose(fp.position[i], [[5.2, 3.8], [6.2, 3.8], [5.2, 4.8], [6.2, 4.8]], atol=1e-9)
+    np.testing.assert_allclose(fp.weight[i], [0.21, 0.09, 0.49, 0.21], atol=1e-12)
+    np.testing.assert_allclose(fp.jacobian.reshape(-1, 4), np.tile([1.0, 0.0, 0.0, 1.0], (24 * 24 * 4, 1)), atol=1e-9)
+    part = r.footprint(100, 130)
+    np.testing.assert_array_equal(part.position, fp.position[100:130])
+    np.testing.assert_array_equal(part.weight, fp.weight[100:130])
+    outside = np.flatnonzero(~r.inside.ravel())
+    assert outside.size and (fp.weight[outside, 0] == 1).all()
+    np.testing.assert_allclose(fp.position[outside, 0], np.stack([outside % 24 + 0.5, outside // 24 + 0.5], 1))
+
+
+@pytest.mark.parametrize("kernel", ["bilinear", "cubic"])
+def test_footprint_centres_on_the_pixel_through_a_distorted_lens(kernel):
+    """Through an OPENCV lens with fx != fy: the footprint's weighted centre is the target pixel's
+    centre (interpolating the lens's mapping between source centres: second order, < 2e-3 px
+    at this distortion, measured 1.3e-3), its weights the loader's, and a source pixel's sides
+    in the target stretched by the focal lengths' ratio (f / fx along x, f / fy along y, within
+    the lens's few % over the image)."""
+    import pycolmap
+    source = pycolmap.Camera(model="OPENCV", width=40, height=30,
+                             params=[38.0, 36.0, 20.3, 14.8, -0.08, 0.01, 0.001, -0.002])
+    target = pinhole_for(source)
+    r = Resampling(source=source, target=target, kernel=kernel)
+    fp = r.footprint()
+    ok = r.inside.ravel()
+    n = np.arange(40 * 30)
+    centres = np.stack([n % 40 + 0.5, n // 40 + 0.5], axis=1)
+    mean = (fp.weight[..., None] * fp.position).sum(axis=1)
+    assert np.abs(mean - centres)[ok].max() < 2e-3
+    np.testing.assert_allclose(fp.weight, np.stack([w.ravel() for _, _, w in r.taps], axis=1)
+                               * ok[:, None] + np.eye(1, fp.weight.shape[1])[0] * ~ok[:, None], atol=1e-15)
+    j = fp.jacobian[ok, 0]
+    assert np.abs(j[:, 0, 0] - 38.0 / 38.0).max() < 0.1 and np.abs(j[:, 1, 1] - 38.0 / 36.0).max() < 0.1
+    assert np.abs(j[:, 0, 1]).max() < 0.05 and np.abs(j[:, 1, 0]).max() < 0.05
 
 
 # ----------------------------------------------------------------------------------------------
