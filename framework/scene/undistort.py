@@ -176,9 +176,11 @@ class Resampling:
         the shape of a source pixel there), so the prediction carries the interpolation's blur.
 
         A source pixel is the image of a unit box around its centre; in the target it is
-        ``jacobian @ box`` around ``position`` (the mapping linearised at the target pixel: over
-        a pixel the distortion of a camera COLMAP accepts is affine to < 1e-3 px). Target pixels
-        outside the delivered image keep their own box (they are never used).
+        ``jacobian @ box`` around ``position`` (the mapping linearised at the point the target
+        pixel samples: over a pixel the lenses of the bundled ``urban_canyon_field``, k1 about
+        -0.1 on 200 px images, depart from it by at most 1.3e-3 px, measured at the corners; the
+        departure shrinks as 1 / width on larger images of the same lens). Target pixels outside
+        the delivered image keep their own box (they are never used).
         """
         n = self.inside.size
         stop = n if stop is None else stop

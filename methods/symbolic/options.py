@@ -136,7 +136,7 @@ class SymbolicOptions(StartOptions):
         "parallelogram in the pinhole image, drawn with the interpolation's weight), so the prediction "
         "carries the interpolation's blur, which the mirror kernel's weight would otherwise absorb; "
         "`pixel`: each pixel's own box (on the bundled field scene the window's ρ_s then reads "
-        "0.01-0.02 low, see BENCHMARKS.md)", choice("resampled", "pixel"))
+        "0.013-0.018 lower and its ρ_d 0.010-0.016 higher, BENCHMARKS.md section 7)", choice("resampled", "pixel"))
     boundary: int | str = option(
         "leave out pixels within this many pixels of a change of segment (a photograph resampled from "
         "a distorted camera mixes the two materials there); `auto`: 1 when some view has a distorted "
