@@ -123,3 +123,25 @@ def test_the_system_is_taken_once(problem):
     passed.take_system()
     with pytest.raises(RuntimeError, match="already taken"):
         passed.take_system()
+
+
+def test_only_resampled_photographs_are_rendered_over_a_footprint(problem):
+    """The pass integrates over the interpolation's footprint exactly where the loader resampled
+    the photographs: a distorted camera with photographs (the scene's ``resampling`` kernel),
+    not a pinhole one, nor observations the framework rendered itself; the cache key tells the
+    two renders apart."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+    from factory import distorted
+    from methods.symbolic.pass_cache import footprint_kernel, view_key
+    cam = problem.cameras[0]
+    lens = distorted(cam, "OPENCV")
+    photographed = SimpleNamespace(scene=replace(problem.scene, images={}, photometry=replace(
+        problem.scene.photometry, resampling="cubic")))
+    rendered = SimpleNamespace(scene=replace(problem.scene, images=None))
+    assert footprint_kernel(photographed, lens) == "cubic"
+    assert footprint_kernel(photographed, cam) is None
+    assert footprint_kernel(rendered, lens) is None
+    key = lambda footprint: view_key(problem, lens, problem.parameters, np.zeros((1, 3)), 4, 0, 0.1, 3,  # noqa: E731
+                                     view=0, cross_gram=True, tail_bounces=0, footprint=footprint)
+    assert key("cubic") != key(None) and key("cubic") != key("bilinear")
