@@ -150,8 +150,16 @@ class Resampling:
         self.kernel, self.source, self.target = kernel, source, target
         #: per target pixel: the source pixel below and left of the position, the fractions past it
         self._base = (x0.astype(np.int64), y0.astype(np.int64), self._snap(x - x0), self._snap(y - y0))
-        #: (row index, column index, weight) of the source pixels each target pixel weighs
-        self.taps = self._taps(*self._base, kernel)
+        self._all_taps = None
+
+    @property
+    def taps(self) -> list:
+        """(row index, column index, weight) of the source pixels each target pixel weighs, each
+        ``(H_t, W_t)``; made on first use (24 bytes a pixel and tap: the pass's
+        :meth:`footprint` takes a tile's at a time instead)."""
+        if self._all_taps is None:
+            self._all_taps = self._taps(*self._base, self.kernel)
+        return self._all_taps
 
     def _taps(self, xi, yi, fx, fy, kernel: str) -> list:
         hs, ws = self.shape
