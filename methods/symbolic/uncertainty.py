@@ -72,6 +72,7 @@ import scipy.sparse as sp
 from framework.threads import run_threads
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.clusters import cr1_factor
+from methods.symbolic.coefficients import ViewCoefficients
 from methods.symbolic.gram import GramSystem, principal, row_blocks
 from methods.symbolic.solve import hessian
 
@@ -83,6 +84,11 @@ RCOND = 1e-10
 NULL_TOL = 1e-2
 #: std above which a parameter is reported ill-determined
 ILL_DETERMINED_STD = 0.05
+#: stored coefficients (both halves, one channel) of the rows :func:`score_meat` scores at once:
+#: its sparse temporaries (the coefficients times J, the scores) are then ~50 MiB a channel at
+#: N_max = 3, whatever the pass's tile (a 1920x1080 view's 43,000-pixel tiles, scored whole on two
+#: threads, took the run's peak from 854 to 1,345 MiB, measured)
+SCORE_CHUNK_NNZ = 1 << 20
 
 
 @dataclass
@@ -240,26 +246,47 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
         n_groups = view.n_rows if ids is None else int(ids.max()) + 1
         groups += n_groups
         sums = [None] * C           # the view's cluster sums of the scores, per channel
-        # a tiled view: one block in memory at a time
-        for coeffs, y, w_pix in row_blocks(view, y_view, weights[0] if weights else None):
-            own = None if owned is None else owned[v][start:start + coeffs.n_rows]
-            rows = None if ids is None else ids[start:start + coeffs.n_rows]
-            member = None if rows is None else sp.csr_matrix(
-                (np.ones(len(rows)), (rows, np.arange(len(rows)))), shape=(n_groups, len(rows)))
-            # the channels on threads: their sparse products release the GIL
-            tasks = [lambda c=c: _block_terms(_score(coeffs, y, w_pix, mu, J, codes, own, c), member) for c in range(C)]
-            for c, (total_c, term) in enumerate(run_threads(tasks)):
-                total[c] += total_c
-                if member is None:
-                    outer[c] += term
-                else:
-                    sums[c] = term if sums[c] is None else sums[c] + term
-            start += coeffs.n_rows
+        # a tiled view: one block in memory at a time, scored a chunk of its rows at a time
+        for block, y_block, w_block in row_blocks(view, y_view, weights[0] if weights else None):
+            for lo, hi in _row_chunks(block):
+                coeffs = _rows_of(block, lo, hi)
+                y, w_pix = y_block[lo:hi], None if w_block is None else w_block[lo:hi]
+                own = None if owned is None else owned[v][start + lo:start + hi]
+                rows = None if ids is None else ids[start + lo:start + hi]
+                member = None if rows is None else sp.csr_matrix(
+                    (np.ones(len(rows)), (rows, np.arange(len(rows)))), shape=(n_groups, len(rows)))
+                # the channels on threads: their sparse products release the GIL
+                tasks = [lambda c=c: _block_terms(_score(coeffs, y, w_pix, mu, J, codes, own, c), member)
+                         for c in range(C)]
+                for c, (total_c, term) in enumerate(run_threads(tasks)):
+                    total[c] += total_c
+                    if member is None:
+                        outer[c] += term
+                    else:
+                        sums[c] = term if sums[c] is None else sums[c] + term
+            start += block.n_rows
         for c in range(C):
             if sums[c] is not None:
                 outer[c] += (sums[c].T @ sums[c]).toarray()
     meat = outer - np.einsum("ci,cj->cij", total, total) / max(groups, 1)
     return meat if clusters is None else cr1_factor(groups, n, D) * meat
+
+
+def _row_chunks(block) -> list[tuple[int, int]]:
+    """``[lo, hi)`` row ranges of a block holding at most about :data:`SCORE_CHUNK_NNZ` stored
+    coefficients of one channel each (cut by channel 0's rows; a single row may exceed it)."""
+    count = block.a[0].indptr if block.b is None else block.a[0].indptr + block.b[0].indptr
+    cuts = np.searchsorted(count, np.arange(SCORE_CHUNK_NNZ, count[-1], SCORE_CHUNK_NNZ), side="right") - 1
+    edges = np.unique(np.concatenate([[0], cuts[cuts > 0], [block.n_rows]]))
+    return list(zip(edges[:-1].tolist(), edges[1:].tolist()))
+
+
+def _rows_of(block, lo: int, hi: int):
+    """The rows ``[lo, hi)`` of a block (itself when that is every row)."""
+    if lo == 0 and hi == block.n_rows:
+        return block
+    return ViewCoefficients([m[lo:hi] for m in block.a], None if block.b is None else [m[lo:hi] for m in block.b],
+                            block.split, block.codes)
 
 
 def _block_terms(s: sp.csr_matrix, member: sp.csr_matrix | None) -> tuple[np.ndarray, object]:

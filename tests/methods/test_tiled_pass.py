@@ -145,3 +145,23 @@ def test_only_resampled_photographs_are_rendered_over_a_footprint(problem):
     key = lambda footprint: view_key(problem, lens, problem.parameters, np.zeros((1, 3)), 4, 0, 0.1, 3,  # noqa: E731
                                      view=0, cross_gram=True, tail_bounces=0, footprint=footprint)
     assert key("cubic") != key(None) and key("cubic") != key("bilinear")
+
+
+@pytest.mark.parametrize("clustered", [False, True])
+def test_the_meat_scored_in_row_chunks_equals_the_whole_blocks(problem, monkeypatch, clustered):
+    """score_meat scores a block's rows in chunks of about SCORE_CHUNK_NNZ coefficients (its
+    temporaries bounded whatever the tile): with chunks of a few pixels the meat, pixel or
+    cluster sums, equals the one scored block by block to 1e-12 (relative; only the order of the
+    sums differs)."""
+    import methods.symbolic.uncertainty as U
+    passed = _pass(problem, Cache(None))
+    basis = MonomialBasis(len(problem.parameters), 3, passed.codes)
+    rho = np.random.default_rng(1).uniform(0.1, 0.4, (len(problem.parameters), 3))
+    views = [(passed.coefficients(c.name), problem.observed[c.name], None) for c in problem.cameras]
+    clusters = [np.arange(256) // 16 for _ in problem.cameras] if clustered else None
+    whole = score_meat(basis, rho, views, np.arange(basis.size), passed.codes, clusters=clusters)
+    block = next(passed.coefficients(problem.cameras[0].name).blocks())[1]
+    monkeypatch.setattr(U, "SCORE_CHUNK_NNZ", max(1, (block.a[0].nnz + block.b[0].nnz) // 7))
+    assert len(U._row_chunks(block)) >= 6
+    chunked = score_meat(basis, rho, views, np.arange(basis.size), passed.codes, clusters=clusters)
+    np.testing.assert_allclose(chunked, whole, rtol=1e-12, atol=1e-12 * np.abs(whole).max())
