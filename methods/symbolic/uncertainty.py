@@ -84,10 +84,11 @@ RCOND = 1e-10
 NULL_TOL = 1e-2
 #: std above which a parameter is reported ill-determined
 ILL_DETERMINED_STD = 0.05
-#: stored coefficients (both halves, one channel) of the rows :func:`score_meat` scores at once:
-#: its sparse temporaries (the coefficients times J, the scores) are then ~50 MiB a channel at
-#: N_max = 3, whatever the pass's tile (a 1920x1080 view's 43,000-pixel tiles, scored whole on two
-#: threads, took the run's peak from 854 to 1,345 MiB, measured)
+#: stored coefficients (both halves, one channel) of the rows :func:`score_meat` scores at once,
+#: so that its sparse temporaries (the coefficients times J, the scores) stay bounded whatever the
+#: pass's tile. Measured on a 1920x1080 view (bench section 1b, 48 tiles): scored a whole tile at
+#: a time on two threads the run peaked at 1,345 MiB, on one thread 854 MiB, in chunks on two
+#: threads 841 MiB
 SCORE_CHUNK_NNZ = 1 << 20
 
 
