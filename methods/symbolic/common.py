@@ -122,8 +122,6 @@ def camera_rays(sensor, sampler, pix, footprint: TileFootprint | None = None):
         pos_f = mi.Vector2f(pos) + sampler.next_2d()
     else:
         u = sampler.next_1d()
-        if any(int(v) for v in film.crop_offset()):
-            raise ConfigError("a footprint (resampled photographs) needs a film without a crop offset")
         pos_f, share = footprint.sample(pix - dr.opaque(mi.UInt32, footprint.start), u, sampler.next_2d())
     scale = dr.rcp(crop_size)
     offset = -crop_offset * scale

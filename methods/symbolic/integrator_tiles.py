@@ -87,6 +87,8 @@ class CoefficientTiles:
             raise ConfigError(f"spp={spp}: must be >= 1")
         spp = int(spp)
         start, stop = pixel_window(sensor.film(), pixel_range)
+        if footprint is not None:
+            _check_footprint(footprint, sensor.film())
         split = spp // 2 if halves else spp
         tiles = [self._tile(scene, sensor, spp, seed, t0, min(stop, t0 + self.tile_pixels), split, footprint)
                  for t0 in range(start, stop, self.tile_pixels)]
@@ -115,3 +117,13 @@ class CoefficientTiles:
         else:
             codes, cols = monomial_columns(keys, self.n_params, self.max_bounces)
         return codes, tile_matrices((rows, cols, vals), first_b, (n, len(codes)), spp, split)
+
+
+def _check_footprint(footprint, film) -> None:
+    """The footprint's target image must be the film, whole (its pixels are numbered the same)."""
+    size = (int(footprint.target.width), int(footprint.target.height))
+    if size != tuple(int(v) for v in film.size()):
+        raise ConfigError(f"footprint of a {size[0]}x{size[1]} camera for a film of "
+                          f"{film.size()[0]}x{film.size()[1]}: give the view's own Resampling")
+    if any(int(v) for v in film.crop_offset()) or tuple(int(v) for v in film.crop_size()) != size:
+        raise ConfigError("a footprint (resampled photographs) needs the whole film: no crop window")

@@ -324,6 +324,22 @@ def test_footprint_integrates_over_the_resampled_source_pixels(kernel):
     assert np.abs(plain[:, 1, 0] - expected).max() > 20 * σ.max()      # the blur is there to find
 
 
+def test_footprint_errors():
+    import pycolmap
+    from framework.scene.undistort import Resampling
+    scene, shapes = _split_plane(16)
+    integ = PolynomialPathIntegrator.create(shapes, [[("diffuse", 0)], [("diffuse", 1)]], 2,
+                                            np.full((2, 3), 0.5), max_bounces=1)
+    other = pycolmap.Camera(model="PINHOLE", width=12, height=16, params=[20.0, 20.0, 6.0, 8.0])
+    with pytest.raises(ConfigError, match="footprint of a 12x16 camera for a film of 16x16"):
+        integ.coefficients_sparse(scene, spp=1, footprint=Resampling(source=other, target=other))
+    cropped = mi.load_dict({"type": "perspective", "fov": 40, "film": {
+        "type": "hdrfilm", "width": 16, "height": 16, "crop_offset_x": 2, "crop_width": 8, "rfilter": {"type": "box"}}})
+    own = pycolmap.Camera(model="PINHOLE", width=16, height=16, params=[20.0, 20.0, 8.0, 8.0])
+    with pytest.raises(ConfigError, match="needs the whole film: no crop window"):
+        integ.coefficients_sparse(scene, cropped, spp=1, footprint=Resampling(source=own, target=own))
+
+
 def test_event_csr_matches_scipy_coo():
     """_csr (one within-row sort shared by the channels) equals scipy's COO -> CSR conversion,
     duplicates summed, on random events with sorted rows."""
