@@ -72,7 +72,6 @@ import scipy.sparse as sp
 from framework.threads import run_threads
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.clusters import cr1_factor
-from methods.symbolic.coefficients import ViewCoefficients
 from methods.symbolic.gram import GramSystem, principal, row_blocks
 from methods.symbolic.solve import hessian
 
@@ -250,7 +249,7 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
         # a tiled view: one block in memory at a time, scored a chunk of its rows at a time
         for block, y_block, w_block in row_blocks(view, y_view, weights[0] if weights else None):
             for lo, hi in _row_chunks(block):
-                coeffs = _rows_of(block, lo, hi)
+                coeffs = _RowsOf(block, lo, hi)
                 y, w_pix = y_block[lo:hi], None if w_block is None else w_block[lo:hi]
                 own = None if owned is None else owned[v][start + lo:start + hi]
                 rows = None if ids is None else ids[start + lo:start + hi]
@@ -282,12 +281,24 @@ def _row_chunks(block) -> list[tuple[int, int]]:
     return list(zip(edges[:-1].tolist(), edges[1:].tolist()))
 
 
-def _rows_of(block, lo: int, hi: int):
-    """The rows ``[lo, hi)`` of a block (itself when that is every row)."""
-    if lo == 0 and hi == block.n_rows:
-        return block
-    return ViewCoefficients([m[lo:hi] for m in block.a], None if block.b is None else [m[lo:hi] for m in block.b],
-                            block.split, block.codes)
+class _RowsOf:
+    """The rows ``[lo, hi)`` of a block, each channel's matrices sliced when a task asks for them
+    (a thread copies only its own channel's rows)."""
+
+    def __init__(self, block, lo: int, hi: int):
+        whole = lo == 0 and hi == block.n_rows
+        cut = (lambda m: m) if whole else (lambda m: m[lo:hi])   # noqa: E731
+        self.codes, self.n_rows = block.codes, hi - lo
+        self.a = _Sliced(block.a, cut)
+        self.b = None if block.b is None else _Sliced(block.b, cut)
+
+
+class _Sliced:
+    def __init__(self, mats: list, cut):
+        self._mats, self._cut = mats, cut
+
+    def __getitem__(self, c: int):
+        return self._cut(self._mats[c])
 
 
 def _block_terms(s: sp.csr_matrix, member: sp.csr_matrix | None) -> tuple[np.ndarray, object]:
