@@ -89,7 +89,7 @@ def resample(image: np.ndarray, *, source, target, valid: np.ndarray | None = No
 class Footprint:
     """The source pixels behind resampled target pixels, in target coordinates
     (:meth:`Resampling.footprint`): a resampled pixel is ``sum_k weight[k]`` times the mean
-    radiance over the parallelogram ``position[k] + jacobian[k] @ [-1/2, 1/2]^2``.
+    radiance over the parallelogram ``position[k] + jacobian @ [-1/2, 1/2]^2``.
 
     Attributes
     ----------
@@ -99,7 +99,9 @@ class Footprint:
     weight : numpy.ndarray
         ``(N, K)`` their interpolation weights (sum 1; Keys' cubic has negative ones).
     jacobian : numpy.ndarray
-        ``(N, K, 2, 2)`` d(target) / d(source) there: a source pixel's sides in the target.
+        ``(N, 2, 2)`` d(target) / d(source) at the point each target pixel samples: a source
+        pixel's sides in the target, the same for its ``K`` source pixels (the mapping is
+        linearised over the few pixels a kernel spans).
     """
 
     position: np.ndarray
@@ -197,7 +199,6 @@ class Resampling:
         base = [a.ravel()[start:stop] for a in self._base]
         taps = self._taps(*base, self.kernel)
         inside = self.inside.ravel()[start:stop]
-        hs, ws = self.shape
         centres = np.stack([np.stack([xi + 0.5, yi + 0.5], axis=-1) for yi, xi, _ in taps], axis=1)
         position = self._to_target(centres.reshape(-1, 2)).reshape(centres.shape)
         weight = np.stack([w for _, _, w in taps], axis=1)
@@ -210,7 +211,7 @@ class Resampling:
         position = np.where(inside[:, None, None], position, own[:, None, :])
         weight = np.where(inside[:, None], weight, np.eye(1, weight.shape[1])[0])
         jacobian = np.where(inside[:, None, None], jacobian, np.eye(2))
-        return Footprint(position, weight, np.repeat(jacobian[:, None], weight.shape[1], axis=1))
+        return Footprint(position, weight, jacobian)
 
     def _to_target(self, pixels: np.ndarray) -> np.ndarray:
         """Continuous target coordinates (centres at .5) of source coordinates ``(N, 2)``."""

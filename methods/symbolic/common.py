@@ -93,7 +93,7 @@ class TileFootprint:
             chosen = dr.select(u < c, k, chosen)
         at = local * self.K + chosen
         d = box - 0.5
-        j = [dr.gather(mi.Float, a, at) for a in self.jacobian]
+        j = [dr.gather(mi.Float, a, local) for a in self.jacobian]
         x = dr.gather(mi.Float, self.position[0], at) + j[0] * d.x + j[1] * d.y
         y = dr.gather(mi.Float, self.position[1], at) + j[2] * d.x + j[3] * d.y
         return mi.Vector2f(x, y), dr.gather(mi.Float, self.scale, at)

@@ -264,7 +264,7 @@ def test_footprint_of_a_shift_is_the_shifted_source_pixels():
     i = 4 * 24 + 5
     np.testing.assert_allclose(fp.position[i], [[5.2, 3.8], [6.2, 3.8], [5.2, 4.8], [6.2, 4.8]], atol=1e-9)
     np.testing.assert_allclose(fp.weight[i], [0.21, 0.09, 0.49, 0.21], atol=1e-12)
-    np.testing.assert_allclose(fp.jacobian.reshape(-1, 4), np.tile([1.0, 0.0, 0.0, 1.0], (24 * 24 * 4, 1)), atol=1e-9)
+    np.testing.assert_allclose(fp.jacobian.reshape(-1, 4), np.tile([1.0, 0.0, 0.0, 1.0], (24 * 24, 1)), atol=1e-9)
     part = r.footprint(100, 130)
     np.testing.assert_array_equal(part.position, fp.position[100:130])
     np.testing.assert_array_equal(part.weight, fp.weight[100:130])
@@ -293,7 +293,7 @@ def test_footprint_centres_on_the_pixel_through_a_distorted_lens(kernel):
     assert np.abs(mean - centres)[ok].max() < 2e-3
     np.testing.assert_allclose(fp.weight, np.stack([w.ravel() for _, _, w in r.taps], axis=1)
                                * ok[:, None] + np.eye(1, fp.weight.shape[1])[0] * ~ok[:, None], atol=1e-15)
-    j = fp.jacobian[ok, 0]
+    j = fp.jacobian[ok]
     assert np.abs(j[:, 0, 0] - 38.0 / 38.0).max() < 0.1 and np.abs(j[:, 1, 1] - 38.0 / 36.0).max() < 0.1
     assert np.abs(j[:, 0, 1]).max() < 0.05 and np.abs(j[:, 1, 0]).max() < 0.05
 

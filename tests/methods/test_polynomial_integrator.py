@@ -315,7 +315,8 @@ def test_footprint_integrates_over_the_resampled_source_pixels(kernel):
     fp = r.footprint()
     g = (np.arange(64) + 0.5) / 64 - 0.5
     u, v = [a.ravel() for a in np.meshgrid(g, g)]
-    x = fp.position[..., 0, None] + fp.jacobian[..., 0, 0, None] * u + fp.jacobian[..., 0, 1, None] * v
+    j = fp.jacobian[:, None, :, :, None]                   # the pixel's, for each of its source pixels
+    x = fp.position[..., 0, None] + j[:, :, 0, 0] * u + j[:, :, 0, 1] * v
     share = ((x < res / 2) if left.all() else (x > res / 2)).mean(axis=-1)
     expected = L_ENV[0] * (fp.weight * share).sum(axis=1)
     c, _ = _coefficients(integ, scene, spp=spp, seed=2, footprint=r)
