@@ -249,14 +249,13 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
         # a tiled view: one block in memory at a time, scored a chunk of its rows at a time
         for block, y_block, w_block in row_blocks(view, y_view, weights[0] if weights else None):
             for lo, hi in _row_chunks(block):
-                coeffs = _RowsOf(block, lo, hi)
                 y, w_pix = y_block[lo:hi], None if w_block is None else w_block[lo:hi]
                 own = None if owned is None else owned[v][start + lo:start + hi]
                 rows = None if ids is None else ids[start + lo:start + hi]
                 member = None if rows is None else sp.csr_matrix(
                     (np.ones(len(rows)), (rows, np.arange(len(rows)))), shape=(n_groups, len(rows)))
                 # the channels on threads: their sparse products release the GIL
-                tasks = [lambda c=c: _block_terms(_score(coeffs, y, w_pix, mu, J, codes, own, c), member)
+                tasks = [lambda c=c: _block_terms(_score(block, (lo, hi), y, w_pix, mu, J, codes, own, c), member)
                          for c in range(C)]
                 for c, (total_c, term) in enumerate(run_threads(tasks)):
                     total[c] += total_c
@@ -281,44 +280,27 @@ def _row_chunks(block) -> list[tuple[int, int]]:
     return list(zip(edges[:-1].tolist(), edges[1:].tolist()))
 
 
-class _RowsOf:
-    """The rows ``[lo, hi)`` of a block, each channel's matrices sliced when a task asks for them
-    (a thread copies only its own channel's rows)."""
-
-    def __init__(self, block, lo: int, hi: int):
-        whole = lo == 0 and hi == block.n_rows
-        cut = (lambda m: m) if whole else (lambda m: m[lo:hi])   # noqa: E731
-        self.codes, self.n_rows = block.codes, hi - lo
-        self.a = _Sliced(block.a, cut)
-        self.b = None if block.b is None else _Sliced(block.b, cut)
-
-
-class _Sliced:
-    def __init__(self, mats: list, cut):
-        self._mats, self._cut = mats, cut
-
-    def __getitem__(self, c: int):
-        return self._cut(self._mats[c])
-
-
 def _block_terms(s: sp.csr_matrix, member: sp.csr_matrix | None) -> tuple[np.ndarray, object]:
     """A block's scores ``s`` summed over its pixels, and their outer product ``sᵀs`` (dense) or,
     with the ``(clusters, n)`` 0/1 ``member``, their sums per cluster (sparse)."""
     return np.asarray(s.sum(axis=0)).ravel(), (s.T @ s).toarray() if member is None else member @ s
 
 
-def _score(coeffs, y, w_pix, mu, J, codes, own, c: int) -> sp.csr_matrix:
-    """The ``(n, D)`` sparse scores ``s_p`` of one block's pixels in channel ``c`` (:func:`score_meat`)."""
-    at = np.searchsorted(codes, coeffs.codes)                # the block's columns in ``codes``
+def _score(block, rows: tuple[int, int], y, w_pix, mu, J, codes, own, c: int) -> sp.csr_matrix:
+    """The ``(n, D)`` sparse scores ``s_p`` in channel ``c`` of a block's ``rows`` ``[lo, hi)``
+    (:func:`score_meat`; the task copies only its own channel's rows)."""
+    lo, hi = rows
+    cut = (lambda m: m) if (lo, hi) == (0, block.n_rows) else (lambda m: m[lo:hi])   # noqa: E731
+    at = np.searchsorted(codes, block.codes)                 # the block's columns in ``codes``
     mu_v, J_v = mu[c, at], J[c][at]
     # sparse scores: a pixel's paths touch a few of the D parameters, so sᵀs costs
     # Σ_p nnz(s_p)² instead of pixels × D² (dense)
-    A = coeffs.a[c]
+    A = cut(block.a[c])
     ra, aJ = A @ mu_v - y[:, c], (A @ J_v).tocsr()
-    if coeffs.b is None:
+    if block.b is None:
         s = sp.diags(2.0 * ra) @ aJ
     else:
-        B = coeffs.b[c]
+        B = cut(block.b[c])
         rb, bJ = B @ mu_v - y[:, c], (B @ J_v).tocsr()
         s = sp.diags(rb) @ aJ + sp.diags(ra) @ bJ
     if w_pix is not None:            # the weighted cost's term: w_p times the unweighted one
