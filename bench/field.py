@@ -45,12 +45,13 @@ VARIANTS = (  # label, overrides[, the scene's photometry changed in a copy of i
     ("naive (gains 1, every pixel, L2)", ["method.exposure=known", "method.weights=none", "method.robust=none"]),
     ("+ per-view exposure", ["method.weights=none", "method.robust=none"]),
     ("+ masks and saturation", ["method.robust=none"]),
-    ("default (+ robust Cauchy)", []),
+    ("default (+ robust Cauchy, cluster std, bias correction)", []),
     ("default without the boundary exclusion", ["method.boundary=0"]),
     ("default, each pixel its own box (footprint=pixel)", ["method.footprint=pixel"]),
     ("default, photographs resampled by cubic convolution", [], {"resampling": "cubic"}),
     ("cubic convolution, each pixel its own box", ["method.footprint=pixel"], {"resampling": "cubic"}),
-    ("default, method.std=cluster", ["method.std=cluster"]),
+    ("default, pixel sandwich std (method.std=sandwich)", ["method.std=sandwich"]),
+    ("default without the bias correction (method.bias=none)", ["method.bias=none"]),
 )
 
 
@@ -121,7 +122,10 @@ def markdown(rows: list[dict]) -> list[str]:
              "exclusion; each pixel rendered over its own box (`method.footprint=pixel`) instead of over the source "
              "pixels the loader's interpolation weighs, so the resampling's blur is missing from the model (it trades "
              "the window's mirror weight for its diffuse one); the photographs resampled by Keys' cubic convolution "
-             "(`photometry: resampling: cubic`), with and without the footprint; the cluster-robust std. "
+             "(`photometry: resampling: cubic`), with and without the footprint; the pixel sandwich std instead of "
+             "the cluster-robust one; no finite-spp bias correction (`method.bias=none`: the estimate as solved, "
+             "not extrapolated from the pass's half-spp refits). On photographs the cluster std and the bias "
+             "correction are the defaults (`auto`), so they are on from the row with per-view exposure. "
              "Errors over the parameters the run "
              "calls determined; gain error relative to the truth; RMS z and the count beyond 3 std + 0.005 over the "
              "determined weights' channels. Targets (default row): 0.03 diffuse, 0.05 specular, gains 3 %.", ""]

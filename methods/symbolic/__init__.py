@@ -95,6 +95,9 @@ class SymbolicMethod(Method):
 
     def check_problem(self, problem) -> None:
         FieldOptions.resolve(self.options, problem, boundaries=False)   # a reference view outside the views
+        if self.options.bias == "richardson" and problem.settings.spp % 4:
+            raise ConfigError(f"render.spp={problem.settings.spp}: method.bias=richardson splits each pixel's samples "
+                              "in four quarters; give a multiple of 4")
         if unknown_emitters(problem.scene):
             check_gauge(problem.scene)                                  # ρ and the light's scale trade off
             if self.options.cost == "per_segment":

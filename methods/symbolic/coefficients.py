@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from methods.symbolic.gram import GramSystem
+from methods.symbolic.gram import GramSystem, summed, weighted_system
 
 
 @dataclass
@@ -25,12 +25,19 @@ class ViewCoefficients:
     at even spp), kept as the pass made them: the cross Gram is ½(AᵀB + BᵀA) and the estimate
     from all samples (eq. 8) is Γ = split·A + (1 - split)·B (:meth:`apply`). ``b`` is None when
     the pass had no halves (``gram=plain`` or spp < 2): ``a`` is then Γ.
+
+    ``a1``, ``b1``: with ``method.bias=richardson``, the estimates from the first half of ``a``'s
+    and of ``b``'s samples (``split`` 1/2); the four quarters ``a1``, ``2a - a1``, ``b1``,
+    ``2b - b1`` are independent, and :meth:`halved` pairs them into the coefficients of a pass
+    with half the samples.
     """
 
     a: list
     b: list | None = None
     split: float = 0.5
     codes: np.ndarray | None = None
+    a1: list | None = None
+    b1: list | None = None
 
     @property
     def n_rows(self) -> int:
@@ -45,6 +52,14 @@ class ViewCoefficients:
     def blocks(self):
         """``(first row, ViewCoefficients)`` of each row block: itself, from row 0."""
         yield 0, self
+
+    def halved(self, j: int) -> ViewCoefficients:
+        """The coefficients of half the samples, as a pass with half the spp keeps them: the
+        quarters of ``a`` (``j`` 0) or of ``b`` (``j`` 1) as its two independent halves."""
+        first, whole = (self.a1, self.a) if j == 0 else (self.b1, self.b)
+        if first is None:
+            raise ValueError("these coefficients have no quarters: render with method.bias=richardson")
+        return ViewCoefficients(first, [2.0 * w - f for f, w in zip(first, whole)], 0.5, self.codes)
 
 
 class TiledCoefficients:
@@ -65,6 +80,22 @@ class TiledCoefficients:
     def blocks(self):
         for start, block in zip(self.starts, self._blocks):
             yield start, (block() if callable(block) else block)
+
+    def halved(self, j: int) -> TiledCoefficients:
+        """:meth:`ViewCoefficients.halved` of every block, made as each block is read."""
+        return TiledCoefficients(self.starts, [_Halved(block, j) for block in self._blocks], self.n_rows)
+
+
+@dataclass(frozen=True)
+class _Halved:
+    """A block's :meth:`ViewCoefficients.halved` when called (a cached block is read then)."""
+
+    block: object
+    j: int
+
+    def __call__(self) -> ViewCoefficients:
+        block = self.block() if callable(self.block) else self.block
+        return block.halved(self.j)
 
 
 @dataclass
@@ -97,6 +128,18 @@ class PassResult:
         if system is None:
             raise RuntimeError("the pass's Gram system was already taken")
         return system
+
+    def halved(self, j: int, observed: dict) -> PassResult:
+        """The pass with half the samples (``j`` 0: the quarters of each pixel's first half,
+        1: of its second; :meth:`ViewCoefficients.halved`), its Gram system summed from them
+        as a cached view's is (:func:`~methods.symbolic.gram.weighted_system`); ``observed``:
+        view -> observed image."""
+        views = {name: coeffs.halved(j) for name, coeffs in self.views.items()}
+        system = None
+        for name, coeffs in views.items():
+            y = np.asarray(observed[name]).reshape(coeffs.n_rows, -1)
+            system = summed(system, weighted_system(coeffs, y, None))
+        return PassResult(system, views)
 
     def image(self, view: str, mu: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         """The polynomial image of ``view`` at monomials ``mu`` (C, N) over ``codes``:

@@ -59,12 +59,14 @@ class EventBuffer:
         for c, v in enumerate(self.values):
             dr.scatter(v, value[c], at, active)
 
-    def compact(self, n: int, spp: int, split: int) -> tuple[tuple, int]:
+    def compact(self, n: int, spp: int, split: int, *, samples: bool = False) -> tuple:
         """The non-empty, non-zero events, in lane order, on the host.
 
         Returns ``((rows, cols, vals), first_b)``: tile pixel (non-decreasing within a lane block,
         :func:`lane_pixel`), int32; ordered path key, int64; one float32 array of values per
-        channel; and the index of the first event of the second block.
+        channel; and the index of the first event of the second block. With ``samples``, a third
+        item: each event's sample number within its pixel's block (int32; 0 .. split - 1 in the
+        first block, 0 .. spp - split - 1 in the second).
         """
         dr.eval(self.mono, self.values)                # the whole tile's paths: one kernel
         nonzero = self.values[0] != 0
@@ -74,12 +76,20 @@ class EventBuffer:
         at = dr.compress(keep)                         # order-preserving: rows stay sorted
         if dr.width(at) == 0:                          # no light reached the tile: Dr.Jit cannot
             empty = np.zeros(0, np.int32)              # divide an empty array by a literal
-            return (empty, empty.astype(np.int64), [np.zeros(0, np.float32) for _ in self.values]), 0
-        rows = lane_pixel(at // dr.opaque(mi.UInt32, self.slots), n, spp, split).numpy().view(np.int32)
+            events = (empty, empty.astype(np.int64), [np.zeros(0, np.float32) for _ in self.values])
+            return (events, 0, empty) if samples else (events, 0)
+        lanes = at // dr.opaque(mi.UInt32, self.slots)
+        rows = lane_pixel(lanes, n, spp, split).numpy().view(np.int32)
         cols = dr.gather(mi.UInt32, self.mono, at).numpy().astype(np.int64)
         vals = [dr.gather(mi.Float, v, at).numpy() for v in self.values]
         first_b = int(np.searchsorted(at.numpy(), n * split * self.slots))
-        return (rows, cols, vals), first_b
+        if not samples:
+            return (rows, cols, vals), first_b
+        lane = lanes.numpy().astype(np.int64)
+        sample = np.empty(len(lane), np.int32)     # lane_pixel's layout: pixel-major within a block
+        sample[:first_b] = lane[:first_b] % split
+        sample[first_b:] = (lane[first_b:] - n * split) % (spp - split)
+        return (rows, cols, vals), first_b, sample
 
 
 def csr(rows, cols, vals, shape, weight: float = 1.0) -> list:
@@ -87,7 +97,8 @@ def csr(rows, cols, vals, shape, weight: float = 1.0) -> list:
     entry of ``vals`` (channels), from events whose ``rows`` are non-decreasing.
 
     The channels share their sparsity, so the within-row sort runs once: scipy sorts the event
-    numbers as data along with the columns, which gives the permutation for every channel.
+    numbers as data along with the columns, which gives the permutation for every channel. It
+    sorts ``cols`` itself (scipy keeps the array it is given): pass a copy to use them again.
     """
     n, m = shape[0], len(cols)
     if m == 0:
@@ -112,21 +123,32 @@ def csr(rows, cols, vals, shape, weight: float = 1.0) -> list:
     return out
 
 
-def tile_matrices(events: tuple, first_b: int, shape: tuple[int, int], spp: int, split: int) -> tuple:
+def tile_matrices(events: tuple, first_b: int, shape: tuple[int, int], spp: int, split: int,
+                  sample: np.ndarray | None = None) -> tuple:
     """A tile's events (values already divided by ``spp``) as sparse matrices of ``shape``:
-    ``(Γ,)`` when ``split = spp``, else ``(A, B, Γ)``.
+    ``(Γ,)`` when ``split = spp``, else ``(A, B, Γ)``, and with ``sample`` (each event's sample
+    number in its block, :meth:`EventBuffer.compact`) ``(A, B, Γ, A₁, B₁)``.
 
     ``A`` holds the ``split`` first samples of each pixel, ``B`` the others, each reweighted to
     a full estimate; ``Γ`` is their sample-count-weighted mean, i.e. the estimate from all samples.
+    ``A₁`` holds the first half of ``A``'s samples, ``B₁`` that of ``B``'s (``spp`` a multiple of
+    4, ``split = spp / 2``): the four quarters are ``A₁``, ``2A - A₁``, ``B₁``, ``2B - B₁``.
     """
     rows, cols, vals = events
     if split == spp:
         return (csr(rows, cols, vals, shape),)
     in_a, in_b = slice(0, first_b), slice(first_b, len(rows))
+    firsts = ()
+    if sample is not None:     # before A and B: csr sorts the columns of the slices it gets in place
+        if spp % 4 or 2 * split != spp:
+            raise ValueError(f"quarters need spp a multiple of 4 and split = spp / 2 (spp={spp}, split={split})")
+        quarter = spp // 4
+        keeps = [np.flatnonzero(sample[block] < quarter) + block.start for block in (in_a, in_b)]
+        firsts = tuple(csr(rows[k], cols[k], [v[k] for v in vals], shape, weight=spp / quarter) for k in keeps)
     A = csr(rows[in_a], cols[in_a], [v[in_a] for v in vals], shape, weight=spp / split)
     B = csr(rows[in_b], cols[in_b], [v[in_b] for v in vals], shape, weight=spp / (spp - split))
     wa, wb = split / spp, (spp - split) / spp
-    return A, B, [(a + b) * 0.5 if wa == wb else a * wa + b * wb for a, b in zip(A, B)]
+    return (A, B, [(a + b) * 0.5 if wa == wb else a * wa + b * wb for a, b in zip(A, B)]) + firsts
 
 
 def reindex_columns(mats: tuple, positions: np.ndarray, n_cols: int) -> tuple:

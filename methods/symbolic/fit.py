@@ -68,6 +68,9 @@ class Fit:
     clusters : dict or None
         ``std_method`` ``cluster``: the clusters' side and the residuals' correlation length
         (:func:`~methods.symbolic.clusters.view_clusters`).
+    spp_bias : numpy.ndarray or None
+        ``method.bias=richardson``: ``(P, C)`` the finite-spp bias removed from ``estimate``
+        (:mod:`methods.symbolic.richardson`), NaN where not estimated.
     """
 
     estimate: np.ndarray
@@ -94,6 +97,7 @@ class Fit:
     irls_rounds: int | None = None
     irls_stopped: str | None = None
     clusters: dict | None = None
+    spp_bias: np.ndarray | None = None
 
     def replace(self, **changes) -> Fit:
         return dataclasses.replace(self, **changes)

@@ -61,8 +61,8 @@ class CoefficientTiles:
         return codes, gamma
 
     def coefficients_halves(self, scene: mi.Scene, sensor=0, *, spp: int, seed: int = 0,
-                            pixel_range: tuple[int, int] | None = None, footprint=None
-                            ) -> tuple[np.ndarray, list, list, list]:
+                            pixel_range: tuple[int, int] | None = None, footprint=None,
+                            quarters: bool = False) -> tuple:
         """``(codes, A, B, Γ)``: two independent estimates of the coefficients and their mean, from
         one render, over the monomial ``codes`` that occur.
 
@@ -71,15 +71,22 @@ class CoefficientTiles:
         sample blocks, so Γ is not :meth:`coefficients_sparse`'s result at the same seed, only
         an estimate of the same coefficients). The sampler is ``independent``, so ``A`` and ``B`` are independent and
         ``E[AᵀB] = E[A]ᵀE[B]`` (:meth:`GramSystem.accumulate_sparse`). Arguments as
-        :meth:`coefficients_sparse`, with ``spp >= 2``.
+        :meth:`coefficients_sparse`, with ``spp >= 2``; with ``quarters`` (``spp`` a multiple of
+        4) also ``A₁`` and ``B₁``, the estimates from the first half of ``A``'s and of ``B``'s
+        samples: ``(codes, A, B, Γ, A₁, B₁)``, four independent quarter estimates
+        ``A₁, 2A - A₁, B₁, 2B - B₁`` of the same render (:func:`~methods.symbolic.events.tile_matrices`).
         """
         if int(spp) < 2:
             raise ConfigError(f"spp={spp}: two independent halves need spp >= 2")
-        return self._tiled(scene, sensor, spp, seed, pixel_range, halves=True, footprint=footprint)
+        if quarters and int(spp) % 4:
+            raise ConfigError(f"spp={spp}: four independent quarters need spp a multiple of 4")
+        return self._tiled(scene, sensor, spp, seed, pixel_range, halves=True, footprint=footprint,
+                           quarters=quarters)
 
-    def _tiled(self, scene, sensor, spp, seed, pixel_range, halves: bool, footprint=None) -> tuple:
+    def _tiled(self, scene, sensor, spp, seed, pixel_range, halves: bool, footprint=None,
+               quarters: bool = False) -> tuple:
         """Checks, then the tiles of ``tile_pixels`` pixels over their merged codes, stacked:
-        ``(codes, Γ)`` or ``(codes, A, B, Γ)``."""
+        ``(codes, Γ)``, ``(codes, A, B, Γ)`` or ``(codes, A, B, Γ, A₁, B₁)``."""
         self._check()
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
@@ -90,16 +97,17 @@ class CoefficientTiles:
         if footprint is not None:
             _check_footprint(footprint, sensor.film())
         split = spp // 2 if halves else spp
-        tiles = [self._tile(scene, sensor, spp, seed, t0, min(stop, t0 + self.tile_pixels), split, footprint)
+        tiles = [self._tile(scene, sensor, spp, seed, t0, min(stop, t0 + self.tile_pixels), split, footprint,
+                            quarters)
                  for t0 in range(start, stop, self.tile_pixels)]
         codes = merge_codes([0], *(codes for codes, _ in tiles))
         mats = [reindex_columns(t, np.searchsorted(codes, c), len(codes)) for c, t in tiles]
-        return (codes,) + stack_tiles(mats, 3 if halves else 1, self.n_channels, len(codes))
+        return (codes,) + stack_tiles(mats, 5 if quarters else 3 if halves else 1, self.n_channels, len(codes))
 
-    def _tile(self, scene, sensor, spp, seed, start, stop, split, footprint=None) -> tuple:
+    def _tile(self, scene, sensor, spp, seed, start, stop, split, footprint=None, quarters=False) -> tuple:
         """Trace the pixels ``[start, stop)``, ``spp`` samples each, as one kernel: the codes of
         their monomials and their matrices ``(Γ,)``, or ``(A, B, Γ)`` with the first
-        ``split < spp`` samples of each pixel in ``A``."""
+        ``split < spp`` samples of each pixel in ``A`` (and ``A₁``, ``B₁`` with ``quarters``)."""
         n = stop - start
         if n * spp >= 2 ** 32:
             raise ConfigError(f"tile of {n} pixels x {spp} spp too large for 32-bit indices: lower tile_pixels")
@@ -110,13 +118,13 @@ class CoefficientTiles:
         events = EventBuffer(n * spp, self.event_slots(), self.n_channels)
         β = mi.Spectrum(weight) * dr.opaque(mi.Float, 1.0 / spp)      # box filter: 1/spp per sample
         self._trace(scene, sampler, mi.Ray3f(ray), β, mi.Bool(True), events.store)
-        (rows, keys, vals), first_b = events.compact(n, spp, split)
+        (rows, keys, vals), first_b, *sample = events.compact(n, spp, split, samples=quarters)
         # the ordered keys of one monomial differ by the order of its parameters: sort them out
         if self.n_scales:        # the emitter's group above the path's digits: one more variable
             codes, cols = emitter_columns(keys, self.n_params, self.max_bounces, self.n_scales)
         else:
             codes, cols = monomial_columns(keys, self.n_params, self.max_bounces)
-        return codes, tile_matrices((rows, cols, vals), first_b, (n, len(codes)), spp, split)
+        return codes, tile_matrices((rows, cols, vals), first_b, (n, len(codes)), spp, split, *sample)
 
 
 def _check_footprint(footprint, film) -> None:

@@ -86,8 +86,9 @@ class SymbolicOptions(StartOptions):
         "weakly constrained directions); `cluster`: the sandwich with the scores summed within "
         "squares of neighbouring pixels of one segment in one view, sized from the residuals' measured "
         "autocorrelation (results.json `std_clusters`), so that misfit shared by neighbouring pixels "
-        "(resampled or compressed photographs, misregistration) counts once; see results.md",
-        choice("sandwich", "residual", "cluster"))
+        "(resampled or compressed photographs, misregistration) counts once; see results.md; `auto`: "
+        "`cluster` for photographs (the field path, joint cost), `sandwich` otherwise",
+        choice("auto", "sandwich", "residual", "cluster"))
     refine: int = option(
         "cap on further passes, each re-rendered at the previous estimate (one render each): the "
         "tail's linearisation and the kernel selection move to the estimate", number(0, 8, integer=True))
@@ -143,6 +144,15 @@ class SymbolicOptions(StartOptions):
         "view has a distorted camera, else 0 (on the bundled field scene, with the footprint, the "
         "window's worst ρ_d error is 0.011 with 1 and 0.016 with 0, BENCHMARKS.md section 7)",
         either("auto", number(0, 8, integer=True)))
+    bias: str = option(
+        "`richardson`: the pass keeps each pixel's samples as four independent quarters, the last "
+        "pass is fitted again as two passes of half the spp, and the estimate extrapolated to "
+        "2ρ̂_n - ρ̂_{n/2}, which removes the solve's finite-spp bias at order 1/spp (the inverse of a "
+        "noisy Gram matrix, noisy robust weights); needs `render.spp` a multiple of 4 and "
+        "`gram=cross`; twice the stored coefficients, three solves of the last pass; results.json "
+        "`spp_bias`. `none`: the estimate as solved. `auto`: `richardson` for photographs (the field "
+        "path) when spp is a multiple of 4, else `none` (on small rendered scenes the correction's own "
+        "noise outweighs the bias: see methods/symbolic/richardson.py)", choice("auto", "none", "richardson"))
     irls: IrlsOptions = option("the robust rounds")
     memory_mb: float = option(
         "memory for the event buffers of one tile of the pass (sets the tile size). With a cache, each "
@@ -156,6 +166,9 @@ class SymbolicOptions(StartOptions):
         if self.align != "none" and self.refine == 0:
             raise ConfigError(f"method.align={self.align} registers the views between refinement passes: set "
                               "method.refine to at least 1, or method.align=none")
+        if self.bias == "richardson" and self.gram != "cross":
+            raise ConfigError("method.bias=richardson refits the pass's quarters through the cross Gram: set "
+                              "method.gram=cross, or method.bias=none")
         if self.cost == "per_segment" and self.std in ("residual", "cluster"):
             raise ConfigError(f"method.std={self.std} is the joint cost's formula: with method.cost=per_segment "
                               "use method.std=sandwich, or method.cost=joint")

@@ -29,6 +29,9 @@ def method_result(passes: Passes, problem, params, guess: np.ndarray, options: S
               "executor": str(problem.settings.executor.get("name", "serial")),
               "solve_stages_s": stages, "refine_moves": passes.moves, "refine_stopped": passes.stopped,
               "cost": options.cost}
+    if fit.spp_bias is not None:
+        extras["spp_bias"] = {"method": "richardson", "spp": int(problem.settings.spp),
+                              "bias": np.where(np.isfinite(fit.spp_bias), fit.spp_bias, None).tolist()}
     if fit.clusters is not None:
         extras["std_clusters"] = fit.clusters
     if fit.per_segment is not None:

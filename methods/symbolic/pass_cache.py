@@ -90,7 +90,7 @@ def tile_key(key: dict, k: int) -> dict:
 
 
 def view_key(problem, cam, parameters, guesses, spp, seed, prob_floor, max_bounces, *, view: int, cross_gram: bool,
-             tail_bounces: int, footprint: str | None = None) -> dict:
+             tail_bounces: int, footprint: str | None = None, quarters: bool = False) -> dict:
     return {"scene": problem.scene.content_hash, "view": cam.name, "view_index": view, "spp": int(spp),
             "seed": int(seed), "max_bounces": int(max_bounces),
             "parameters": [[p.segment, p.kernel] for p in parameters],
@@ -99,7 +99,8 @@ def view_key(problem, cam, parameters, guesses, spp, seed, prob_floor, max_bounc
             "variant": problem.settings.variant, "cross_gram": bool(cross_gram),
             "tail_bounces": int(tail_bounces), "version": 9, "camera": camera_key(cam),
             "footprint": [footprint, _distortion(cam) if footprint else None],
-            "unknown_scales": unknown_emitters(problem.scene)}
+            "unknown_scales": unknown_emitters(problem.scene),
+            **({"quarters": True} if quarters else {})}     # absent by default: earlier caches stay valid
 
 
 def footprint_kernel(problem, cam) -> str | None:
@@ -138,7 +139,7 @@ def _pack(coeffs: ViewCoefficients) -> dict[str, np.ndarray]:
     """The cache entry of a tile: its coefficients (its Gram system is rebuilt from them and the
     observed pixels, :func:`~methods.symbolic.gram.weighted_system`: a third of the bytes)."""
     out = {"codes": coeffs.codes, "split": np.array(coeffs.split)}
-    for prefix, mats in (("a", coeffs.a), ("b", coeffs.b or [])):
+    for prefix, mats in (("a", coeffs.a), ("b", coeffs.b or []), ("qa", coeffs.a1 or []), ("qb", coeffs.b1 or [])):
         for c, m in enumerate(mats):
             out.update({f"{prefix}{c}_data": m.data, f"{prefix}{c}_indices": m.indices,
                         f"{prefix}{c}_indptr": m.indptr, f"{prefix}{c}_shape": np.array(m.shape)})
@@ -167,5 +168,5 @@ def _unpack(arrays: dict, C: int) -> ViewCoefficients:
                                arrays[f"{prefix}{c}_indptr"]), shape=tuple(arrays[f"{prefix}{c}_shape"]))
                 for c in range(C)]
     codes = np.asarray(arrays["codes"], np.int64)
-    b = mats("b") if "b0_data" in arrays else None
-    return ViewCoefficients(mats("a"), b, float(arrays["split"]), codes)
+    b, a1, b1 = (mats(p) if f"{p}0_data" in arrays else None for p in ("b", "qa", "qb"))
+    return ViewCoefficients(mats("a"), b, float(arrays["split"]), codes, a1, b1)

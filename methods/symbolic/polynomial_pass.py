@@ -99,7 +99,8 @@ def check_pass_memory(memory_mb: float, spp: int, max_bounces: int, n_channels: 
 
 def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, *, spp: int,
                     seed: int, prob_floor: float, memory_mb: float, cache: Cache, executor=None,
-                    cross_gram: bool = True, tail_bounces: int = 0, footprint: bool = True) -> PassResult:
+                    cross_gram: bool = True, tail_bounces: int = 0, footprint: bool = True,
+                    quarters: bool = False) -> PassResult:
     """Gram systems and coefficients of every view of ``problem`` (one render in total).
 
     Parameters
@@ -121,6 +122,10 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
         Render the pixels of views whose photographs were resampled from a distorted camera over
         the source pixels their interpolation weighs (:func:`footprint_kernel`); False: each
         pixel's own box.
+    quarters : bool
+        Also keep each half's first half of the samples (:class:`ViewCoefficients` ``a1``, ``b1``;
+        ``spp`` a multiple of 4, ``cross_gram``): the solve can then be repeated at half the spp
+        (``method.bias=richardson``).
     cache : Cache
         Each view's tiles of coefficients are written to it as they are rendered (by the worker
         when it runs on this machine, else by this process), then the view's index by this
@@ -145,7 +150,7 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
     for i, cam in enumerate(problem.cameras):
         kernel = footprint_kernel(problem, cam) if footprint else None
         key = view_key(problem, cam, parameters, guesses, spp, seed, prob_floor, max_bounces, view=i, cross_gram=cross_gram,
-                       tail_bounces=tail_bounces, footprint=kernel)
+                       tail_bounces=tail_bounces, footprint=kernel, quarters=quarters)
         hit = cached_view(cache, key, observed_pixels(problem, cam), C)
         if hit is None:
             todo.append((i, cam, key, kernel))
@@ -165,7 +170,7 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
         worker_cache = cache.dir if executor.tasks_here else None
         tasks = [view_task(problem, parameters, guesses, max_bounces, i, spp=spp, seed=seed, prob_floor=prob_floor,
                            tile_pixels=tile, cross_gram=cross_gram, tail_bounces=tail_bounces,
-                           cache_dir=worker_cache, key=key, footprint=kernel)
+                           cache_dir=worker_cache, key=key, footprint=kernel, quarters=quarters)
                  for i, _, key, kernel in todo]
         variant = problem.settings.variant
         results = executor.imap(render_view_task, tasks, variant=variant, threads=executor.threads_per_worker)
@@ -188,7 +193,7 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
 
 def view_task(problem, parameters, guesses, max_bounces: int, i: int, *, spp: int, seed: int, prob_floor: float,
               tile_pixels: int, cross_gram: bool = True, tail_bounces: int = 0, cache_dir=None,
-              key: dict | None = None, footprint: str | None = None) -> dict:
+              key: dict | None = None, footprint: str | None = None, quarters: bool = False) -> dict:
     """Everything a worker needs to render view ``i``: plain picklable data (numpy Scene model).
     With ``cache_dir`` the worker stores each tile's coefficients there under ``key`` (the view's
     cache key) as it goes, and keeps none of them; with ``footprint`` (an interpolation kernel,
@@ -200,7 +205,7 @@ def view_task(problem, parameters, guesses, max_bounces: int, i: int, *, spp: in
             "seed": inversion_seed(seed, i), "prob_floor": float(prob_floor), "tile_pixels": int(tile_pixels),
             "observed": np.asarray(problem.observed[cam.name]), "cross_gram": bool(cross_gram),
             "tail_bounces": int(tail_bounces), "cache_dir": None if cache_dir is None else str(cache_dir),
-            "key": key, "footprint": footprint}
+            "key": key, "footprint": footprint, "quarters": bool(quarters)}
 
 
 def _footprint(task: dict):
@@ -237,7 +242,8 @@ def render_view_task(task: dict, *, variant: str, threads: int | None = None
         store = TileWriter(Cache(task["cache_dir"]), task["key"], task["observed"].shape[-1])
     try:
         return _render_view(integrator, ms, task["view"], cam, task["observed"], task["spp"], task["seed"],
-                            cross=task.get("cross_gram", True), store=store, footprint=_footprint(task))
+                            cross=task.get("cross_gram", True), store=store, footprint=_footprint(task),
+                            quarters=task.get("quarters", False))
     finally:
         if store is not None:
             store.close()          # every tile on disk before the view is reported done
@@ -272,8 +278,8 @@ def _scene_and_integrator(task: dict, variant: str):
     return _WORKER_STATE["value"]
 
 
-def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True, store=None, footprint=None
-                 ) -> tuple[GramSystem, TiledCoefficients]:
+def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True, store=None, footprint=None,
+                 quarters=False) -> tuple[GramSystem, TiledCoefficients]:
     """Tile by tile: each tile's sparse coefficients, and the view's Gram system from them.
 
     ``cross``: the samples of each pixel are split into two independent halves
@@ -282,7 +288,8 @@ def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True, store=
     are kept (:class:`ViewCoefficients`). ``store(k, block)``: called with each tile's
     :class:`ViewCoefficients`, which is then not kept: the result holds what it returns (a
     :class:`TileLoader`) instead. ``footprint``: the view's photographs were resampled with it
-    (:func:`footprint_kernel`); its pixels integrate over their source pixels.
+    (:func:`footprint_kernel`); its pixels integrate over their source pixels. ``quarters``:
+    each half's first half of the samples is kept too (``a1``, ``b1``).
     """
     from tqdm import tqdm
     C = observed.shape[-1]
@@ -296,8 +303,8 @@ def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True, store=
         stop = min(n_pix, start + integrator.tile_pixels)
         tile = dict(spp=spp, seed=seed, pixel_range=(start, stop), footprint=footprint)
         if halves:
-            codes, a, b, _ = integrator.coefficients_halves(ms.scene, i, **tile)
-            block = ViewCoefficients(a, b, split, codes)
+            codes, a, b, _, *firsts = integrator.coefficients_halves(ms.scene, i, quarters=quarters, **tile)
+            block = ViewCoefficients(a, b, split, codes, *firsts)
         else:
             codes, gamma = integrator.coefficients_sparse(ms.scene, i, **tile)
             block = ViewCoefficients(gamma, None, split, codes)

@@ -6,7 +6,8 @@ equations, or the field path around either (pixel weights, exposure gains, robus
 ``refine`` > 0 the next pass is rendered at the estimate (the tail's linearisation and the kernel
 selection move there) until no weight moved beyond ``refine_tol`` plus what the Monte Carlo
 noise of two passes explains for that many weights (:func:`moved`), or the cap. With ``align`` each view's camera is registered to the prediction before the
-next pass (:mod:`methods.symbolic.alignment`).
+next pass (:mod:`methods.symbolic.alignment`). With ``bias=richardson`` the last pass is also
+fitted at half its spp and the estimate extrapolated (:mod:`methods.symbolic.richardson`).
 """
 from __future__ import annotations
 
@@ -27,6 +28,7 @@ from methods.symbolic.known import fit_with_known
 from methods.symbolic.options import SymbolicOptions
 from methods.symbolic.per_segment import fit_per_segment
 from methods.symbolic.polynomial_pass import polynomial_pass
+from methods.symbolic.richardson import extrapolated
 
 
 @dataclasses.dataclass
@@ -53,6 +55,7 @@ def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, ren
     every solver evaluation is recorded in ``trace``.
     """
     field = FieldOptions.resolve(options, problem)
+    options = resolved(options, field, problem.settings.spp)
     stopped = "single pass" if options.refine == 0 else f"cap of {options.refine} refinement pass(es)"
     render_s = solve_s = 0.0
     stages, moves, fit = {}, [], None
@@ -70,8 +73,8 @@ def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, ren
         renders += 1
         t_solve = time.perf_counter()
         previous = fit
-        fit = fit_pass(result, params, x0, problem, options, field,
-                       start=previous.robust_weights if previous is not None else None)
+        start = previous.robust_weights if previous is not None else None
+        fit = fit_pass(result, params, x0, problem, options, field, start=start)
         for at, x in fit.iterates:
             trace.record(renders, x, at=at)
         render_s += result.render_s
@@ -84,8 +87,33 @@ def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, ren
                 stopped = (f"converged after {k} refinement pass(es): no weight moved beyond refine_tol + "
                            f"the two passes' noise ({moves[-1]:.2f} of it)")
                 break
+    if options.bias == "richardson":    # the last pass refitted at half its spp, from its own render
+        t_solve = time.perf_counter()
+        fit = extrapolated(fit, result, problem.observed,
+                           lambda half: fit_pass(half, params, x0, problem, options, field, start=start))
+        solve_s += time.perf_counter() - t_solve
     return Passes(fit, renders, render_s, solve_s, stages, moves, stopped, result.from_cache, field,
                   problem.cameras, alignment.report(problem.cameras) if alignment is not None else None)
+
+
+def resolved(options: SymbolicOptions, field: FieldOptions, spp: int) -> SymbolicOptions:
+    """``options`` with ``bias`` and ``std`` ``auto`` resolved for a run whose field path is
+    ``field`` at ``spp`` samples per pixel: on the field path (photographs: pixel weights,
+    per-view gains, robust rounds; :attr:`FieldOptions.active`) ``bias`` ``richardson`` (when
+    ``spp`` is a multiple of 4 and ``gram`` is ``cross``) and ``std`` ``cluster`` (with the joint
+    cost); else ``none`` and ``sandwich``, whose results on rendered linear radiance they are.
+    Why (measured, BENCHMARKS.md sections 7 and 11; :mod:`methods.symbolic.richardson`): the field
+    path's solve is non-linear in the pass's noisy coefficients (gains, robust weights and their
+    scale) and its finite-spp bias was 10-20 std on the field scene, while on the small rendered
+    scenes of the tests the correction's own noise outweighs the bias it removes; photographs'
+    residuals are spatially correlated (resampling, compression, texture), rendered ones are not."""
+    field_path = field.active
+    bias, std = options.bias, options.std
+    if bias == "auto":
+        bias = "richardson" if field_path and spp % 4 == 0 and options.gram == "cross" else "none"
+    if std == "auto":
+        std = "cluster" if field_path and options.cost == "joint" else "sandwich"
+    return dataclasses.replace(options, bias=bias, std=std)
 
 
 def render_pass(problem, params, x0: np.ndarray, options: SymbolicOptions, *, seed: int):
@@ -95,7 +123,8 @@ def render_pass(problem, params, x0: np.ndarray, options: SymbolicOptions, *, se
         return polynomial_pass(problem, params, x0, settings.max_bounces, spp=settings.spp,
                                tail_bounces=settings.tail_bounces, seed=seed, prob_floor=options.prob_floor,
                                memory_mb=options.memory_mb, cache=Cache(settings.cache_dir), executor=executor,
-                               cross_gram=options.gram == "cross", footprint=options.footprint == "resampled")
+                               cross_gram=options.gram == "cross", footprint=options.footprint == "resampled",
+                               quarters=options.bias == "richardson")
 
 
 def fit_pass(result, params, x0: np.ndarray, problem, options: SymbolicOptions, field: FieldOptions, *,

@@ -63,14 +63,15 @@ def test_markdown_with_a_failure():
              "refusal": "RuntimeError: boom"}]
     text = "\n".join(misfit.markdown(rows))
     assert "## 11. Misfit (urban_canyon_misfit, all views)" in text
-    assert "| (a) defaults (pixel sandwich std) | 0.0200 | 0.0400 | 2.00 | 0.84 | 0 / 6 | 1 | 0.50 | 12.0 | **met** |" in text
+    assert "| (a) defaults (cluster std, bias correction) | 0.0200 | 0.0400 | 2.00 | 0.84 | 0 / 6 | 1 | 0.50 | 12.0 | **met** |" in text
     assert "failed (exit 1): `RuntimeError: boom`" in text and "**not met**" in text
     assert misfit.markdown([]) == []
 
 
 def test_rows_and_targets_match_the_brief():
     assert list(misfit.ROWS) == ["a", "b", "c", "d", "e"]
-    assert misfit.ROWS["e"][1] == ["method.std=cluster", "method.align=rotation", "method.consistency=auto"]
+    assert misfit.ROWS["b"][1] == ["method.std=sandwich", "method.bias=none"]
+    assert misfit.ROWS["e"][1] == ["method.align=rotation", "method.consistency=auto"]
     assert (misfit.DIFFUSE_TOL, misfit.SPECULAR_TOL, misfit.GAIN_TOL, misfit.RMS_Z) == (0.03, 0.05, 0.03, (0.7, 1.5))
     assert "method.refine=0" not in QUICK.misfit_extra and QUICK.misfit_image == 40
 

@@ -274,6 +274,42 @@ def test_halves_split_the_samples():
         integ.coefficients_halves(scene, spp=1)
 
 
+def test_quarters_split_each_half():
+    """coefficients_halves(quarters=True): A, B and Γ are those of the same render without
+    quarters (same bits: the quarters only add two matrices); A₁ holds the first half of A's
+    samples, so A = (A₁ + A₂) / 2 with A₂ = 2A - A₁ another estimate that differs from A₁; and
+    the quarters A₁, B₁ are unbiased: their column totals (4 seeds x 16 spp) agree with those of
+    coefficients_sparse at |z| < 4, as the halves' do in test_halves_split_the_samples."""
+    scene, ss = cornell(np.full((5, 3), 0.3), res=16)
+    integ = PolynomialPathIntegrator.create(ss, SEGMENTS, 5, np.full((5, 3), 0.3), max_bounces=2)
+    plain = integ.coefficients_halves(scene, spp=8, seed=3)
+    codes, A, B, G, A1, B1 = integ.coefficients_halves(scene, spp=8, seed=3, quarters=True)
+    np.testing.assert_array_equal(codes, plain[0])
+    for c in range(3):
+        for m, ref in ((A, plain[1]), (B, plain[2]), (G, plain[3])):
+            assert abs(m[c] - ref[c]).max() == 0
+        for half, first in ((A, A1), (B, B1)):
+            second = 2 * half[c] - first[c]
+            assert abs(first[c] - second).max() > 0
+            assert first[c].nnz <= half[c].nnz
+    low = np.flatnonzero(MonomialBasis(5, 2).degrees <= 1)
+    total = lambda codes, mats: np.stack([m[:, low].sum(0) for m in _full(codes, mats, 5, 2)[0]])  # (C, monomials)
+    runs = [integ.coefficients_halves(scene, spp=16, seed=20 + r, quarters=True) for r in range(4)]
+    full = np.array([total(*integ.coefficients_sparse(scene, spp=16, seed=40 + r)) for r in range(4)])
+    seen = full.mean(0) > 1e-3 * full.mean(0).max()
+    assert seen.sum() >= 6
+    for k in (4, 5):
+        x = np.array([total(r[0], r[k]) for r in runs])
+        assert np.all(np.abs(_z(x[:, seen], full[:, seen])) < 4)
+
+
+def test_quarters_errors():
+    scene, ss = cornell(np.full((5, 3), 0.3), res=8)
+    integ = PolynomialPathIntegrator.create(ss, SEGMENTS, 5, np.full((5, 3), 0.3), max_bounces=2)
+    with pytest.raises(ConfigError, match="spp=6: four independent quarters need spp a multiple of 4"):
+        integ.coefficients_halves(scene, spp=6, quarters=True)
+
+
 def _split_plane(res=16):
     """:func:`plane_scene` cut in two segments along world x = 0 (image column ``res / 2``)."""
     half = lambda x0: {"type": "rectangle", "to_world": T().translate([x0, 0, 0]).scale([500, 1000, 1]),  # noqa: E731

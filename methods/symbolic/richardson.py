@@ -1,0 +1,73 @@
+"""The finite-spp bias of the solve, estimated from the pass itself and removed
+(``method.bias=richardson``).
+
+The cross Gram makes the cost unbiased by the pass's Monte Carlo noise, but not the estimate:
+ρ̂ is a non-linear function of the noisy coefficients (the inverse of G, the robust weights and
+their scale, the exposure gains, the PSD projection), so ``E[ρ̂_n] = ρ + β/n + O(n⁻²)`` at ``n``
+samples per pixel. Measured on the bundled field scene (64 spp): the window's mirror weight
+erred −0.026 (R), −0.012 at 128 spp, and its error grew four-fold from 64 to 16 spp.
+
+The pass keeps each pixel's samples as four independent quarters (:class:`ViewCoefficients`
+``a1``, ``b1``), so the same render also gives two passes of ``n/2`` samples: the quarters of
+the first half, and those of the second (:meth:`PassResult.halved`). Each is fitted exactly as
+the pass was (same guesses, same start), and their mean ρ̂_{n/2} has bias 2β/n. Then
+(Richardson extrapolation)::
+
+    β̂ = ρ̂_{n/2} − ρ̂_n   estimates the bias β/n,     ρ̃ = ρ̂_n − β̂ = 2ρ̂_n − ρ̂_{n/2}
+
+has none at order 1/n. To first order in the noise the two half fits' mean moves with the same
+combination of the four quarters as ρ̂_n itself (each is a linear function of the mean of its
+quarters with the same derivative), so β̂ carries no first-order noise and ``std``, the
+first-order standard error of ρ̂_n, is left as it is. Its second-order noise (products of two
+quarters' noises, the terms that make the bias) is larger: with the variance v of one product
+term, ρ̂_n holds v/4 of it and ρ̃ 4·v/4 + v/2, about 2.4 times the standard deviation where those
+terms dominate. Which wins depends on where the bias comes from. The plain L2 cost's only
+non-linearity is the inverse of G, whose bias falls as 1/N with the N pixels while that noise
+falls as 1/√N: on the tests' tiny rendered scene (4 views of 32x32, 64 spp, 10 seeds) the
+corrected estimates spread 2.5-2.9 times more than the plain ones and the bias removed was
+within that noise, so ``auto`` does not correct rendered linear radiance. The field path weighs
+each pixel by a function of its own noisy residual (robust weights, their scale, the gains): a
+bias per pixel that does not average out over the pixels, so it outgrows the noise as √N. On the
+bundled field scene (9 views of 200x200, 64 spp) the worst specular error went from 0.026 to
+0.005 (BENCHMARKS.md section 7). The price: the pass stores twice the coefficients (disk with a
+cache), and the last pass is solved three times.
+
+Limitations: ``spp`` a multiple of 4 and ``method.gram=cross``; only the weights ρ are
+corrected (exposure gains, vignetting and emitter scales are reported as fitted); a bias that
+does not fall as 1/n (a model the photographs do not follow) is not seen.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from methods.symbolic.fit import Fit
+
+
+def extrapolated(fit: Fit, result, observed: dict, refit: Callable[[object], Fit]) -> Fit:
+    """``fit`` with its estimate ρ̂_n replaced by 2ρ̂_n − ρ̂_{n/2} (module docstring).
+
+    Parameters
+    ----------
+    fit : Fit
+        The fit of the pass ``result`` (all its samples).
+    result : PassResult
+        A pass that kept quarters (``polynomial_pass(..., quarters=True)``).
+    observed : dict
+        View name -> observed image (the half passes' Gram systems are summed from it).
+    refit : callable
+        ``refit(PassResult) -> Fit``: the fit ``fit`` came from, applied to a half pass.
+
+    Returns
+    -------
+    Fit
+        ``estimate`` (and ``evaluated_at``) extrapolated where both half fits observed the
+        parameter; ``spp_bias`` the (P, C) bias removed, NaN where it could not be estimated.
+    """
+    halves = [refit(result.halved(j, observed)).estimate for j in (0, 1)]
+    beta = 0.5 * (halves[0] + halves[1]) - fit.estimate        # NaN where a half did not observe it
+    known = np.isfinite(beta)
+    estimate = np.where(known, fit.estimate - beta, fit.estimate)
+    evaluated_at = np.where(known, estimate, fit.evaluated_at)
+    return fit.replace(estimate=estimate, evaluated_at=evaluated_at, spp_bias=np.where(known, beta, np.nan))
