@@ -62,12 +62,12 @@ def extrapolated(fit: Fit, result, observed: dict, refit: Callable[[object], Fit
     Returns
     -------
     Fit
-        ``estimate`` (and ``evaluated_at``) extrapolated where both half fits observed the
-        parameter; ``spp_bias`` the (P, C) bias removed, NaN where it could not be estimated.
+        ``estimate`` extrapolated where both half fits observed the parameter; ``spp_bias`` the
+        (P, C) bias removed, NaN where it could not be estimated. ``evaluated_at`` (and the
+        reconstructions) stay at the estimate as solved: the polynomials are those of ρ̂_n's pass.
     """
     halves = [refit(result.halved(j, observed)).estimate for j in (0, 1)]
     beta = 0.5 * (halves[0] + halves[1]) - fit.estimate        # NaN where a half did not observe it
     known = np.isfinite(beta)
     estimate = np.where(known, fit.estimate - beta, fit.estimate)
-    evaluated_at = np.where(known, estimate, fit.evaluated_at)
-    return fit.replace(estimate=estimate, evaluated_at=evaluated_at, spp_bias=np.where(known, beta, np.nan))
+    return fit.replace(estimate=estimate, spp_bias=np.where(known, beta, np.nan))
