@@ -117,3 +117,24 @@ def test_richardson_run_extrapolates_the_plain_estimate(tmp_path):
     assert np.isfinite(beta).all() and np.abs(beta).max() > 0
     np.testing.assert_allclose(runs["richardson"].estimate + beta, runs["none"].estimate, atol=1e-9)
     np.testing.assert_array_equal(runs["richardson"].std, runs["none"].std)
+
+
+class _Field:
+    def __init__(self, active):
+        self.active = active
+
+
+@pytest.mark.parametrize("active, spp, overrides, bias, std", [
+    (True, 64, {}, "richardson", "cluster"),            # photographs: both on
+    (False, 64, {}, "none", "sandwich"),                # rendered linear radiance: as solved, pixel sandwich
+    (True, 30, {}, "none", "cluster"),                  # no four equal quarters: no correction
+    (True, 64, {"gram": "plain"}, "none", "cluster"),   # no halves to pair
+    (True, 64, {"cost": "per_segment"}, "richardson", "sandwich"),   # the cluster std is the joint cost's
+    (True, 64, {"bias": "none", "std": "sandwich"}, "none", "sandwich"),   # explicit values stay
+    (False, 64, {"bias": "richardson", "std": "cluster"}, "richardson", "cluster"),
+])
+def test_auto_resolves_on_the_field_path(active, spp, overrides, bias, std):
+    from methods.symbolic.refinement import resolved
+    options = SymbolicOptions(**{**_shipped(), **overrides})
+    out = resolved(options, _Field(active), spp)
+    assert (out.bias, out.std) == (bias, std)
