@@ -41,7 +41,7 @@ from framework.images import srgb_decode
 from framework.scene.exr import read_exr_checked
 from framework.scene.model import EXCLUSION_REASONS, Camera, Photometry
 from framework.scene.values import one_line
-from framework.scene.undistort import Resampling
+from framework.scene.undistort import Resampling, resampling_key
 
 log = logging.getLogger(__name__)
 
@@ -167,7 +167,7 @@ def read_photos(root: Path, cameras: tuple[Camera, ...], channels: tuple[str, ..
             image, ok = np.where(usable[..., None], decoded.linear, 0.0), usable
             reason = _reason(np.ones_like(ok), unmasked, decoded.usable)
         else:
-            key = (c.distortion, c.width, c.height, c.f, c.cx, c.cy, photometry.resampling)
+            key = resampling_key(c, photometry.resampling)
             if key not in resamplings:
                 resamplings[key] = Resampling(source=c.delivered(), target=c.pinhole(),
                                               kernel=photometry.resampling)

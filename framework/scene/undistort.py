@@ -109,6 +109,12 @@ class Footprint:
     jacobian: np.ndarray
 
 
+def resampling_key(camera, kernel: str) -> tuple:
+    """What a camera's :class:`Resampling` depends on (its lens, size and pinhole, and the
+    interpolation ``kernel``): views whose keys are equal share one."""
+    return (camera.distortion, camera.width, camera.height, camera.f, camera.cx, camera.cy, kernel)
+
+
 class Resampling:
     """The interpolation from ``source``'s pixels to ``target``'s (same pose), computed once and
     applied to an image, its validity and the standard deviation of its noise.

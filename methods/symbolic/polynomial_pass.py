@@ -213,9 +213,9 @@ def _footprint(task: dict):
     kernel = task.get("footprint")
     if kernel is None:
         return None
-    from framework.scene.undistort import Resampling
+    from framework.scene.undistort import Resampling, resampling_key
     cam = task["cameras"][task["view"]]
-    key = (cam.distortion, cam.width, cam.height, cam.f, cam.cx, cam.cy, kernel)
+    key = resampling_key(cam, kernel)
     kept = _WORKER_STATE.setdefault("footprints", {})
     if key not in kept:
         kept.clear()                 # one camera at a time: a street's views mostly share one
