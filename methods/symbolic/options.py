@@ -137,12 +137,12 @@ class SymbolicOptions(StartOptions):
         "parallelogram in the pinhole image, drawn with the interpolation's weight), so the prediction "
         "carries the interpolation's blur, which the mirror kernel's weight would otherwise absorb; "
         "`pixel`: each pixel's own box (on the bundled field scene the window's ρ_s then reads "
-        "0.013-0.018 lower and its ρ_d 0.010-0.016 higher, BENCHMARKS.md section 7)", choice("resampled", "pixel"))
+        "0.013-0.018 lower and its ρ_d 0.010-0.014 higher, BENCHMARKS.md section 7)", choice("resampled", "pixel"))
     boundary: int | str = option(
         "leave out pixels within this many pixels of a change of segment, where a pixel mixes two "
         "materials and a sub-pixel error of the geometry or the pose weighs most; `auto`: 1 when some "
         "view has a distorted camera, else 0 (on the bundled field scene, with the footprint, the "
-        "window's worst ρ_d error is 0.011 with 1 and 0.016 with 0, BENCHMARKS.md section 7)",
+        "window's worst ρ_d error is 0.008 with 1 and 0.010 with 0, BENCHMARKS.md section 7)",
         either("auto", number(0, 8, integer=True)))
     bias: str = option(
         "`richardson`: the pass keeps each pixel's samples as four independent quarters, the last "
