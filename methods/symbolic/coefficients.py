@@ -129,12 +129,16 @@ class PassResult:
             raise RuntimeError("the pass's Gram system was already taken")
         return system
 
-    def halved(self, j: int, observed: dict) -> PassResult:
+    def halved(self, j: int, observed: dict, *, system: bool = True) -> PassResult:
         """The pass with half the samples (``j`` 0: the quarters of each pixel's first half,
         1: of its second; :meth:`ViewCoefficients.halved`), its Gram system summed from them
         as a cached view's is (:func:`~methods.symbolic.gram.weighted_system`); ``observed``:
-        view -> observed image."""
+        view -> observed image. ``system`` False: no system (a fit that forms its own weighted
+        systems, the field path, would only release it); its ``codes`` are this pass's, which
+        the halves' summed system would have (each block keeps its codes)."""
         views = {name: coeffs.halved(j) for name, coeffs in self.views.items()}
+        if not system:
+            return PassResult(None, views, codes=self.codes)
         system = None
         for name, coeffs in views.items():
             y = np.asarray(observed[name]).reshape(coeffs.n_rows, -1)

@@ -89,8 +89,9 @@ def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, ren
                 break
     if options.bias == "richardson":    # the last pass refitted at half its spp, from its own render
         t_solve = time.perf_counter()
-        fit = extrapolated(fit, result, problem.observed,
-                           lambda half: fit_pass(half, params, x0, problem, options, field, start=start))
+        # the field fit forms its own weighted systems: the half passes' summed ones are not built
+        fit = extrapolated(fit, lambda j: fit_pass(result.halved(j, problem.observed, system=not field.active),
+                                                   params, x0, problem, options, field, start=start))
         solve_s += time.perf_counter() - t_solve
     return Passes(fit, renders, render_s, solve_s, stages, moves, stopped, result.from_cache, field,
                   problem.cameras, alignment.report(problem.cameras) if alignment is not None else None)
@@ -135,7 +136,7 @@ def fit_pass(result, params, x0: np.ndarray, problem, options: SymbolicOptions, 
     solve = lambda system, basis, every, x, pb, *, views, groups: solve_system(  # noqa: E731
         system, basis, every, x, pb, options, views=views, groups=groups)
     if field.active:
-        result.take_system()    # released: the field fit forms its own weighted systems
+        result.system = None    # released: the field fit forms its own weighted systems
         return fit_field(result, params, x0, problem, field, solve, start=start)
     basis = MonomialBasis(len(params), problem.settings.max_bounces, result.codes)
     views = lambda: ((result.coefficients(cam.name), problem.observed[cam.name], None)  # noqa: E731

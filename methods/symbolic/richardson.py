@@ -50,19 +50,17 @@ import numpy as np
 from methods.symbolic.fit import Fit
 
 
-def extrapolated(fit: Fit, result, observed: dict, refit: Callable[[object], Fit]) -> Fit:
+def extrapolated(fit: Fit, refit: Callable[[int], Fit]) -> Fit:
     """``fit`` with its estimate ρ̂_n replaced by 2ρ̂_n − ρ̂_{n/2} (module docstring).
 
     Parameters
     ----------
     fit : Fit
-        The fit of the pass ``result`` (all its samples).
-    result : PassResult
-        A pass that kept quarters (``polynomial_pass(..., quarters=True)``).
-    observed : dict
-        View name -> observed image (the half passes' Gram systems are summed from it).
+        The fit of a pass that kept quarters (``polynomial_pass(..., quarters=True)``), from all
+        its samples.
     refit : callable
-        ``refit(PassResult) -> Fit``: the fit ``fit`` came from, applied to a half pass.
+        ``refit(j) -> Fit``: the fit ``fit`` came from, applied to that pass's half ``j`` (0, 1;
+        :meth:`~methods.symbolic.coefficients.PassResult.halved`).
 
     Returns
     -------
@@ -71,7 +69,7 @@ def extrapolated(fit: Fit, result, observed: dict, refit: Callable[[object], Fit
         (P, C) bias removed, NaN where it could not be estimated. ``evaluated_at`` (and the
         reconstructions) stay at the estimate as solved: the polynomials are those of ρ̂_n's pass.
     """
-    halves = [refit(result.halved(j, observed)).estimate for j in (0, 1)]
+    halves = [refit(j).estimate for j in (0, 1)]
     beta = 0.5 * (halves[0] + halves[1]) - fit.estimate        # NaN where a half did not observe it
     known = np.isfinite(beta)
     estimate = np.where(known, fit.estimate - beta, fit.estimate)

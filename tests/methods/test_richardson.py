@@ -22,19 +22,12 @@ def _fit(estimate) -> Fit:
                std_method="sandwich", stages_s={})
 
 
-class _Halves:
-    """A pass whose :meth:`halved` is the half's number: the refit maps it to a fixed estimate."""
-
-    def halved(self, j, observed):
-        return j
-
-
 def test_extrapolated_by_hand():
     """ρ̂_n = 0.5, half fits 0.60 and 0.56: β̂ = 0.58 - 0.5 = 0.08, ρ̃ = 0.5 - 0.08 = 0.42. A
     parameter a half fit did not observe (NaN) keeps ρ̂_n and gets no bias."""
     fit = _fit([[0.5, 0.3], [0.2, 0.1]])
     halves = {0: np.array([[0.60, 0.30], [np.nan, 0.2]]), 1: np.array([[0.56, 0.26], [0.3, 0.0]])}
-    out = extrapolated(fit, _Halves(), {}, lambda j: _fit(halves[j]))
+    out = extrapolated(fit, lambda j: _fit(halves[j]))
     np.testing.assert_allclose(out.estimate, [[0.42, 0.32], [0.2, 0.1]], atol=1e-15)
     np.testing.assert_allclose(out.spp_bias, [[0.08, -0.02], [np.nan, 0.0]], atol=1e-15)
     np.testing.assert_array_equal(out.evaluated_at, fit.evaluated_at)   # the reconstructions: as solved
@@ -51,7 +44,8 @@ def _quarters(rng, n=40, m=6, C=2):
 
 def test_halved_pairs_the_quarters():
     """halved(0) is the pass (q1, q2), halved(1) the pass (q3, q4), and the halved pass's Gram
-    system is that of those halves, summed over the views as the pass sums them."""
+    system is that of those halves, summed over the views as the pass sums them; without the
+    system (the field path) the halved pass has the same codes."""
     rng = np.random.default_rng(0)
     q, block = _quarters(rng)
     for j, (first, second) in enumerate(((q[0], q[1]), (q[2], q[3]))):
@@ -67,6 +61,9 @@ def test_halved_pairs_the_quarters():
     for got, want in zip(halved.system.G, expected.G):
         assert abs(got - want).max() < 1e-12
     np.testing.assert_allclose(halved.system.b, expected.b, atol=1e-12)
+    lean = result.halved(1, {"v0": y.reshape(5, 8, 2)}, system=False)     # the field path's: no system
+    assert lean.system is None
+    np.testing.assert_array_equal(lean.codes, halved.codes)
 
 
 def block_rows(block: ViewCoefficients, lo: int, hi: int) -> ViewCoefficients:
