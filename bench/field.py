@@ -21,7 +21,9 @@ path switched off at a time, so the gain from each part shows:
 * the default on a copy of the scene whose ``photometry`` resamples the distorted photographs by
   Keys' cubic convolution instead of bilinear interpolation (``resampling: cubic``), both with
   the footprint and without it;
-* the default with the cluster-robust std (``method.std=cluster``).
+* the default with the pixel sandwich std (``method.std=sandwich``), without the finite-spp
+  bias correction (``method.bias=none``), without the views' alignment (``method.align=none``;
+  the scene's poses are right, so this row shows what aligning right cameras costs).
 
 Targets (default row): every parameter the run calls determined within 0.03 (diffuse) / 0.05
 (specular) of its reference, every gain within 3 % of the truth (``truth.yaml`` of the scene).
@@ -45,13 +47,14 @@ VARIANTS = (  # label, overrides[, the scene's photometry changed in a copy of i
     ("naive (gains 1, every pixel, L2)", ["method.exposure=known", "method.weights=none", "method.robust=none"]),
     ("+ per-view exposure", ["method.weights=none", "method.robust=none"]),
     ("+ masks and saturation", ["method.robust=none"]),
-    ("default (+ robust Cauchy, cluster std, bias correction)", []),
+    ("default (+ robust Cauchy, cluster std, bias correction, alignment)", []),
     ("default without the boundary exclusion", ["method.boundary=0"]),
     ("default, each pixel its own box (footprint=pixel)", ["method.footprint=pixel"]),
     ("default, photographs resampled by cubic convolution", [], {"resampling": "cubic"}),
     ("cubic convolution, each pixel its own box", ["method.footprint=pixel"], {"resampling": "cubic"}),
     ("default, pixel sandwich std (method.std=sandwich)", ["method.std=sandwich"]),
     ("default without the bias correction (method.bias=none)", ["method.bias=none"]),
+    ("default without the alignment (method.align=none)", ["method.align=none"]),
 )
 
 
@@ -124,8 +127,10 @@ def markdown(rows: list[dict]) -> list[str]:
              "the window's mirror weight for its diffuse one); the photographs resampled by Keys' cubic convolution "
              "(`photometry: resampling: cubic`), with and without the footprint; the pixel sandwich std instead of "
              "the cluster-robust one; no finite-spp bias correction (`method.bias=none`: the estimate as solved, "
-             "not extrapolated from the pass's half-spp refits). On photographs the cluster std and the bias "
-             "correction are the defaults (`auto`), so they are on from the row with per-view exposure. "
+             "not extrapolated from the pass's half-spp refits); no alignment of the views between the passes "
+             "(`method.align=none`; this scene's poses are right). On photographs the cluster std, the bias "
+             "correction and the alignment are the defaults (`auto`), so they are on from the row with per-view "
+             "exposure. "
              "Errors over the parameters the run "
              "calls determined; gain error relative to the truth; RMS z and the count beyond 3 std + 0.005 over the "
              "determined weights' channels. Targets (default row): 0.03 diffuse, 0.05 specular, gains 3 %.", ""]

@@ -106,7 +106,10 @@ class SymbolicOptions(StartOptions):
         "`shift`: pitch and yaw (to first order a sub-pixel image shift), `rotation`: and roll. A "
         "correction above `align_max_px`, ill-conditioned or within its noise is not applied; its "
         "precision is that of the pass's prediction (about 0.03 px on a 64x64 view at 256 spp, 0.15 px "
-        "at 16 spp). results.json `alignment`", choice("none", "shift", "rotation"))
+        "at 16 spp). results.json `alignment`. `auto`: `rotation` for photographs (the field path) "
+        "when `refine` >= 1, else `none` (on the bundled misfit scene, poses 0.5-1 px off, it took the "
+        "RMS z from 2.47 to 1.30; on the field scene, poses right, no camera moved by more than 0.06 px; "
+        "BENCHMARKS.md sections 7 and 11)", choice("auto", "none", "shift", "rotation"))
     align_max_px: float = option(
         "largest correction `align` accepts, in pixels of image motion (at the principal point; the "
         "roll's at the image corner)", number(0.0, lo_open=True))
@@ -164,7 +167,7 @@ class SymbolicOptions(StartOptions):
     relight: RelightOptions = option("relit images")
 
     def __post_init__(self):
-        if self.align != "none" and self.refine == 0:
+        if self.align in ("shift", "rotation") and self.refine == 0:
             raise ConfigError(f"method.align={self.align} registers the views between refinement passes: set "
                               "method.refine to at least 1, or method.align=none")
         if self.bias == "richardson" and self.gram != "cross":

@@ -98,23 +98,27 @@ def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, ren
 
 
 def resolved(options: SymbolicOptions, field: FieldOptions, spp: int) -> SymbolicOptions:
-    """``options`` with ``bias`` and ``std`` ``auto`` resolved for a run whose field path is
-    ``field`` at ``spp`` samples per pixel: on the field path (photographs: pixel weights,
+    """``options`` with ``bias``, ``std`` and ``align`` ``auto`` resolved for a run whose field
+    path is ``field`` at ``spp`` samples per pixel: on the field path (photographs: pixel weights,
     per-view gains, robust rounds; :attr:`FieldOptions.active`) ``bias`` ``richardson`` (when
-    ``spp`` is a multiple of 4 and ``gram`` is ``cross``) and ``std`` ``cluster`` (with the joint
-    cost); else ``none`` and ``sandwich``, whose results on rendered linear radiance they are.
+    ``spp`` is a multiple of 4 and ``gram`` is ``cross``), ``std`` ``cluster`` (with the joint
+    cost) and ``align`` ``rotation`` (with ``refine`` >= 1); else ``none``, ``sandwich`` and
+    ``none``, whose results on rendered linear radiance they are. A surveyed camera's pose is off
+    by a fraction of a pixel, a rendered scene's is exact.
     Why (measured, BENCHMARKS.md sections 7 and 11; :mod:`methods.symbolic.richardson`): the field
     path's solve is non-linear in the pass's noisy coefficients (gains, robust weights and their
     scale) and its finite-spp bias was 10-20 std on the field scene, while on the small rendered
     scenes of the tests the correction's own noise outweighs the bias it removes; photographs'
     residuals are spatially correlated (resampling, compression, texture), rendered ones are not."""
     field_path = field.active
-    bias, std = options.bias, options.std
+    bias, std, align = options.bias, options.std, options.align
+    if align == "auto":
+        align = "rotation" if field_path and options.refine >= 1 else "none"
     if bias == "auto":
         bias = "richardson" if field_path and spp % 4 == 0 and options.gram == "cross" else "none"
     if std == "auto":
         std = "cluster" if field_path and options.cost == "joint" else "sandwich"
-    return dataclasses.replace(options, bias=bias, std=std)
+    return dataclasses.replace(options, bias=bias, std=std, align=align)
 
 
 def render_pass(problem, params, x0: np.ndarray, options: SymbolicOptions, *, seed: int):

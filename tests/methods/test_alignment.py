@@ -169,8 +169,11 @@ def _options(**overrides):
     return SymbolicMethod.options_from(method_config("symbolic", **overrides))
 
 
-def test_align_is_off_by_default():
-    assert _options().align == "none"
+def test_align_is_auto_by_default_and_allows_no_refinement():
+    """``auto`` resolves to ``none`` without a refinement pass (test_richardson's auto cases), so
+    it is no error with ``refine=0``; an explicit mode is."""
+    assert _options().align == "auto"
+    assert _options(refine=0).align == "auto"
 
 
 def test_align_refuses_an_unknown_mode():

@@ -135,3 +135,16 @@ def test_auto_resolves_on_the_field_path(active, spp, overrides, bias, std):
     options = SymbolicOptions(**{**_shipped(), **overrides})
     out = resolved(options, _Field(active), spp)
     assert (out.bias, out.std) == (bias, std)
+
+
+@pytest.mark.parametrize("active, overrides, align", [
+    (True, {}, "rotation"),                     # photographs: their poses are a survey's
+    (False, {}, "none"),                        # rendered scenes: exact poses
+    (True, {"refine": 0}, "none"),              # no pass to register before
+    (True, {"align": "shift"}, "shift"),        # explicit values stay
+    (False, {"align": "rotation"}, "rotation"),
+])
+def test_auto_align_resolves_on_the_field_path(active, overrides, align):
+    from methods.symbolic.refinement import resolved
+    options = SymbolicOptions(**{**_shipped(), **overrides})
+    assert resolved(options, _Field(active), 64).align == align
