@@ -40,6 +40,10 @@ class Problem:
     #: selected views left out because they constrain no parameter (no usable pixel, only sky,
     #: unlit), name -> why; results.json ``views_left_out``
     views_left_out: dict[str, str] = field(default_factory=dict)
+    #: camera name -> (k, k) covariance of the camera's rotation (pitch, yaw[, roll]) in pixels of
+    #: image motion, for cameras a method registered to the model (``method.align``); a camera
+    #: absent (or None) is taken as exact
+    pose_covariance: dict[str, np.ndarray] | None = None
 
     @property
     def seed(self) -> int:

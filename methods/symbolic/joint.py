@@ -4,7 +4,8 @@ The observable parameters (those some pixel depends on) are solved on the pass's
 system restricted to them (optionally projected onto the PSD matrices), by
 :func:`~methods.symbolic.solve.solve_polynomial`; their standard errors come from the exact
 Hessian (:func:`~methods.symbolic.uncertainty.parameter_uncertainty`), with the sandwich's meat
-from each pixel's score when the per-pixel terms are given.
+from each pixel's score when the per-pixel terms are given, and the registered cameras' pose
+uncertainty (``method.align``) propagated into it.
 """
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import numpy as np
 
 from framework.executor import make_executor
 from framework.memory import release_freed_memory
+from methods.symbolic.alignment import pose_terms
 from methods.symbolic.clusters import view_clusters
 from methods.symbolic.fit import Fit, full
 from methods.symbolic.options import SymbolicOptions
@@ -73,7 +75,8 @@ def fit_joint(system, basis, params, x0: np.ndarray, problem, options: SymbolicO
     if method == "cluster":
         rho = np.nan_to_num(full(observable, sol.estimate))
         clusters, about = view_clusters(problem, views(), basis, rho)
-    meat = (score_meat(sub_basis, sol.estimate, views(), columns, basis.codes, clusters=clusters)
+    meat = (score_meat(sub_basis, sol.estimate, views(), columns, basis.codes, clusters=clusters,
+                       poses=pose_terms(problem, views()))
             if method in ("sandwich", "cluster") else None)
     unc = parameter_uncertainty(sub_system, sub_basis, sol.estimate, meat=meat)
     estimate, std = full(observable, sol.estimate), full(observable, unc.std)

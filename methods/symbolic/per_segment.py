@@ -34,7 +34,7 @@ Standard errors
     ``J_c = ∂U/∂ρ`` is block ``m``'s rows of the Hessian of ``ε²_m`` (``J`` is not symmetric),
     and ``M_c`` the covariance of ``U`` from each pixel's score restricted to the parameters
     owning the pixel (:func:`~methods.symbolic.uncertainty.score_meat` with ``owned``; image and
-    Monte Carlo noise, as for the joint fit).
+    Monte Carlo noise, and the registered cameras' pose, as for the joint fit).
 """
 from __future__ import annotations
 
@@ -46,6 +46,7 @@ import scipy.sparse as sp
 
 from framework.optim import minimize_sqp, project_feasible
 from framework.render.checks import check_memory
+from methods.symbolic.alignment import pose_terms
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.fit import Fit
 from methods.symbolic.field import GAIN_PREFIX
@@ -233,7 +234,8 @@ def fit_per_segment(system, basis: MonomialBasis, params, x0: np.ndarray, proble
                     "per_segment.converged false); method.cost=joint solves the joint cost exactly", xtol, MAX_SWEEPS)
     at = sol.estimate
     t_unc = time.perf_counter()
-    meat = score_meat(basis, at, views(), np.arange(basis.size), basis.codes, owned=owned)
+    meat = score_meat(basis, at, views(), np.arange(basis.size), basis.codes, owned=owned,
+                      poses=pose_terms(problem, views()))
     bread = estimating_jacobian(systems, basis, blocks, at)
     sigma2 = _residual_variance([s for b, s in zip(blocks, systems) if s is not None and params[b[0]].segment >= 0],
                                 basis, at, int(free.sum()))

@@ -188,7 +188,7 @@ def restrict_system(system: GramSystem, basis: MonomialBasis, keep: np.ndarray
 
 
 def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray, codes: np.ndarray, *,
-               owned: list | None = None, clusters: list | None = None) -> np.ndarray:
+               owned: list | None = None, clusters: list | None = None, poses: list | None = None) -> np.ndarray:
     """``(C, D, D)`` sandwich meat ``M_c = Σ_p (s_p - s̄)(s_p - s̄)ᵀ`` over every pixel of every view.
 
     ``s_p`` is pixel ``p``'s term of the gradient of the (cross-Gram) cost at ``rho``:
@@ -198,6 +198,10 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
     ``s_p = 2Jᵀa_p r_p``. ``s̄`` is their mean (0 at an interior
     minimum of the unprojected cost). With ``clusters`` the scores are summed within each cluster
     first (the cluster-robust meat, :mod:`methods.symbolic.clusters`, with its CR1 correction).
+    With ``poses`` each view's camera is uncertain too (``method.align``): an error ``δ`` of its
+    pose moves pixel ``p``'s residual by ``G_p δ``, so the view's summed scores by ``T δ`` with
+    ``T = Σ_p ∂s_p/∂r_p G_p``; ``T Σ Tᵀ`` (``Σ`` the pose's covariance) is added to the meat
+    (the delta method; the pose error independent of the pixels' noise in this pass).
 
     Parameters
     ----------
@@ -225,6 +229,10 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
     clusters : list, optional
         Per view the ``(n,)`` cluster id of each pixel (:func:`~methods.symbolic.clusters.cluster_ids`);
         None: every pixel its own cluster (the pixel sandwich).
+    poses : iterable, optional
+        Per view, in turn, None (its camera exact) or ``(G, Σ)``: the ``(n, C, k)`` change of each pixel's
+        residual per unit of the pose's ``k`` parameters and their ``(k, k)`` covariance
+        (:func:`~methods.symbolic.alignment.pose_sensitivity`).
 
     Returns
     -------
@@ -239,7 +247,11 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
         Jc = basis.jacobian_sparse(rho[:, c]).tocoo()
         J.append(sp.csr_matrix((Jc.data, (columns[Jc.row], Jc.col)), shape=(len(codes), D)))
     outer, total, n, groups = np.zeros((C, D, D)), np.zeros((C, D)), 0, 0
+    pose_meat = np.zeros((C, D, D))
+    poses = None if poses is None else iter(poses)
     for v, (view, y_view, *weights) in enumerate(views):
+        pose = None if poses is None else next(poses)
+        T = None if pose is None else np.zeros((C, D, pose[0].shape[2]))
         n += view.n_rows
         start = 0
         ids = None if clusters is None else np.asarray(clusters[v])
@@ -255,10 +267,15 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
                 member = None if rows is None else sp.csr_matrix(
                     (np.ones(len(rows)), (rows, np.arange(len(rows)))), shape=(n_groups, len(rows)))
                 # the channels on threads: their sparse products release the GIL
-                tasks = [lambda c=c: _block_terms(_score(block, (lo, hi), y, w_pix, mu, J, codes, own, c), member)
+                G = None if pose is None else pose[0][start + lo:start + hi]
+                tasks = [lambda c=c: _block_terms(*_score(block, (lo, hi), y, w_pix, mu, J, codes, own, c,
+                                                         slope=G is not None), member,
+                                                  None if G is None else G[:, c])
                          for c in range(C)]
-                for c, (total_c, term) in enumerate(run_threads(tasks)):
+                for c, (total_c, term, slope) in enumerate(run_threads(tasks)):
                     total[c] += total_c
+                    if T is not None:
+                        T[c] += slope
                     if member is None:
                         outer[c] += term
                     else:
@@ -267,8 +284,10 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
         for c in range(C):
             if sums[c] is not None:
                 outer[c] += (sums[c].T @ sums[c]).toarray()
+            if T is not None:
+                pose_meat[c] += T[c] @ pose[1] @ T[c].T
     meat = outer - np.einsum("ci,cj->cij", total, total) / max(groups, 1)
-    return meat if clusters is None else cr1_factor(groups, n, D) * meat
+    return (meat if clusters is None else cr1_factor(groups, n, D) * meat) + pose_meat
 
 
 def _row_chunks(block) -> list[tuple[int, int]]:
@@ -280,14 +299,19 @@ def _row_chunks(block) -> list[tuple[int, int]]:
     return list(zip(edges[:-1].tolist(), edges[1:].tolist()))
 
 
-def _block_terms(s: sp.csr_matrix, member: sp.csr_matrix | None) -> tuple[np.ndarray, object]:
+def _block_terms(s: sp.csr_matrix, ds: sp.csr_matrix | None, member: sp.csr_matrix | None, G: np.ndarray | None
+                 ) -> tuple[np.ndarray, object, np.ndarray | None]:
     """A block's scores ``s`` summed over its pixels, and their outer product ``sᵀs`` (dense) or,
-    with the ``(clusters, n)`` 0/1 ``member``, their sums per cluster (sparse)."""
-    return np.asarray(s.sum(axis=0)).ravel(), (s.T @ s).toarray() if member is None else member @ s
+    with the ``(clusters, n)`` 0/1 ``member``, their sums per cluster (sparse); with the pose
+    sensitivity ``G`` ``(n, k)`` of its residuals, ``dsᵀG`` ``(D, k)`` (``ds``: ∂s_p/∂r_p)."""
+    slope = None if G is None else np.asarray(ds.T @ G)
+    return np.asarray(s.sum(axis=0)).ravel(), (s.T @ s).toarray() if member is None else member @ s, slope
 
 
-def _score(block, rows: tuple[int, int], y, w_pix, mu, J, codes, own, c: int) -> sp.csr_matrix:
+def _score(block, rows: tuple[int, int], y, w_pix, mu, J, codes, own, c: int, *, slope: bool = False
+           ) -> tuple[sp.csr_matrix, sp.csr_matrix | None]:
     """The ``(n, D)`` sparse scores ``s_p`` in channel ``c`` of a block's ``rows`` ``[lo, hi)``
+    and (``slope``) their derivatives ``∂s_p/∂r_p`` by the pixel's residual, else None
     (:func:`score_meat`; the task copies only its own channel's rows)."""
     lo, hi = rows
     cut = (lambda m: m) if (lo, hi) == (0, block.n_rows) else (lambda m: m[lo:hi])   # noqa: E731
@@ -298,16 +322,17 @@ def _score(block, rows: tuple[int, int], y, w_pix, mu, J, codes, own, c: int) ->
     A = cut(block.a[c])
     ra, aJ = A @ mu_v - y[:, c], (A @ J_v).tocsr()
     if block.b is None:
-        s = sp.diags(2.0 * ra) @ aJ
+        s, ds = sp.diags(2.0 * ra) @ aJ, 2.0 * aJ
     else:
         B = cut(block.b[c])
         rb, bJ = B @ mu_v - y[:, c], (B @ J_v).tocsr()
-        s = sp.diags(rb) @ aJ + sp.diags(ra) @ bJ
+        s, ds = sp.diags(rb) @ aJ + sp.diags(ra) @ bJ, aJ + bJ
+    ds = ds if slope else None
     if w_pix is not None:            # the weighted cost's term: w_p times the unweighted one
-        s = sp.diags(w_pix) @ s
+        s, ds = sp.diags(w_pix) @ s, None if ds is None else sp.diags(w_pix) @ ds
     if own is not None:              # estimating equations: a pixel scores its owners only
-        s = s.multiply(own).tocsr()
-    return s.tocsr()
+        s, ds = s.multiply(own), None if ds is None else ds.multiply(own)
+    return s.tocsr(), None if ds is None else sp.csr_matrix(ds)
 
 
 def parameter_uncertainty(system: GramSystem, basis: MonomialBasis, rho: np.ndarray, *,
