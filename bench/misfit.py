@@ -129,7 +129,9 @@ def markdown(rows: list[dict]) -> list[str]:
              "walls in 0.5 m tiles of diffuse ±20 % (area mean the reference; the scene's README). Default "
              "settings but the row's. Errors over the determined weights (observable, not ill-determined); gain "
              "error relative to the truth; RMS z and the count beyond 3 std + 0.005 over the weights' channels; "
-             "pose: worst |corrected - true| image shift at the principal point (rows that align). Targets (every "
+             "pose: worst |corrected - true| image shift at the principal point (rows that align; it is largest in "
+             "the views facing the north facade, whose offset from its mesh shows as a shift that a rotation "
+             "partly takes). Targets (every "
              "row): 0.03 diffuse, 0.05 specular, gains 3 %, RMS z in [0.7, 1.5], no error beyond 3 std + 0.005.", ""]
     body = []
     for r in rows:
