@@ -26,7 +26,12 @@ A correction is applied only when
   has no edge, a flat wall filling the frame, has none);
 - significant: its Mahalanobis distance from no correction above the χ² quantile of level
   :data:`SIGNIFICANCE` (a correction within its noise would move a right camera by that noise);
-- below ``max_px`` (the motion at the principal point, and the roll's at the image corner).
+- below ``max_px`` (the motion at the principal point, and the roll's at the image corner);
+- at least ``min_px`` (the larger of those motions): the registration's standard error is too
+  small where the prediction's Monte Carlo noise and the model's misfit share the image's
+  structure (on the bundled field scene, poses right, corrections of 0.03-0.09 px passed the
+  significance test at 3-5 standard errors and were undone by the next pass's registration),
+  and the estimate follows each camera move.
 
 Otherwise the camera is kept and :attr:`Registration.why` says why.
 
@@ -123,7 +128,7 @@ def rotated(camera: Camera, rotation: np.ndarray) -> Camera:
 
 
 def register(observed: np.ndarray, predicted: np.ndarray, camera: Camera, *, weights: np.ndarray | None = None,
-             max_px: float = 3.0, roll: bool = True) -> Registration:
+             max_px: float = 3.0, min_px: float = 0.0, roll: bool = True) -> Registration:
     """Register ``observed`` to ``predicted`` by a small rotation of ``camera`` (module docstring).
 
     Parameters
@@ -139,6 +144,8 @@ def register(observed: np.ndarray, predicted: np.ndarray, camera: Camera, *, wei
     max_px : float
         Largest correction accepted (pixels of motion at the principal point; the roll's at the
         image corner). Default 3.
+    min_px : float
+        Smallest correction applied (the larger of those two motions). Default 0.
     roll : bool
         Estimate the roll too (default); False: pitch and yaw only.
 
@@ -163,6 +170,8 @@ def register(observed: np.ndarray, predicted: np.ndarray, camera: Camera, *, wei
         raise ValueError(f"weights of {w.size} pixels for a {H}x{W} view")
     if not max_px > 0:
         raise ValueError(f"max_px must be positive, got {max_px}")
+    if not 0 <= min_px < max_px:
+        raise ValueError(f"min_px must be in [0, max_px={max_px}), got {min_px}")
     n_par = 3 if roll else 2
     scale = _pixel_scale(camera)[:n_par]                          # radians -> pixels of motion
     # (H·W, C, 2) d/dx, d/dy of the observation (central differences): the Jacobian's image gradient
@@ -192,7 +201,7 @@ def register(observed: np.ndarray, predicted: np.ndarray, camera: Camera, *, wei
     roll_px = float(abs(omega[2]) * _pixel_scale(camera)[2])
     std, cov = np.nan, None
     if why == "accepted":
-        why, std = _verdict(system, omega[:n_par] * scale, shift, roll_px, max_px)
+        why, std = _verdict(system, omega[:n_par] * scale, shift, roll_px, max_px, min_px)
         cov = _covariance(*system) if std <= MAX_STD_PX else None     # ill-conditioned: none
     accepted = why == "accepted"
     return Registration(omega, (float(shift[0]), float(shift[1])), roll_px, std, cov, iterations, accepted, why,
@@ -211,10 +220,11 @@ def pose_sensitivity(observed: np.ndarray, camera: Camera, *, roll: bool = True)
     return np.einsum("kcd,kdp->kcp", grad, dq)
 
 
-def _verdict(system, motion: np.ndarray, shift: np.ndarray, roll_px: float, max_px: float) -> tuple[str, float]:
+def _verdict(system, motion: np.ndarray, shift: np.ndarray, roll_px: float, max_px: float, min_px: float
+             ) -> tuple[str, float]:
     """``(why, std_px)`` of a converged registration: ``accepted``, or why not (ill-conditioned,
-    within its noise, above the bound); ``motion``: the correction in pixels of motion per
-    parameter."""
+    within its noise, below the smallest correction, above the bound); ``motion``: the correction
+    in pixels of motion per parameter."""
     from scipy.stats import chi2
     cov = _covariance(*system)
     std = float(np.sqrt(np.max(np.diag(cov)[:2]))) if cov is not None else np.nan
@@ -225,6 +235,9 @@ def _verdict(system, motion: np.ndarray, shift: np.ndarray, roll_px: float, max_
     if distance < chi2.ppf(1.0 - SIGNIFICANCE, len(motion)):
         return (f"within its noise: correction {np.hypot(*shift):.3f} px, standard error {std:.3f} px "
                 f"(not significant at {SIGNIFICANCE:g})"), std
+    if max(np.hypot(*shift), roll_px) < min_px:
+        return (f"below the smallest correction applied: {np.hypot(*shift):.3f} px (roll {roll_px:.3f} px at the "
+                f"corner) under {min_px:g} px"), std
     if np.hypot(*shift) > max_px or roll_px > max_px:
         return (f"correction {np.hypot(*shift):.2f} px (roll {roll_px:.2f} px at the corner) above the bound of "
                 f"{max_px:g} px"), std
@@ -393,13 +406,15 @@ class Alignment:
         ``shift`` (pitch and yaw) or ``rotation`` (and roll).
     max_px : float
         Largest correction accepted, of one registration and in total from the given camera.
+    min_px : float
+        Smallest correction applied (:func:`register`).
     """
 
-    def __init__(self, cameras, *, mode: str, max_px: float):
+    def __init__(self, cameras, *, mode: str, max_px: float, min_px: float = 0.0):
         if mode not in ("shift", "rotation"):
             raise ValueError(f"alignment mode '{mode}' unknown; use shift or rotation")
         self.given = {c.name: c for c in cameras}
-        self.mode, self.max_px = mode, float(max_px)
+        self.mode, self.max_px, self.min_px = mode, float(max_px), float(min_px)
         self.passes: dict[str, list] = {c.name: [] for c in cameras}
 
     def update(self, problem, fit, *, before_pass: int):
@@ -410,7 +425,7 @@ class Alignment:
         cameras, covariance = [], {}
         for cam in problem.cameras:
             reg = register(problem.observed[cam.name], predicted[cam.name], cam, weights=weights.get(cam.name),
-                           max_px=self.max_px, roll=self.mode == "rotation")
+                           max_px=self.max_px, min_px=self.min_px, roll=self.mode == "rotation")
             accepted, why = reg.accepted, reg.why
             total = correction(self.given[cam.name], reg.camera)["motion_px"]
             if accepted and total > self.max_px:

@@ -61,7 +61,8 @@ def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, ren
     stages, moves, fit = {}, [], None
     # method.align: between passes each view's camera is registered to the prediction at the
     # estimate; the next pass renders (and caches, its key holds the pose) the corrected cameras
-    alignment = Alignment(problem.cameras, mode=options.align, max_px=options.align_max_px) \
+    alignment = Alignment(problem.cameras, mode=options.align, max_px=options.align_max_px,
+                          min_px=options.align_min_px) \
         if options.align != "none" else None
     for k in range(1 + options.refine):
         if k:      # re-render at the estimate: better kernel selection, and a tail at the estimate

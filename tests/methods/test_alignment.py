@@ -76,6 +76,32 @@ def test_registration_recovers_a_turn_of_a_synthetic_image(roll):
         assert abs(np.degrees(reg.rotation[2]) - np.degrees(turn[2])) < 0.1
 
 
+@pytest.mark.parametrize("min_px, accepted", [(0.0, True), (0.2, True), (0.5, False)])
+def test_a_correction_below_min_px_is_not_applied(min_px, accepted):
+    """A turn of 0.3 px of yaw (noise 0.02 as above: a significant correction) is applied unless
+    ``min_px`` asks for more; the found rotation is reported either way."""
+    cam = _camera()
+    turn = np.array([0.0, np.arctan(0.3 / cam.f), 0.0])
+    rng = np.random.default_rng(0)
+    noisy = lambda image: image + rng.normal(0.0, 0.02, image.shape)  # noqa: E731
+    reg = register(noisy(_seen(cam, turn)), noisy(_seen(cam, np.zeros(3))), cam, min_px=min_px)
+    assert reg.accepted == accepted, reg.why
+    assert reg.shift_px[0] == pytest.approx(0.3, abs=0.03)
+    if not accepted:
+        assert reg.why.startswith("below the smallest correction applied") and reg.camera is cam
+
+
+def test_registration_errors():
+    cam = _camera()
+    image = _seen(cam, np.zeros(3))
+    with pytest.raises(ValueError, match="max_px"):
+        register(image, image, cam, max_px=0.0)
+    with pytest.raises(ValueError, match="min_px"):
+        register(image, image, cam, min_px=3.0, max_px=3.0)
+    with pytest.raises(ValueError, match="size"):
+        register(image, image[:-1], cam)
+
+
 def test_the_shift_is_the_motion_of_the_content():
     """``shift_px`` is the observation minus the prediction: a camera turned by +1 px of yaw
     sees the scene's content moved by +1 px in x (to first order; exactly at the principal
@@ -185,6 +211,12 @@ def test_align_refuses_an_unknown_mode():
 def test_align_needs_a_refinement_pass():
     with pytest.raises(ConfigError, match="method.refine") as info:
         _options(align="rotation", refine=0)
+    assert "\n" not in str(info.value)
+
+
+def test_align_refuses_a_floor_at_or_above_the_bound():
+    with pytest.raises(ConfigError, match="method.align_min_px") as info:
+        _options(align="rotation", align_min_px=3.0, align_max_px=3.0)
     assert "\n" not in str(info.value)
 
 
