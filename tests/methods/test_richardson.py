@@ -34,6 +34,17 @@ def test_extrapolated_by_hand():
     np.testing.assert_array_equal(out.std, fit.std)        # first order: the same noise (module docstring)
 
 
+def test_a_weight_on_its_bound_is_not_extrapolated():
+    """ρ̂_n = 0 (the box's bound) with half fits 0.12 and 0.10: no 1/n expansion holds there, so
+    the estimate stays 0 and the bias is NaN; a weight off the bound (0.3 -> halves 0.34, 0.30)
+    is extrapolated (0.3 - 0.02 = 0.28)."""
+    fit = _fit([[0.0, 0.3]])
+    halves = {0: np.array([[0.12, 0.34]]), 1: np.array([[0.10, 0.30]])}
+    out = extrapolated(fit, lambda j: _fit(halves[j]))
+    np.testing.assert_allclose(out.estimate, [[0.0, 0.28]], atol=1e-15)
+    assert np.isnan(out.spp_bias[0, 0]) and out.spp_bias[0, 1] == pytest.approx(0.02)
+
+
 def _quarters(rng, n=40, m=6, C=2):
     """Random sparse quarter-sample coefficients ``q1..q4`` (C channels) and the block kept from them."""
     q = [[sp.random(n, m, density=0.4, random_state=rng, format="csr") for _ in range(C)] for _ in range(4)]
@@ -111,8 +122,10 @@ def test_richardson_run_extrapolates_the_plain_estimate(tmp_path):
     report = runs["richardson"].extras["spp_bias"]
     assert report["method"] == "richardson" and report["spp"] == 16
     beta = np.array(report["bias"], dtype=float)
-    assert np.isfinite(beta).all() and np.abs(beta).max() > 0
-    np.testing.assert_allclose(runs["richardson"].estimate + beta, runs["none"].estimate, atol=1e-9)
+    at_bound = np.abs(runs["none"].estimate) <= 1e-9        # not extrapolated: null in spp_bias
+    assert at_bound.any() and (~at_bound).sum() >= 6        # this scene has both (measured: 4 and 8)
+    assert np.array_equal(np.isnan(beta), at_bound) and np.abs(beta[~at_bound]).max() > 0
+    np.testing.assert_allclose(runs["richardson"].estimate + np.nan_to_num(beta), runs["none"].estimate, atol=1e-9)
     np.testing.assert_array_equal(runs["richardson"].std, runs["none"].std)
 
 
