@@ -92,7 +92,8 @@ def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, ren
         t_solve = time.perf_counter()
         # the field fit forms its own weighted systems: the half passes' summed ones are not built
         fit = extrapolated(fit, lambda j: fit_pass(result.halved(j, problem.observed, system=not field.active),
-                                                   params, x0, problem, options, field, start=start))
+                                                   params, x0, problem, options, field, start=start),
+                           segments=segment_groups(params))
         solve_s += time.perf_counter() - t_solve
     return Passes(fit, renders, render_s, solve_s, stages, moves, stopped, result.from_cache, field,
                   problem.cameras, alignment.report(problem.cameras) if alignment is not None else None)

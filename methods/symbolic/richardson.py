@@ -32,9 +32,10 @@ bundled field scene (9 views of 200x200, 64 spp) the worst specular error went f
 0.005 (BENCHMARKS.md section 7). The price: the pass stores twice the coefficients (disk with a
 cache), and the last pass is solved three times.
 
-Limitations: a weight the fit puts on its bound 0 is not extrapolated (measured: on the field
-scene with ``method.footprint=pixel`` the awning's mirror weight sat at 0 while the half fits
-found 0.12, and the extrapolation gave -0.12); ``spp`` a multiple of 4 and ``method.gram=cross``; only the weights ρ are
+Limitations: a weight the fit puts on its bound 0 is not extrapolated, nor its segment's other
+weights when a half fit moves one of them onto or off the bound (measured: on the field scene
+with ``method.footprint=pixel`` the awning's mirror weight sat at 0 while the half fits found
+0.12, and the extrapolation gave -0.12 to it and +0.036 to the awning's diffuse weight); ``spp`` a multiple of 4 and ``method.gram=cross``; only the weights ρ are
 corrected (exposure gains, vignetting and emitter scales are reported as fitted); a bias that
 does not fall as 1/n (a model the photographs do not follow) is not seen, and where the
 estimate's error is not of that form the extrapolation can add to it: on ``urban_canyon_survey``
@@ -62,7 +63,7 @@ from methods.symbolic.fit import Fit
 AT_BOUND = 1e-9
 
 
-def extrapolated(fit: Fit, refit: Callable[[int], Fit]) -> Fit:
+def extrapolated(fit: Fit, refit: Callable[[int], Fit], *, segments: list[list[int]] | None = None) -> Fit:
     """``fit`` with its estimate ρ̂_n replaced by 2ρ̂_n − ρ̂_{n/2} (module docstring).
 
     Parameters
@@ -73,19 +74,29 @@ def extrapolated(fit: Fit, refit: Callable[[int], Fit]) -> Fit:
     refit : callable
         ``refit(j) -> Fit``: the fit ``fit`` came from, applied to that pass's half ``j`` (0, 1;
         :meth:`~methods.symbolic.coefficients.PassResult.halved`).
+    segments : list of list of int, optional
+        The parameter indices of each segment (whose weights share Σρ <= 1 and trade against
+        each other): where a half fit puts a weight of the segment on its bound 0 and the whole
+        fit does not, or the reverse, none of the segment's weights in that channel is
+        extrapolated. None: every parameter its own segment.
 
     Returns
     -------
     Fit
-        ``estimate`` extrapolated where both half fits observed the parameter and ρ̂_n is off its
-        bound 0; ``spp_bias`` the (P, C) bias removed, NaN where it was not (not observed, or at
-        the bound). ``evaluated_at`` (and the
+        ``estimate`` extrapolated where both half fits observed the parameter, it is off its
+        bound 0 and its segment's weights are on the bound in all three fits or in none;
+        ``spp_bias`` the (P, C) bias removed, NaN where it was not. ``evaluated_at`` (and the
         reconstructions) stay at the estimate as solved: the polynomials are those of ρ̂_n's pass.
     """
     halves = [refit(j).estimate for j in (0, 1)]
     beta = 0.5 * (halves[0] + halves[1]) - fit.estimate        # NaN where a half did not observe it
-    # at the bound ρ = 0 the estimate is not smooth in the noise (a half fit may leave the bound
-    # where the whole one stays), so its bias has no 1/n expansion: kept as solved
-    known = np.isfinite(beta) & (np.abs(fit.estimate) > AT_BOUND)
+    # at the bound ρ = 0 the estimate is not smooth in the noise, so its bias has no 1/n
+    # expansion: a weight on it is kept as solved, and so is every weight of its segment when the
+    # half fits and the whole one disagree on which weights are on it (the others trade with it)
+    at = [np.abs(x) <= AT_BOUND for x in (fit.estimate, *halves)]
+    known = np.isfinite(beta) & ~at[0]
+    for group in segments if segments is not None else [[i] for i in range(len(beta))]:
+        differs = np.any((at[0][group] != at[1][group]) | (at[0][group] != at[2][group]), axis=0)
+        known[np.ix_(group, np.flatnonzero(differs))] = False
     estimate = np.where(known, fit.estimate - beta, fit.estimate)
     return fit.replace(estimate=estimate, spp_bias=np.where(known, beta, np.nan))
