@@ -108,7 +108,7 @@ class SymbolicOptions(StartOptions):
         "precision is that of the pass's prediction (about 0.03 px on a 64x64 view at 256 spp, 0.15 px "
         "at 16 spp). results.json `alignment`. `auto`: `rotation` for photographs (the field path) "
         "when `refine` >= 1, else `none` (on the bundled misfit scene, poses 0.5-1 px off, it took the "
-        "RMS z from 2.47 to 1.06; on the field scene, whose poses are right, it turned two cameras' roll "
+        "RMS z from 1.90 to 0.86; on the field scene, whose poses are right, it turned two cameras' roll "
         "and the RMS z went from 1.20 to 2.30 at seed 0, 1.77 to 1.78 at seed 1: the price of aligning "
         "right cameras; BENCHMARKS.md sections 7 and 11)", choice("auto", "none", "shift", "rotation"))
     align_max_px: float = option(
@@ -119,7 +119,8 @@ class SymbolicOptions(StartOptions):
         "bundled field scene, whose poses are right, corrections of 0.03-0.09 px passed the "
         "significance test at 3-5 standard errors and turned right cameras back and forth between "
         "passes (unaligned its RMS z was 1.20 and 1.77 at seeds 0 and 1; aligned without this floor "
-        "1.90 and 4.05, with it 2.30 and 1.78; on the misfit scene 1.30 without it, 1.06 with it); a "
+        "1.90 and 4.05, with it 2.30 and 1.78; on the misfit scene 1.30 without it, 1.06 with it, "
+        "before the bias correction left weights on their bounds alone); a "
         "surveyed pose that is 0.5-1 px off is corrected by the first registration", number(0.0))
     exposure: str = option(
         "`scene`: as scene.yaml's `photometry` says (with `exposure: per_view`, one gain per view and "
