@@ -35,7 +35,8 @@ cache), and the last pass is solved three times.
 Limitations: a weight the fit puts on its bound 0 is not extrapolated, nor its segment's other
 weights when a half fit moves one of them onto or off the bound (measured: on the field scene
 with ``method.footprint=pixel`` the awning's mirror weight sat at 0 while the half fits found
-0.12, and the extrapolation gave -0.12 to it and +0.036 to the awning's diffuse weight); ``spp`` a multiple of 4 and ``method.gram=cross``; only the weights ρ are
+0.12, and the extrapolation gave -0.12 to it and +0.036 to the awning's diffuse weight);
+``spp`` a multiple of 4 and ``method.gram=cross``; only the weights ρ are
 corrected (exposure gains, vignetting and emitter scales are reported as fitted); a bias that
 does not fall as 1/n (a model the photographs do not follow) is not seen, and where the
 estimate's error is not of that form the extrapolation can add to it: on ``urban_canyon_survey``
@@ -43,7 +44,8 @@ estimate's error is not of that form the extrapolation can add to it: on ``urban
 removed had the sign of the error, not the opposite, and the worst errors doubled (diffuse 0.0026
 to 0.0057, specular 0.0074 to 0.0148, RMS z 1.42 to 2.47 with the cluster std; still within that
 section's targets; measured at a44154f, before weights on their bounds were left alone: since, the
-worst specular is 0.0076, the rest the same). The plain estimate's error there moves with spp towards the corrected one
+worst specular is 0.0076, the rest the same). The plain estimate's error there moves with spp
+towards the corrected one
 (window ρ_s, R: −0.0003, +0.0020, +0.0029 at 32, 64, 128 spp; corrected at 64 spp +0.0064; wall
 ρ_d +0.0024 and +0.0035 at 64 and 128, corrected +0.0047): the survey scene holds an error that
 does not fall with spp, of the opposite sign to its finite-spp bias, which the plain estimate
