@@ -201,8 +201,9 @@ def register(observed: np.ndarray, predicted: np.ndarray, camera: Camera, *, wei
     roll_px = float(abs(omega[2]) * _pixel_scale(camera)[2])
     std, cov = np.nan, None
     if why == "accepted":
-        why, std = _verdict(system, omega[:n_par] * scale, shift, roll_px, max_px, min_px)
-        cov = _covariance(*system) if std <= MAX_STD_PX else None     # ill-conditioned: none
+        cov = _covariance(*system)
+        why, std = _verdict(cov, omega[:n_par] * scale, shift, roll_px, max_px, min_px)
+        cov = cov if std <= MAX_STD_PX else None     # ill-conditioned: none
     accepted = why == "accepted"
     return Registration(omega, (float(shift[0]), float(shift[1])), roll_px, std, cov, iterations, accepted, why,
                         rotated(camera, omega) if accepted else camera)
@@ -220,13 +221,13 @@ def pose_sensitivity(observed: np.ndarray, camera: Camera, *, roll: bool = True)
     return np.einsum("kcd,kdp->kcp", grad, dq)
 
 
-def _verdict(system, motion: np.ndarray, shift: np.ndarray, roll_px: float, max_px: float, min_px: float
-             ) -> tuple[str, float]:
-    """``(why, std_px)`` of a converged registration: ``accepted``, or why not (ill-conditioned,
-    within its noise, below the smallest correction, above the bound); ``motion``: the correction
-    in pixels of motion per parameter."""
+def _verdict(cov: np.ndarray | None, motion: np.ndarray, shift: np.ndarray, roll_px: float, max_px: float,
+             min_px: float) -> tuple[str, float]:
+    """``(why, std_px)`` of a converged registration whose correction has covariance ``cov``
+    (:func:`_covariance`, None when singular): ``accepted``, or why not (ill-conditioned, within
+    its noise, below the smallest correction, above the bound); ``motion``: the correction in
+    pixels of motion per parameter."""
     from scipy.stats import chi2
-    cov = _covariance(*system)
     std = float(np.sqrt(np.max(np.diag(cov)[:2]))) if cov is not None else np.nan
     if not np.isfinite(std) or std > MAX_STD_PX:
         return f"ill-conditioned: standard error {std:.2g} px above {MAX_STD_PX:g} px", std

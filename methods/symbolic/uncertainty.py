@@ -188,7 +188,7 @@ def restrict_system(system: GramSystem, basis: MonomialBasis, keep: np.ndarray
 
 
 def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray, codes: np.ndarray, *,
-               owned: list | None = None, clusters: list | None = None, poses: list | None = None) -> np.ndarray:
+               owned: list | None = None, clusters: list | None = None, poses=None) -> np.ndarray:
     """``(C, D, D)`` sandwich meat ``M_c = Σ_p (s_p - s̄)(s_p - s̄)ᵀ`` over every pixel of every view.
 
     ``s_p`` is pixel ``p``'s term of the gradient of the (cross-Gram) cost at ``rho``:
@@ -322,12 +322,13 @@ def _score(block, rows: tuple[int, int], y, w_pix, mu, J, codes, own, c: int, *,
     A = cut(block.a[c])
     ra, aJ = A @ mu_v - y[:, c], (A @ J_v).tocsr()
     if block.b is None:
-        s, ds = sp.diags(2.0 * ra) @ aJ, 2.0 * aJ
+        s = sp.diags(2.0 * ra) @ aJ
+        ds = 2.0 * aJ if slope else None
     else:
         B = cut(block.b[c])
         rb, bJ = B @ mu_v - y[:, c], (B @ J_v).tocsr()
-        s, ds = sp.diags(rb) @ aJ + sp.diags(ra) @ bJ, aJ + bJ
-    ds = ds if slope else None
+        s = sp.diags(rb) @ aJ + sp.diags(ra) @ bJ
+        ds = aJ + bJ if slope else None
     if w_pix is not None:            # the weighted cost's term: w_p times the unweighted one
         s, ds = sp.diags(w_pix) @ s, None if ds is None else sp.diags(w_pix) @ ds
     if own is not None:              # estimating equations: a pixel scores its owners only
