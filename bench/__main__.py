@@ -6,7 +6,9 @@ learning-rate sweep), ``paper`` (4, Tables 1 and 2), ``materials`` (5), ``defaul
 accurate by default), ``field`` (7, field photographs), ``glossy`` (8, glossy kernels), ``geometry``
 (9, geometry as a survey delivers it), ``survey`` (10, unknown sun and sky scales, vignetting and a
 calibration panel on ``urban_canyon_survey``), ``misfit`` (11, what the model lacks: an unmasked car,
-rotated poses, a facade off its mesh and textured walls on ``urban_canyon_misfit``). Each
+rotated poses, a facade off its mesh and textured walls on ``urban_canyon_misfit``). ``--variant``
+(default ``auto``: CUDA when usable, else LLVM) is the Mitsuba backend of every run; each stored
+section records its variant and device. Each
 section's numbers are stored in ``bench/results/<section>.json`` (with the date, the commit and
 the wall time of the run that measured them) and BENCHMARKS.md is rendered from every stored
 section, so ``--sections field`` re-measures one section and keeps the others; each section of
@@ -16,8 +18,10 @@ writes ``--out`` (default: the run folder's BENCHMARKS.md), never the committed 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import json
+import re
 import sys
 import time
 from pathlib import Path
@@ -25,6 +29,7 @@ from pathlib import Path
 from bench import (accuracy, compare, field, geometry, glossy, materials, megapixel, memory, misfit, paper,
                    render_ratio, survey)
 from bench.common import ROOT
+from framework.render import backend
 from bench.machine import describe
 from bench.markdown import README, readme_block, render, with_readme_block
 from bench.sizes import DEFAULT, QUICK
@@ -47,9 +52,15 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--resume", action="store_true",
                    help="the comparison and the materials sections reuse the runs of this --runs folder that "
                         "finished (an interrupted benchmark goes on where it stopped)")
+    p.add_argument("--variant", default="auto",
+                   help="Mitsuba variant of the sections that render: auto (CUDA when usable, else LLVM), cuda, llvm, "
+                        "or a variant such as cuda_ad_rgb (mono scenes take the same backend's *_ad_mono)")
     p.add_argument("--render-only", action="store_true",
                    help="measure nothing: rewrite the markdown from the stored sections")
     args = p.parse_args(argv)
+    if not (args.variant in ("auto", "cuda", "llvm")
+            or re.fullmatch(r"(cuda|llvm)_ad_(rgb|mono)", args.variant)):
+        p.error(f"--variant {args.variant} is not auto, cuda, llvm or a (cuda|llvm)_ad_(rgb|mono) variant")
     unknown = [x for x in args.sections.split(",") if x not in SECTIONS]
     if unknown:
         p.error(f"unknown section(s) {', '.join(unknown)}; choose from {', '.join(SECTIONS)}")
@@ -104,18 +115,19 @@ def measure(name: str, sizes, root: Path, resume: bool = False):
 def main(argv=None) -> int:
     """Run the chosen sections, store them, render the markdown from every stored section."""
     args = parse(argv)
-    sizes = QUICK if args.quick else DEFAULT
+    sizes = on_backend(QUICK if args.quick else DEFAULT, args.variant)
     stamp = datetime.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     root = Path(args.runs) if args.runs else ROOT / "bench" / "runs" / f"{stamp}{'_quick' if args.quick else ''}"
     root.mkdir(parents=True, exist_ok=True)
     store = root / "results" if args.quick else RESULTS
     store.mkdir(parents=True, exist_ok=True)
-    machine = describe()
+    machine = describe(sizes.variant)
     log(f"bench ({sizes.name}) into {root}")
     for name in [] if args.render_only else args.sections.split(","):
         t0 = time.perf_counter()
         data = measure(name, sizes, root, resume=args.resume)
         record = {"section": name, "sizes": sizes.name, "date": machine["date"], "git": machine["git"],
+                  "variant": machine["variant"], "device": machine["device"],
                   "wall_s": time.perf_counter() - t0, "data": data}
         (store / f"{name}.json").write_text(json.dumps(_relative(_light(record)), indent=1, default=str))
         log(f"[{name}] done in {record['wall_s'] / 60:.1f} min")
@@ -130,6 +142,15 @@ def main(argv=None) -> int:
         readme.write_text(with_readme_block(readme.read_text(encoding="utf-8"), block), encoding="utf-8")
         log(f"wrote {readme}'s results table")
     return 0
+
+
+def on_backend(sizes, variant: str):
+    """``sizes`` whose runs take ``variant``'s backend (``variant=cuda`` or ``llvm``: each scene then
+    gets that backend's variant of its colour mode); ``auto`` leaves the runs' own default."""
+    if variant == "auto":
+        return dataclasses.replace(sizes, variant=backend.jit_backend("auto"))
+    prefix = variant[:4]
+    return dataclasses.replace(sizes, variant=prefix, extra=(*sizes.extra, f"variant={prefix}"))
 
 
 #: results.json keys no section reads back (kept in the run folders)

@@ -10,16 +10,6 @@ from bench.common import ROOT
 from framework.render import backend
 
 
-def _cpuinfo_model() -> str:
-    try:
-        for line in open("/proc/cpuinfo", encoding="utf-8"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
-
-
 def _mem_gib() -> float:
     try:
         for line in open("/proc/meminfo", encoding="utf-8"):
@@ -48,12 +38,14 @@ def _git() -> str:
         return "unknown"
 
 
-def describe() -> dict:
-    """CPU model, cores, RAM, Mitsuba variant and versions, Python, date, git revision."""
-    variant = backend.set_variant("auto", channels=("R", "G", "B"))
+def describe(variant: str = "auto") -> dict:
+    """CPU model, cores, RAM, the Mitsuba variant (``auto``, a backend ``cuda``/``llvm`` or a variant)
+    and its device, versions, Python, date, git revision."""
+    variant = backend.set_variant(variant, channels=("R", "G", "B"))
     import drjit as dr
     import mitsuba as mi
-    return {"cpu": _cpuinfo_model(), "cores": os.cpu_count(), "ram_gib": _mem_gib(),
-            "variant": f"{variant} (rgb scenes), llvm_ad_mono (mono scenes)", "mitsuba": mi.__version__,
+    return {"cpu": backend.cpu_model(), "cores": os.cpu_count(), "ram_gib": _mem_gib(),
+            "variant": f"{variant} (rgb scenes), {variant.replace('_rgb', '_mono')} (mono scenes)",
+            "device": backend.device_name(variant), "mitsuba": mi.__version__,
             "drjit": dr.__version__, "python": platform.python_version(), "platform": platform.platform(),
             "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"), "git": _git()}

@@ -27,7 +27,7 @@ def section_machine(m: dict, command: str, sizes, stored: dict) -> list[str]:
         lines.append(f"| all {len(stored)} sections | | {commits.pop()} | {total:.1f} |")
     lines += ["", "## Machine", ""]
     rows = [["CPU", m["cpu"]], ["Cores", m["cores"]], ["RAM", f"{m['ram_gib']:.1f} GiB"],
-            ["Mitsuba variant", m["variant"]], ["mitsuba / drjit", f"{m['mitsuba']} / {m['drjit']}"],
+            ["Mitsuba variant", m["variant"]], ["Device", m.get("device", "CPU")], ["mitsuba / drjit", f"{m['mitsuba']} / {m['drjit']}"],
             ["Python", m["python"]], ["Platform", m["platform"]]]
     return lines + table(["", ""], rows) + [""]
 

@@ -63,7 +63,7 @@ def run(sizes, work: Path, log=print) -> dict:
     """The subprocess; its row (or the error)."""
     work.mkdir(parents=True, exist_ok=True)
     proc = subprocess.run([sys.executable, "-m", "bench.megapixel", str(work), str(sizes.mega_spp),
-                           str(sizes.mega_reps)], cwd=ROOT, capture_output=True, text=True, timeout=3600)
+                           str(sizes.mega_reps), sizes.variant], cwd=ROOT, capture_output=True, text=True, timeout=3600)
     for line in proc.stdout.splitlines():
         if line.startswith("MEGAPIXEL "):
             row = json.loads(line[len("MEGAPIXEL "):])
@@ -75,7 +75,7 @@ def run(sizes, work: Path, log=print) -> dict:
 
 if __name__ == "__main__":
     from framework.render.backend import set_variant
-    set_variant("llvm_ad_rgb")
+    set_variant(sys.argv[4] if len(sys.argv) > 4 else "auto", channels=("R", "G", "B"))
     out = child(Path(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]))
     print("MEGAPIXEL " + json.dumps(out, default=float), flush=True)
 

@@ -122,6 +122,7 @@ class Sizes:
     misfit_image: int | None = None
     misfit_photo_spp: int = 16
     misfit_extra: tuple = field(default_factory=tuple)
+    variant: str = "llvm"
 
 
 DEFAULT = Sizes()

@@ -175,7 +175,8 @@ class RunSettings:
     budget_renders : int
         ``budget.renders``: the most full passes over the views a method may spend.
     variant : str
-        The Mitsuba variant in use (``variant=auto`` resolved from the scene's channels).
+        The Mitsuba variant in use (``variant=auto``, ``cuda`` or ``llvm`` resolved from the machine and
+        the scene's channels once the scene is read; ``auto`` before).
     executor : dict
         ``executor.*``: ``name`` (serial | dask) and the Dask options.
     cache_dir : str or None
@@ -189,7 +190,7 @@ class RunSettings:
     tail_bounces: int = 0
     seed: int = 0
     budget_renders: int = 400
-    variant: str = "llvm_ad_rgb"
+    variant: str = "auto"
     executor: dict = field(default_factory=lambda: {"name": "serial"})
     cache_dir: str | None = None
     observe: ObserveSettings = field(default_factory=ObserveSettings)

@@ -114,6 +114,7 @@ def prepare(cfg: DictConfig, run_dir: str | Path | None = None) -> tuple[Problem
     settings = check_config(cfg)
     Cache(settings.cache_dir).check_writable()     # before anything is loaded
     method = get_method(str(cfg.method.name))(cfg.method)
+    backend.use_backend(str(cfg.variant))      # what loading evaluates (a sunsky) runs on the run's device
     scene = load_scene(scene_dir(cfg))
     refuse_survey_unknowns(scene, type(method))
     settings = dataclasses.replace(settings, variant=backend.set_variant(str(cfg.variant), channels=scene.channels))
@@ -190,7 +191,7 @@ def _write_run(cfg, run_dir: Path, problem: Problem, result, segment_maps: dict,
     result.timings_s.setdefault("observe", t_observe)
     result.timings_s["total"] = time.perf_counter() - t0
     summary = {"scene_dir": str(scene.root), "scene_hash": scene.content_hash, "views": [c.name for c in cameras],
-               "variant": settings.variant,
+               "variant": settings.variant, "device": backend.device_name(settings.variant),
                "seed": settings.seed, "spp": settings.spp, "max_bounces": settings.max_bounces,
                "tail_bounces": settings.tail_bounces,
                "budget_renders": settings.budget_renders, "executor": str(settings.executor.get("name")),

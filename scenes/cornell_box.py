@@ -45,7 +45,7 @@ def _bsdf_id(shape: dict) -> str:
 
 def build(folder: Path) -> Path:
     """Write the scene folder from ``mi.cornell_box()``."""
-    set_variant("llvm_ad_rgb")
+    set_variant("auto", channels=("R", "G", "B"))
     import mitsuba as mi
 
     folder, box = Path(folder), mi.cornell_box()

@@ -20,7 +20,7 @@ from scenes.cameras import resized
 
 
 def load(folder: Path) -> Scene:
-    """The scene of ``folder``, with the llvm variant of its channels selected (before any Mitsuba use)."""
+    """The scene of ``folder``, with the variant of its channels selected (``variant=auto``) (before any Mitsuba use)."""
     scene = load_scene(folder)
     set_variant("auto", channels=scene.channels)
     return scene

@@ -61,14 +61,83 @@ def point_at_libllvm() -> None:
             os.environ["DRJIT_LIBLLVM_PATH"] = found
 
 
+def cuda_usable() -> bool:
+    """Whether Dr.Jit can start its CUDA backend here (an NVIDIA driver and GPU)."""
+    import drjit as dr
+    try:
+        return bool(dr.has_backend(dr.JitBackend.CUDA))
+    except Exception:       # a driver that fails to initialise counts as no GPU
+        return False
+
+
+def auto_variant(channels: tuple[str, ...] | None) -> str:
+    """What ``variant=auto`` means here: ``cuda_ad_rgb`` / ``cuda_ad_mono`` (from ``channels``)
+    when CUDA is usable, else ``llvm_ad_rgb`` / ``llvm_ad_mono``."""
+    colour = "mono" if channels == ("Y",) else "rgb"
+    return f"{'cuda' if cuda_usable() else 'llvm'}_ad_{colour}"
+
+
+def jit_backend(variant: str | None = None) -> str:
+    """``cuda`` or ``llvm``: the backend of ``variant`` (default: the active Mitsuba variant; with
+    none active or a scalar one, the backend ``variant=auto`` would pick). Side evaluations (the
+    sunsky bake) run there, so a run on a GPU never needs a libLLVM."""
+    if variant is None:
+        import mitsuba as mi
+        variant = mi.variant() or ""
+    if variant.startswith(("cuda", "llvm")):
+        return variant[:4]
+    return "cuda" if cuda_usable() else "llvm"
+
+
+def use_backend(variant: str) -> None:
+    """Make ``variant``'s backend (``auto`` resolved) the active one before the scene is read, so
+    that what the loader evaluates with Mitsuba (the sunsky) runs on the run's device; the run's
+    variant proper is set by :func:`set_variant` once the scene's channels are known."""
+    set_variant(f"{jit_backend(variant)}_ad_rgb")
+
+
+def device_name(variant: str | None = None) -> str:
+    """The device a variant runs on, in words: the GPU's name for ``cuda_*`` (``nvidia-smi``, or
+    its compute capability), the CPU model and core count for ``llvm_*``."""
+    import subprocess
+    if jit_backend(variant) == "cuda":
+        try:
+            out = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"],
+                                 capture_output=True, text=True, timeout=10).stdout.strip().splitlines()
+            if out:
+                return out[0].strip()
+        except (OSError, subprocess.SubprocessError):
+            pass
+        import drjit as dr
+        return f"CUDA GPU (compute capability {dr.detail.cuda_compute_capability()})"
+    return f"{cpu_model()} ({os.cpu_count()} cores)"
+
+
+def cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo``), or the platform's processor string."""
+    import platform
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
+
+
 def set_variant(variant: str, *, channels: tuple[str, ...] | None = None) -> str:
-    """Select a Mitsuba variant; ``auto`` picks ``llvm_ad_rgb`` or ``llvm_ad_mono`` from ``channels``.
+    """Select a Mitsuba variant; ``auto`` is :func:`auto_variant` (CUDA when usable, else LLVM);
+    ``cuda`` or ``llvm`` name a backend, whose ``*_ad_rgb`` or ``*_ad_mono`` variant ``channels`` picks.
 
     Raises :class:`ConfigError` for an unknown variant or one whose colour mode does not match
     the scene's channels (an ``rgb`` scene needs an ``*_rgb`` variant, a ``mono`` scene ``*_mono``).
     """
+    asked = variant
     if variant == "auto":
-        variant = "llvm_ad_mono" if channels == ("Y",) else "llvm_ad_rgb"
+        variant = auto_variant(channels)
+    elif variant in ("cuda", "llvm"):           # a backend: the JIT variant of the scene's colour mode
+        variant = f"{variant}_ad_{'mono' if channels == ('Y',) else 'rgb'}"
     if variant.startswith("llvm") or variant.startswith("scalar"):
         ensure_libllvm()
     import mitsuba as mi
@@ -84,6 +153,8 @@ def set_variant(variant: str, *, channels: tuple[str, ...] | None = None) -> str
     try:
         mi.set_variant(variant)
     except Exception as exc:  # e.g. cuda_* without a GPU
-        raise ConfigError(f"variant={variant} cannot start on this machine ({exc}); "
-                          "use an llvm_ad_* variant") from None
+        how = f"variant=auto chose {variant}" if asked == "auto" else f"variant={variant}"
+        other = "llvm_ad_*" if variant.startswith("cuda") else "cuda_ad_* (NVIDIA GPU)"
+        raise ConfigError(f"{how}, which cannot start on this machine ({exc}); "
+                          f"use a {other} variant") from None
     return variant

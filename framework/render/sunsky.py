@@ -6,9 +6,10 @@ The sky (``sun_scale: 0``) is baked into an equirectangular map in the conventio
 of a ``SurfaceInteraction3f`` with ``wi = -d``. The sun becomes a ``directional`` emitter whose
 irradiance is the sun disk's radiance integrated over its solid angle (``sky_scale: 0``).
 
-Colour modes: ``rgb`` evaluates the ``llvm_ad_rgb`` variant of ``sunsky``; ``mono`` evaluates the
-``llvm_ad_spectral`` variant with every wavelength set to 550 nm (the paper's band): the
-``mono`` variants refuse ``sunsky``. Both are in Mitsuba's units, W m^-2 sr^-1 nm^-1
+Colour modes: ``rgb`` evaluates the ``*_ad_rgb`` variant of ``sunsky``; ``mono`` evaluates the
+``*_ad_spectral`` variant with every wavelength set to 550 nm (the paper's band): the
+``mono`` variants refuse ``sunsky``. ``*`` is the run's backend (:func:`framework.render.backend.jit_backend`:
+``cuda`` on a GPU, else ``llvm``), so a GPU run needs no libLLVM. Both are in Mitsuba's units, W m^-2 sr^-1 nm^-1
 (irradiance W m^-2 nm^-1), at scale 1. Each function selects the variant it needs and selects
 the one that was active before again when it returns.
 
@@ -34,7 +35,7 @@ from datetime import datetime
 
 import numpy as np
 
-from framework.render.backend import set_variant
+from framework.render.backend import jit_backend, set_variant
 from framework.render.envmap import texel_directions, texel_solid_angles
 
 SUN_HALF_APERTURE_DEG = 0.5358 / 2   # sunsky's default sun_aperture (degrees, full angle)
@@ -66,7 +67,7 @@ def _variant(channels: str):
     """The variant that evaluates ``sunsky`` for ``channels``, then the previous one again."""
     import mitsuba as mi
     previous = mi.variant()
-    set_variant("llvm_ad_rgb" if channels == "rgb" else "llvm_ad_spectral")
+    set_variant(f"{jit_backend()}_ad_{'rgb' if channels == 'rgb' else 'spectral'}")
     try:
         yield
     finally:
