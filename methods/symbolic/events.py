@@ -3,10 +3,12 @@
 A path writes each of its contributions to one *event slot*: (ordered parameter key of the path,
 value per channel); the host maps the keys to the monomials that occur (column indices).
 A tile of ``n`` pixels x ``spp`` samples has ``spp × (N_max + T + 1)`` slots per pixel, most of
-them empty or zero (occluded next-event estimation, paths that left the scene). So the slots are
-compacted on the device (``dr.compress``) and only the rest reaches the host, where the events of
-a pixel are summed into a row of a CSR matrix (coefficients are ~1-3 % non-zero): memory is that
-of the tile's events, never pixels x N_e.
+them empty or zero (occluded next-event estimation, paths that left the scene). The pass sums
+them per pixel on the device (:mod:`methods.symbolic.pixel_sums`); where it cannot (a key range
+too wide for its key table), the slots are compacted on the device (``dr.compress``) and the rest
+reaches the host, where the events of a pixel are summed into a row of a CSR matrix
+(:meth:`EventBuffer.compact`, :func:`tile_matrices`; coefficients are ~1-3 % non-zero): memory is
+that of the tile's events, never pixels x N_e.
 
 The lanes of a tile come in two blocks, samples ``0 .. split - 1`` of every pixel, then the others
 (:func:`lane_pixel`), so the events of each block are contiguous and the tile gives two
@@ -49,7 +51,9 @@ class EventBuffer:
     def __init__(self, lanes: int, slots: int, n_channels: int):
         self.slots = slots
         self.mono = dr.full(mi.UInt32, EMPTY, lanes * slots)
-        self.values = [dr.zeros(mi.Float, lanes * slots) for _ in range(n_channels)]
+        # values are read only where a key was stored with them: left uninitialised (a memset of
+        # every slot cost 3 % of a 256-spp pass)
+        self.values = [dr.empty(mi.Float, lanes * slots) for _ in range(n_channels)]
         self._lane_base = dr.arange(mi.UInt32, lanes) * slots
 
     def store(self, slot, mono, value, active):

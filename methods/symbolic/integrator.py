@@ -79,8 +79,9 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
     Each sample has weight ``1/spp`` (box pixel filter: samples are uniform inside their pixel
     and never spread to a neighbour). Each path writes its contributions to ``N_max + T + 1``
     event slots (monomial, value per channel); a tile of ``tile_pixels`` pixels is one kernel,
-    its non-empty events are compacted on the device and summed on the host into sparse
-    matrices (:mod:`methods.symbolic.events`), so memory is ``tile_pixels × spp × (N_max + T + 1)``
+    its events are summed per pixel and monomial on the device (:mod:`methods.symbolic.pixel_sums`;
+    on the host, :mod:`methods.symbolic.events`, for key ranges too wide for a key table) into
+    sparse matrices, so memory is ``tile_pixels × spp × (N_max + T + 1)``
     events, never pixels × N_e.
 
     Kernel selection probabilities (:func:`~methods.symbolic.integrator_tables.selection_probabilities`): ``q_k ∝ mean_c guess[p_k, c]``,
@@ -164,11 +165,15 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
 
         # Camera ray: directly visible emitters, the constant monomial
         si = scene.ray_intersect(ray, mi.RayFlags.All, coherent=True, active=active)
-        Le = β * si.emitter(scene, active).eval(si, active)
-        self._store_site(store, mi.UInt32(0), mi.UInt32(0), Le, si.emitter(scene, active), ray.d, active)
-        L = dr.select(active, Le, 0.0)
+        L = dr.select(active, β * si.emitter(scene, active).eval(si, active), 0.0)
 
         while dr.hint(active, max_iterations=N_max + self.tail_bounces, label="Polynomial path"):
+            # slot 0 (the camera ray's emitter) is stored in the first iteration, not before the
+            # loop: a scatter before it made Dr.Jit launch the camera rays as a kernel of their own,
+            # writing and reading back the first hit (11 % of a 256-spp pass)
+            first = active & (depth == 0)
+            emitter0 = si.emitter(scene, first)
+            self._store_site(store, mi.UInt32(0), mi.UInt32(0), β * emitter0.eval(si, first), emitter0, ray.d, first)
             # One kernel k of the hit segment; up to N_max its parameter joins the monomial (eq. 7)
             active, q, p, kt, is_delta = self._choose_kernel(seg_table, si, sampler, active)
             exact = depth < N_max            # beyond N_max: the tail, weighted by the guess

@@ -11,11 +11,21 @@ from framework.errors import ConfigError
 from methods.symbolic.basis import emitter_columns, merge_codes, monomial_columns
 from methods.symbolic.common import TileFootprint, camera_rays, pixel_window, tile_sampler
 from methods.symbolic.events import EventBuffer, lane_pixel, reindex_columns, stack_tiles, tile_matrices
+from methods.symbolic.pixel_sums import pixel_sums
 
 
 class CoefficientTiles:
     """``coefficients*``: one view's polynomial coefficients (eq. 8), traced ``tile_pixels`` pixels
-    at a time by the path loop ``_trace`` of the class it is mixed into."""
+    at a time by the path loop ``_trace`` of the class it is mixed into.
+
+    Each tile's events are summed per pixel and monomial on the device
+    (:func:`~methods.symbolic.pixel_sums.pixel_sums`); where the key range is too wide for its key
+    table, or with :attr:`device_sums` False, they are compacted and summed on the host
+    (:meth:`~methods.symbolic.events.EventBuffer.compact`, :func:`~methods.symbolic.events.tile_matrices`).
+    """
+
+    #: sum each tile's events on the device (False: on the host; both give the same coefficients)
+    device_sums = True
 
     def coefficients(self, scene: mi.Scene, sensor=0, *, spp: int, seed: int = 0,
                      pixel_range: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -118,13 +128,26 @@ class CoefficientTiles:
         events = EventBuffer(n * spp, self.event_slots(), self.n_channels)
         β = mi.Spectrum(weight) * dr.opaque(mi.Float, 1.0 / spp)      # box filter: 1/spp per sample
         self._trace(scene, sampler, mi.Ray3f(ray), β, mi.Bool(True), events.store)
+        if self.device_sums:
+            summed = pixel_sums(events, n=n, spp=spp, split=split, quarters=quarters, span=self._key_span(),
+                                columns=self._columns)
+            if summed is not None:
+                return summed
         (rows, keys, vals), first_b, *sample = events.compact(n, spp, split, samples=quarters)
-        # the ordered keys of one monomial differ by the order of its parameters: sort them out
-        if self.n_scales:        # the emitter's group above the path's digits: one more variable
-            codes, cols = emitter_columns(keys, self.n_params, self.max_bounces, self.n_scales)
-        else:
-            codes, cols = monomial_columns(keys, self.n_params, self.max_bounces)
+        codes, cols = self._columns(keys)
         return codes, tile_matrices((rows, cols, vals), first_b, (n, len(codes)), spp, split, *sample)
+
+    def _key_span(self) -> int:
+        """The ordered path keys lie below this (the emitter's group above the path's digits)."""
+        return (self.n_params + 1) ** self.max_bounces * (self.n_scales + 1)
+
+    def _columns(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(codes, cols)`` of ordered path keys: the ordered keys of one monomial differ by the
+        order of its parameters, sorted out here; with unknown emitter scales the emitter's
+        group is one more variable."""
+        if self.n_scales:
+            return emitter_columns(keys, self.n_params, self.max_bounces, self.n_scales)
+        return monomial_columns(keys, self.n_params, self.max_bounces)
 
 
 def _check_footprint(footprint, film) -> None:

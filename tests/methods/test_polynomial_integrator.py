@@ -514,3 +514,58 @@ def test_environment_parts_split_the_sum():
     poly = np.stack([at(s, 2.5).reshape(res, res, 3) for s in range(4)])
     truth = np.stack([_polynomial_image(ref_plain, bright, rho, spp, 10 + s, res) for s in range(4)])
     _assert_same_expectation(poly, truth)
+
+
+def _both_sums(integ, call, monkeypatch):
+    """``call()`` with the events summed on the device, then on the host (the same render)."""
+    out = []
+    for device in (True, False):
+        monkeypatch.setattr(type(integ), "device_sums", device)
+        out.append(call())
+    return out
+
+
+def _assert_same_matrices(device, host):
+    """Same codes, same sparsity, values equal to float32 rounding (the device sums in float32
+    in another order; the host sums float32 values in float64)."""
+    np.testing.assert_array_equal(device[0], host[0])
+    assert len(device) == len(host)
+    for d, h in zip(device[1:], host[1:]):
+        for c in range(len(h)):
+            assert d[c].has_canonical_format
+            np.testing.assert_array_equal(d[c].indptr, h[c].indptr)
+            np.testing.assert_array_equal(d[c].indices, h[c].indices)
+            np.testing.assert_allclose(d[c].data, h[c].data, rtol=2e-6, atol=1e-7 * abs(h[c].data).max())
+
+
+@pytest.mark.parametrize("quarters", [False, True])
+def test_device_sums_equal_host_sums(quarters, monkeypatch):
+    """Coefficients summed per pixel and monomial on the device (methods.symbolic.pixel_sums) and
+    on the host (events.tile_matrices) from the same render: same codes and sparsity, values to
+    float32 rounding, for the halves (and quarters) over several tiles and for the plain pass."""
+    rho = np.full((5, 3), 0.3)
+    scene, ss = cornell(rho, res=16)
+    integ = PolynomialPathIntegrator.create(ss, SEGMENTS, 5, rho, max_bounces=3, tile_pixels=100)
+    halves = lambda: integ.coefficients_halves(scene, spp=8, seed=5, quarters=quarters)
+    _assert_same_matrices(*_both_sums(integ, halves, monkeypatch))
+    plain = lambda: integ.coefficients_sparse(scene, spp=4, seed=5)
+    _assert_same_matrices(*_both_sums(integ, plain, monkeypatch))
+
+
+def test_device_sums_with_emitter_groups_and_wide_keys(monkeypatch):
+    """With an unknown emitter scale (keys carry the emitter's group) the device sums equal the
+    host's; a key range beyond the key table (TABLE_KEYS) falls back to the host path."""
+    import methods.symbolic.pixel_sums as PS
+    rho = np.full((5, 3), 0.4)
+    scene, shapes = _lit_cornell(rho, res=16)
+    light = [sh.emitter() for sh, _ in shapes if sh.emitter() is not None]
+    grouped = PolynomialPathIntegrator.create(shapes, SEGMENTS, 5, rho, max_bounces=2, emitter_groups=[(light[0], 1)])
+    run = lambda: grouped.coefficients_halves(scene, spp=4, seed=3)
+    device, host = _both_sums(grouped, run, monkeypatch)
+    _assert_same_matrices(device, host)
+    monkeypatch.setattr(PS, "TABLE_KEYS", 8)
+    monkeypatch.setattr(type(grouped), "device_sums", True)
+    fallback = run()
+    for d, h in zip(fallback[1:], host[1:]):
+        for c in range(3):
+            assert abs(d[c] - h[c]).max() == 0          # the host path itself: the same bits
