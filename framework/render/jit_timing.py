@@ -65,3 +65,30 @@ class CompileTimer:
         self._thread.join()
         self._drain()
         dr.set_flag(dr.JitFlag.KernelHistory, bool(self._was))
+
+
+def kernel_split(fn) -> tuple[float, float, object]:
+    """``(wall, kernels, out)``: the seconds ``fn()`` takes and those its Dr.Jit kernels execute
+    (the kernel history's ``execution_time``, summed), and its output. ``wall - kernels`` is the
+    host's share: Python, numpy, transfers and waiting that no kernel overlaps. Zero kernel time
+    when Dr.Jit has no kernel history."""
+    import time
+
+    import drjit as dr
+    flag = getattr(dr.JitFlag, "KernelHistory", None)
+    if flag is None:
+        t = time.perf_counter()
+        out = fn()
+        return time.perf_counter() - t, 0.0, out
+    was = dr.flag(flag)
+    dr.set_flag(flag, True)
+    dr.kernel_history()
+    try:
+        t = time.perf_counter()
+        out = fn()
+        dr.sync_thread()
+        wall = time.perf_counter() - t
+        kernels = sum(float(k.get("execution_time", 0.0)) for k in dr.kernel_history()) / 1000.0   # ms
+    finally:
+        dr.set_flag(flag, was)
+    return wall, kernels, out

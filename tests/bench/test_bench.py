@@ -80,3 +80,28 @@ def test_markdown_renders_from_fake_numbers():
     assert "| differentiable | 0.010 | 2.0 s (1 renders), 1.0 x symbolic | 0.010 (too few iterates to tell) |" in text
     assert "| 4 | 64x64 | dask |" in text
     assert "32x32: +2 % (133 MiB at 1 view to 136 MiB at 4); 64x64: +2 % (165 MiB at 1 view to 168 MiB at 4)" in text
+
+
+def test_kernel_split_tells_kernels_from_host():
+    """kernel_split: a Dr.Jit kernel's execution is counted, a host-only sleep is not."""
+    import time
+
+    import drjit as dr
+    import mitsuba as mi
+    from framework.render.jit_timing import kernel_split
+    wall, kernels, out = kernel_split(lambda: dr.eval(dr.sin(dr.arange(mi.Float, 4_000_000) * dr.opaque(mi.Float, 0.5))))
+    assert kernels > 0 and wall >= kernels
+    wall, kernels, _ = kernel_split(lambda: time.sleep(0.2))
+    assert kernels == 0 and wall >= 0.2
+
+
+def test_bench_variant_option():
+    """--variant: a backend name or an rgb/mono JIT variant; the runs get the backend (mono scenes
+    then take its *_ad_mono variant); anything else is refused by the parser."""
+    from bench.__main__ import on_backend, parse
+    assert parse(["--variant", "cuda_ad_rgb"]).variant == "cuda_ad_rgb"
+    with pytest.raises(SystemExit):
+        parse(["--variant", "cuda_ad_spectral"])
+    sizes = on_backend(QUICK, "llvm_ad_rgb")
+    assert sizes.variant == "llvm" and sizes.extra[-1] == "variant=llvm"
+    assert on_backend(QUICK, "auto").extra == QUICK.extra
