@@ -51,7 +51,7 @@ import scipy.sparse as sp
 
 from framework.results import per_channel
 from methods.symbolic.basis import MonomialBasis, code_digits, encode_digits, merge_codes
-from methods.symbolic.fit import Fit
+from methods.symbolic.fit import Fit, StageClock
 from methods.symbolic.gram import weighted_system
 from methods.symbolic.options import ROBUST_LOSSES, SymbolicOptions
 from methods.symbolic.robust_scale import cauchy_weight, robust_scale
@@ -377,7 +377,9 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
     from methods._common import segment_groups
     from methods.symbolic.basis import MonomialBasis
     P, C = len(params), problem.n_channels
-    views, extra, x, lens, light = field_views(result, problem, params, x0, options)
+    clock = StageClock()
+    with clock("field_setup"):
+        views, extra, x, lens, light = field_views(result, problem, params, x0, options)
     gains = [p for p in extra if p.kernel == "gain"]
     every = list(params) + extra
     degree = (problem.settings.max_bounces + (1 if light is not None else 0) + (1 if gains else 0)
@@ -388,14 +390,17 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
     elif options.consistency is not None:    # the high-breakdown start: the views' disagreement at x
         codes = merge_codes([0], *(b.codes for v in views for _, b in v.coeffs.blocks()))
         mu = np.stack([MonomialBasis(len(every), degree, codes).evaluate(x[:, c]) for c in range(C)])
-        _reweight(views, mu, codes, options, per_pixel=False)
+        with clock("robust_weights"):
+            _reweight(views, mu, codes, options, per_pixel=False)
     iterates, stopped, fit = [], "single solve", None
     for round_ in range(options.iterations):
-        system = reduce(operator.iadd, (weighted_system(v.coeffs, v.y, v.weights) for v in views))
+        with clock("weighted_systems"):
+            system = reduce(operator.iadd, (weighted_system(v.coeffs, v.y, v.weights) for v in views))
         basis = MonomialBasis(len(every), degree, system.codes)
         used = [v.weights for v in views]
         fit = solve(system, basis, every, x, problem, groups=segment_groups(params),
                     views=lambda: ((v.coeffs, v.y, w) for v, w in zip(views, used)))
+        clock.add(fit.stages_s)             # every round's solve, not only the last one's
         iterates += fit.iterates
         moved = np.nanmax(np.abs(fit.estimate - x)) if np.isfinite(fit.estimate).any() else 0.0
         x = np.where(np.isnan(fit.estimate), x, fit.estimate)
@@ -405,10 +410,12 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
             stopped = f"converged (moved {moved:.2g} < {options.tol:g})"
             break
         stopped = f"{options.iterations} rounds"
-        mu = np.stack([basis.evaluate(x[:, c]) for c in range(C)])
-        _reweight(views, mu, system.codes, options)
-    out = _field_outputs(fit, views, used, basis, system, gains, P, C, round_ + 1, stopped, iterates)
-    out = out.replace(pixel_reasons=exclusion_reasons(problem, options, views))
+        with clock("robust_weights"):
+            mu = np.stack([basis.evaluate(x[:, c]) for c in range(C)])
+            _reweight(views, mu, system.codes, options)
+    with clock("field_outputs"):
+        out = _field_outputs(fit, views, used, basis, system, gains, P, C, round_ + 1, stopped, iterates)
+        out = out.replace(pixel_reasons=exclusion_reasons(problem, options, views), stages_s=clock.seconds)
     if light is not None:
         out = out.replace(illumination=light.report(fit.estimate, fit.std))
     return out if lens is None else out.replace(vignetting=lens.report(fit.estimate, fit.std, fit.correlation))

@@ -8,7 +8,9 @@ it adds (gains, pixel weights, robust rounds).
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Callable
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,7 +40,9 @@ class Fit:
     std_method : str
         The formula of ``std``: ``sandwich`` or ``residual``.
     stages_s : dict
-        Seconds of ``psd`` (projection of G), ``solver`` and ``uncertainty``.
+        Seconds of ``psd`` (projection of G), ``solver`` and ``uncertainty``; on the field path
+        summed over its rounds, with ``field_setup`` (pixel weights, gains' and lens' coefficients),
+        ``weighted_systems`` (each round's Gram system) and ``robust_weights`` (the reweighting).
     psd_skipped : tuple
         Sizes of the components of G too large for the PSD projection.
     n_monomials, gram_nnz : int
@@ -114,3 +118,24 @@ def images_at(result, basis, rho: np.ndarray, cameras) -> dict[str, np.ndarray]:
     """Every view's polynomial of the pass ``result`` evaluated at ρ (P, C): (H, W, C) images."""
     mu = np.stack([basis.evaluate(rho[:, c]) for c in range(rho.shape[1])])
     return {cam.name: result.image(cam.name, mu, (cam.height, cam.width)) for cam in cameras}
+
+
+class StageClock:
+    """Seconds of a solve's named stages, summed: ``with clock("name"): ...`` times a block,
+    :meth:`add` adds a fit's own ``stages_s``; :attr:`seconds` is the dict results.json reports
+    (``solve_stages_s``)."""
+
+    def __init__(self, seconds: dict | None = None):
+        self.seconds = dict(seconds or {})
+
+    @contextmanager
+    def __call__(self, name: str):
+        t = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.add({name: time.perf_counter() - t})
+
+    def add(self, stages: dict) -> None:
+        for name, t in stages.items():
+            self.seconds[name] = self.seconds.get(name, 0.0) + float(t)

@@ -22,7 +22,7 @@ from methods._common import Trace, segment_groups
 from methods.symbolic.alignment import Alignment
 from methods.symbolic.basis import MonomialBasis
 from methods.symbolic.field import FieldOptions, fit_field
-from methods.symbolic.fit import Fit, images_at
+from methods.symbolic.fit import Fit, StageClock, images_at
 from methods.symbolic.joint import fit_joint
 from methods.symbolic.known import fit_with_known
 from methods.symbolic.options import SymbolicOptions
@@ -58,7 +58,8 @@ def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, ren
     options = resolved(options, field, problem.settings.spp)
     stopped = "single pass" if options.refine == 0 else f"cap of {options.refine} refinement pass(es)"
     render_s = solve_s = 0.0
-    stages, moves, fit = {}, [], None
+    moves, fit = [], None
+    clock = StageClock()
     # method.align: between passes each view's camera is registered to the prediction at the
     # estimate; the next pass renders (and caches, its key holds the pose) the corrected cameras
     alignment = Alignment(problem.cameras, mode=options.align, max_px=options.align_max_px,
@@ -68,8 +69,11 @@ def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, ren
         if k:      # re-render at the estimate: better kernel selection, and a tail at the estimate
             x0 = np.where(np.isnan(fit.estimate), x0, fit.estimate)
             if alignment is not None:
-                problem = alignment.update(problem, fit, before_pass=k)
-                field = FieldOptions.resolve(options, problem)    # the boundary pixels follow the cameras
+                t_align = time.perf_counter()
+                with clock("registration"):
+                    problem = alignment.update(problem, fit, before_pass=k)
+                    field = FieldOptions.resolve(options, problem)    # the boundary pixels follow the cameras
+                solve_s += time.perf_counter() - t_align
         result = render_pass(problem, params, x0, options, seed=int(problem.seed) + 7777 * renders)
         renders += 1
         t_solve = time.perf_counter()
@@ -79,22 +83,25 @@ def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, ren
         for at, x in fit.iterates:
             trace.record(renders, x, at=at)
         render_s += result.render_s
-        solve_s += time.perf_counter() - t_solve     # PSD projection, solver and uncertainty
-        stages = {name: stages.get(name, 0.0) + t for name, t in fit.stages_s.items()}
+        clock.add(fit.stages_s)
         if k:
             fit = carried(previous, fit)
             moves.append(moved(previous.estimate, fit.estimate, fit.std, options.refine_tol))
-            if moves[-1] <= 1.0 and (alignment is None or not alignment.moved()):   # and no camera moved
-                stopped = (f"converged after {k} refinement pass(es): no weight moved beyond refine_tol + "
-                           f"the two passes' noise ({moves[-1]:.2f} of it)")
-                break
+        solve_s += time.perf_counter() - t_solve     # the fit (its stages) and the comparison of passes
+        if k and moves[-1] <= 1.0 and (alignment is None or not alignment.moved()):   # and no camera moved
+            stopped = (f"converged after {k} refinement pass(es): no weight moved beyond refine_tol + "
+                       f"the two passes' noise ({moves[-1]:.2f} of it)")
+            break
     if options.bias == "richardson":    # the last pass refitted at half its spp, from its own render
         t_solve = time.perf_counter()
         # the field fit forms its own weighted systems: the half passes' summed ones are not built
-        fit = extrapolated(fit, lambda j: fit_pass(result.halved(j, problem.observed, system=not field.active),
-                                                   params, x0, problem, options, field, start=start),
-                           segments=segment_groups(params))
+        with clock("bias_refits"):
+            fit = extrapolated(fit, lambda j: fit_pass(result.halved(j, problem.observed, system=not field.active),
+                                                       params, x0, problem, options, field, start=start),
+                               segments=segment_groups(params))
         solve_s += time.perf_counter() - t_solve
+    stages = clock.seconds
+    stages["other"] = max(0.0, solve_s - sum(stages.values()))    # what no stage names
     return Passes(fit, renders, render_s, solve_s, stages, moves, stopped, result.from_cache, field,
                   problem.cameras, alignment.report(problem.cameras) if alignment is not None else None)
 

@@ -193,3 +193,17 @@ def test_boundary_pixels_are_left_out(problem):
     np.testing.assert_array_equal(w, same.astype(np.float32))
     assert 0 < (w == 0).mean() < 0.5
     assert "field" not in run_symbolic(problem, refine=0).extras        # auto: no resampled view
+
+
+def test_solve_stages_account_for_the_whole_solve(tmp_path):
+    """On the field path with registration and the bias correction, solve_stages_s names the
+    field's stages, every robust round's solve, the registration and the refits, and adds up to
+    timings_s.solve (``other`` is the remainder, never negative)."""
+    problem = tiny_problem(tmp_path, kernels=("diffuse", "specular"), spp=8, n_views=2)
+    ones = {c.name: np.ones((c.height, c.width)) for c in problem.cameras}
+    out = run_symbolic(dataclasses.replace(problem, weights=ones), refine=1, align="rotation", bias="richardson")
+    stages = out.extras["solve_stages_s"]
+    assert {"psd", "solver", "uncertainty", "field_setup", "weighted_systems", "robust_weights",
+            "registration", "bias_refits", "other"} <= set(stages)
+    assert min(stages.values()) >= 0
+    np.testing.assert_allclose(sum(stages.values()), out.timings_s["solve"], rtol=1e-9)
