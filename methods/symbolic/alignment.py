@@ -128,7 +128,8 @@ def rotated(camera: Camera, rotation: np.ndarray) -> Camera:
 
 
 def register(observed: np.ndarray, predicted: np.ndarray, camera: Camera, *, weights: np.ndarray | None = None,
-             max_px: float = 3.0, min_px: float = 0.0, roll: bool = True) -> Registration:
+             max_px: float = 3.0, min_px: float = 0.0, roll: bool = True,
+             clusters: np.ndarray | None = None) -> Registration:
     """Register ``observed`` to ``predicted`` by a small rotation of ``camera`` (module docstring).
 
     Parameters
@@ -148,6 +149,10 @@ def register(observed: np.ndarray, predicted: np.ndarray, camera: Camera, *, wei
         Smallest correction applied (the larger of those two motions). Default 0.
     roll : bool
         Estimate the roll too (default); False: pitch and yaw only.
+    clusters : numpy.ndarray, optional
+        ``(H·W,)`` cluster id of each pixel (:func:`~methods.symbolic.clusters.cluster_ids`): the
+        correction's covariance is then the cluster-robust sandwich (the scores summed within each
+        cluster, CR1-corrected), as the std's; default each pixel its own cluster.
 
     Returns
     -------
@@ -172,6 +177,8 @@ def register(observed: np.ndarray, predicted: np.ndarray, camera: Camera, *, wei
         raise ValueError(f"max_px must be positive, got {max_px}")
     if not 0 <= min_px < max_px:
         raise ValueError(f"min_px must be in [0, max_px={max_px}), got {min_px}")
+    if clusters is not None and np.shape(clusters) != (H * W,):
+        raise ValueError(f"clusters of {np.size(clusters)} pixels for a {H}x{W} view")
     n_par = 3 if roll else 2
     scale = _pixel_scale(camera)[:n_par]                          # radians -> pixels of motion
     # (H·W, C, 2) d/dx, d/dy of the observation (central differences): the Jacobian's image gradient
@@ -180,7 +187,7 @@ def register(observed: np.ndarray, predicted: np.ndarray, camera: Camera, *, wei
     omega, system = np.zeros(3), None
     why, iterations = "accepted", 0
     for iterations in range(1, MAX_ITERATIONS + 1):
-        system = _normal_system(m, yv, grad, w, camera, omega, px, n_par)
+        system = _normal_system(m, yv, grad, w, camera, omega, px, n_par, clusters)
         if system is None:
             why = f"fewer than {MIN_PIXELS} usable pixels inside the image"
             break
@@ -245,11 +252,11 @@ def _verdict(cov: np.ndarray | None, motion: np.ndarray, shift: np.ndarray, roll
     return "accepted", std
 
 
-def _normal_system(m, yv, grad, w, camera: Camera, omega, px, n_par):
+def _normal_system(m, yv, grad, w, camera: Camera, omega, px, n_par, clusters=None):
     """``(A, b, scores)`` of the Gauss-Newton step at ``omega`` in pixels of motion: ``A = JᵀWJ``,
-    ``b = JᵀWr`` and the per-pixel scores ``(k, n_par)`` (summed over channels); None with fewer
-    than :data:`MIN_PIXELS` usable pixels (weight > 0, not on the image's outer ring, and ``q``
-    inside the image).
+    ``b = JᵀWr`` and the per-pixel scores ``(k, n_par)`` (summed over channels; with ``clusters``
+    the clusters' :func:`_cluster_scores`); None with fewer than :data:`MIN_PIXELS` usable pixels
+    (weight > 0, not on the image's outer ring, and ``q`` inside the image).
 
     ``r = m(q) - y`` and ``J = ∇y · ∂q/∂ω``: the observation's gradient stands for the warped
     prediction's (equal where they match), so that the Monte Carlo noise of the prediction enters
@@ -269,7 +276,21 @@ def _normal_system(m, yv, grad, w, camera: Camera, omega, px, n_par):
     r = _sample(m, q[use]) - yv[use]                                  # (k, C)
     wJ = w[use][:, None, None] * J
     scores = np.einsum("kcp,kc->kp", wJ, r)
-    return np.einsum("kcp,kcq->pq", wJ, J), scores.sum(axis=0), scores
+    b = scores.sum(axis=0)
+    if clusters is not None:
+        scores = _cluster_scores(scores, np.asarray(clusters)[use])
+    return np.einsum("kcp,kcq->pq", wJ, J), b, scores
+
+
+def _cluster_scores(scores: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """``(G, n_par)``: the pixels' scores summed within each cluster, centred and scaled by the
+    square root of the CR1 factor, so that ``Σ_g S_g S_gᵀ`` is the cluster-robust meat of
+    :mod:`methods.symbolic.clusters` (correlated neighbours count once)."""
+    from methods.symbolic.clusters import cr1_factor
+    _, ids = np.unique(ids, return_inverse=True)
+    S = np.stack([np.bincount(ids, weights=scores[:, j]) for j in range(scores.shape[1])], axis=1)
+    S -= S.mean(axis=0)
+    return S * np.sqrt(cr1_factor(len(S), len(scores), scores.shape[1]))
 
 
 def _covariance(A: np.ndarray, b: np.ndarray, scores: np.ndarray) -> np.ndarray | None:
@@ -423,10 +444,12 @@ class Alignment:
         estimate, weighted by its pixel weights); ``before_pass``: the pass that will render them."""
         predicted = fit.images()
         weights = fit.pixel_weights or {}
+        clusters = _view_clusters(problem, fit)
         cameras, covariance = [], {}
         for cam in problem.cameras:
             reg = register(problem.observed[cam.name], predicted[cam.name], cam, weights=weights.get(cam.name),
-                           max_px=self.max_px, min_px=self.min_px, roll=self.mode == "rotation")
+                           max_px=self.max_px, min_px=self.min_px, roll=self.mode == "rotation",
+                           clusters=clusters.get(cam.name))
             accepted, why = reg.accepted, reg.why
             total = correction(self.given[cam.name], reg.camera)["motion_px"]
             if accepted and total > self.max_px:
@@ -457,6 +480,19 @@ class Alignment:
                         "passes": entries, "accepted": bool(entries and entries[-1]["accepted"]),
                         "why": entries[-1]["why"] if entries else "no refinement pass ran"})
         return out
+
+
+def _view_clusters(problem, fit) -> dict:
+    """View name -> ``(H·W,)`` cluster ids of the fit's cluster std (its side, each view's segments),
+    so that a registration's covariance counts correlated pixels as the std does; ``{}`` when the
+    fit's std is the pixel sandwich."""
+    side = (fit.clusters or {}).get("side") if fit.std_method == "cluster" else None
+    if not side:
+        return {}
+    from framework.render.mitsuba_scene import segment_maps
+    from methods.symbolic.clusters import cluster_ids
+    maps = segment_maps(problem.scene, problem.cameras)
+    return {name: cluster_ids(seg, int(side)) for name, seg in maps.items()}
 
 
 def correction(given: Camera, camera: Camera) -> dict:
