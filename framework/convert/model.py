@@ -177,6 +177,11 @@ def local_origin(parts: list[Triangulated]) -> np.ndarray:
     return np.round(np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]]))
 
 
+def origin_text(origin: np.ndarray) -> str:
+    """``origin`` as the messages and the provenance show it: ``[652340.000, 6862275.000, 35.000]``."""
+    return "[" + ", ".join(f"{x:.3f}" for x in origin) + "]"
+
+
 def moved(parts: list[Triangulated], origin: np.ndarray) -> list[Triangulated]:
     """``parts`` with ``origin`` subtracted from every vertex (float64)."""
     o = np.asarray(origin, np.float64)
