@@ -195,10 +195,12 @@ def test_output_folder_inside_the_source_file(tmp_path, capsys):
            match=f"OUT_DIR {source / 'scene'}: {source} is a file, not a folder")
 
 
-def test_obj_self_intersecting_polygon(tmp_path, capsys):
-    """A bow-tie quad (its edges 1-2 and 3-4 cross) was triangulated into one triangle, a vertex
-    dropped, silently; it is refused with its line (12 vertex lines, then usemtl, f, usemtl, f, f)."""
-    bowtie = [[0, 0, 1], [2, 0, 3], [2, 0, 1], [0, 0, 3]]
+@pytest.mark.parametrize("bowtie", [[[0, 0, 1], [3, 0, 3], [3, 0, 1], [0, 0, 2]],     # was one triangle
+                                    [[0, 0, 1], [2, 0, 3], [2, 0, 1], [0, 0, 3]]])    # lobes cancel: was "degenerate"
+def test_obj_self_intersecting_polygon(tmp_path, capsys, bowtie):
+    """A bow-tie quad (its edges 1 and 3 cross) was triangulated into one triangle, a vertex
+    dropped, silently (or, when its two lobes cancel, dropped as degenerate); it is refused with
+    its line (12 vertex lines, then usemtl, f, usemtl, f, f)."""
     _error(tmp_path, capsys, corner_obj(tmp_path, wall=[WALL, bowtie]),
            match="material 'wall': line 17: the polygon crosses itself (its edges 1 and 3 cross)")
 
@@ -218,7 +220,7 @@ def test_obj_material_names_not_utf8(tmp_path, capsys):
     source = tmp_path / "corner.obj"
     text = obj_text({"ground": [GROUND], "betonA": [WALL], "betonB": [[[0, 0, 0], [1, 0, 0], [0, 1, 0]]]})
     source.write_bytes(text.encode().replace(b"betonA", b"b\xe9ton").replace(b"betonB", b"b\xe8ton"))
-    _error(tmp_path, capsys, source, match="line 13: the material name b'b\\xe9ton' is not UTF-8")
+    _error(tmp_path, capsys, source, match="line 14: the material name b'b\\xe9ton' is not UTF-8")
 
 
 def test_cityjson_duplicate_object_id(tmp_path, capsys):
@@ -234,7 +236,8 @@ def test_cityjson_duplicate_object_id(tmp_path, capsys):
 def test_gltf_float32_survey_coordinates_warned(tmp_path, capsys):
     """glTF positions are float32: at 6.9e6 m they are 0.5 m apart, and the converter says so."""
     warnings = _warnings(tmp_path, capsys, corner_glb(tmp_path))
-    assert len(warnings) == 2 and "mesh 'geom0': float32 positions at 6.9e+06 m are 0.5 m apart" in warnings[0]
+    assert len(warnings) == 1 and "float32 positions at 6.9e+06 m are 0.5 m apart (errors up to 0.25 m)" in warnings[0]
+    assert "'geom0'" in warnings[0] and "'geom1'" in warnings[0]
 
 
 def test_gltf_local_positions_not_warned(tmp_path, capsys):
@@ -271,7 +274,7 @@ def test_obj_nan_vertex(tmp_path, capsys):
     source = corner_obj(tmp_path)
     lines = source.read_text().splitlines()
     source.write_text("\n".join(["v nan 4 8", *lines[1:]]) + "\n")
-    _error(tmp_path, capsys, source, match="line 1: vertex 1 ('v nan 4 8') is not finite; fix it")
+    _error(tmp_path, capsys, source, match="line 1: vertex 1 ('v nan 4 8') has a NaN or infinite coordinate; fix it")
 
 
 def test_obj_tabs_between_keyword_and_values(tmp_path, capsys):
