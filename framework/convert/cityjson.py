@@ -11,9 +11,12 @@ float64), the geometry types ``MultiSurface``, ``CompositeSurface``, ``Solid``, 
 ``CompositeSolid`` (points and lines are ignored). Each surface is a polygon with holes (its
 first ring the outer boundary, the others holes), triangulated by earcut. An object with several
 geometries is read at its **highest LoD** only (an LoD2 and an LoD3 of one building would overlap).
-Refused, each with one line: an unknown ``version``, a missing ``transform``, geometry templates
-(``GeometryInstance``: dereference them into plain geometry first, or export without templates),
-a ``type`` other than ``CityJSON``.
+Refused, each with one line: an unknown ``version`` (or one written as a JSON number, ``2.0``
+for ``"2.0"``), a missing ``transform``, geometry templates (``GeometryInstance``: dereference
+them into plain geometry first, or export without templates), a ``type`` other than
+``CityJSON``, a CityObject id given twice (JSON would keep the last object only), a semantic or
+material value that is not an index of the geometry's list (a negative one included: Python
+would read it from the end), and a surface that crosses itself.
 """
 from __future__ import annotations
 
