@@ -137,9 +137,9 @@ def _earcut_or_refuse(v: np.ndarray, poly: Polygon, source: Source, part: Part) 
     try:
         return _earcut(v, poly)
     except _Crossing as exc:
-        raise SceneError(f"{source.path}: {part.kind} '{part.name}': {poly.where or 'a polygon'}: the polygon "
-                         f"crosses itself (its {exc}); reorder its vertices or split it into polygons that do not "
-                         "cross themselves") from None
+        what = f"{poly.where}: the polygon" if poly.where else "a polygon"
+        raise SceneError(f"{source.path}: {part.kind} '{part.name}': {what} crosses itself (its {exc}); reorder "
+                         "its vertices or split it into polygons that do not cross themselves") from None
 
 
 def _earcut(v: np.ndarray, poly: Polygon) -> np.ndarray | None:

@@ -215,6 +215,37 @@ def test_cityjson_negative_semantic_index(tmp_path, capsys):
                                            "index of its 2 semantic surfaces (0..1) or null")
 
 
+def test_cityjson_negative_material_index(tmp_path, capsys):
+    source = corner_cityjson(tmp_path)
+    doc = json.loads(source.read_text())
+    doc["appearance"] = {"materials": [{"name": "render"}, {"name": "glass"}]}
+    doc["CityObjects"]["ground"]["geometry"][0]["material"] = {"paint": {"value": 0}}
+    doc["CityObjects"]["house"]["geometry"][0]["material"] = {"paint": {"values": [0, -1]}}
+    source.write_text(json.dumps(doc))
+    _error(tmp_path, capsys, source, "--group", "material",
+           match="CityObject 'house': surface [1] has the material value -1, not an index of its 2 appearance "
+                 "materials (0..1) or null")
+
+
+def test_ply_self_intersecting_polygon(tmp_path, capsys):
+    source = labelled_ply(tmp_path, {0: "ground", 1: "wall"})
+    source.write_text(source.read_text().replace("4 4 5 6 7 1", "4 4 6 5 7 1"))       # the wall's quad, crossed
+    _error(tmp_path, capsys, source, match="label 'wall': face 1: the polygon crosses itself (its edges 1 and 3 cross)")
+
+
+def test_hole_crossing_the_outer_ring():
+    """A hole that crosses the outer ring of its surface is refused, naming both edges."""
+    from framework.convert.model import Polygon, Source, triangulate
+    from framework.errors import SceneError
+
+    v = np.array([[0, 0, 0], [4, 0, 0], [4, 4, 0], [0, 4, 0], [1, 1, 0], [5, 1, 0], [5, 2, 0], [1, 2, 0]], float)
+    source = Source("street.city.json", "CityJSON", v, {})
+    source.part("b1/WallSurface", "WallSurface", "surface").polygons.append(Polygon([np.arange(4), np.arange(4, 8)]))
+    with pytest.raises(SceneError, match=r"surface 'b1/WallSurface': a polygon crosses itself \(its "
+                                         r"edge 2 and hole 1's edge 1 cross\)"):
+        triangulate(source)
+
+
 def test_obj_material_names_not_utf8(tmp_path, capsys):
     """'usemtl b\\xe9ton' and 'usemtl b\\xe8ton' (Latin-1) merged into one segment 'b\\ufffdton'."""
     source = tmp_path / "corner.obj"
