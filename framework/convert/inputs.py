@@ -140,9 +140,8 @@ def check_frames(model, origin: np.ndarray, *, source: Path, sparse: Path) -> No
     cameras would lie thousands of kilometres from the geometry."""
     if not np.any(origin) or not model.cameras:
         return
-    centres = [-np.asarray(c.cam_from_world, np.float64)[:, :3].T @ np.asarray(c.cam_from_world, np.float64)[:, 3]
-               for c in model.cameras]
-    if max(np.abs(c).max() for c in centres) <= SURVEY_LIMIT:
+    poses = [np.asarray(c.cam_from_world, np.float64) for c in model.cameras]
+    if max(np.abs(T[:, :3].T @ T[:, 3]).max() for T in poses) <= SURVEY_LIMIT:      # |camera centre|
         raise SceneError(f"{sparse}: every camera lies within 1 km of 0 (a local frame) while {source.name} is in "
                         f"survey coordinates (origin {origin_text(origin)}); give --sparse in the frame of "
                         f"{source.name} (georeference the model, e.g. colmap model_aligner), or convert a mesh in "

@@ -12,7 +12,7 @@ float64. A keyword and its values may be separated by tabs as well as spaces.
 Refused, each with its line number: a vertex that is not 3 finite numbers (``v nan 4 8``), a
 face index out of range (``f 0 1 2``: OBJ counts from 1), a polygon that crosses itself (a
 bow-tie quad; :func:`~framework.convert.model.triangulate`), and a material (``--group
-object``: object) name that is not UTF-8 (a Latin-1 ``usemtl b\xe9ton``: two such names would
+object``: object) name that is not UTF-8 (a Latin-1 ``usemtl b\\xe9ton``: two such names would
 otherwise read alike).
 """
 from __future__ import annotations
@@ -101,8 +101,8 @@ def _keyword(line: str) -> tuple[str, str]:
 
 
 def _name(rest: str, n: int, path: Path, kind: str) -> str:
-    """The ``kind`` (material or object) name of line ``n``; its bytes must be UTF-8 (the file is read with
-    undecodable bytes kept apart, so that two Latin-1 names are not merged into one)."""
+    """The ``kind`` (material or object) name of line ``n``; its bytes must be UTF-8 (the file is
+    read with undecodable bytes kept apart, so that two Latin-1 names are not merged into one)."""
     name = rest.strip() or "unnamed"
     try:
         name.encode("utf-8")
