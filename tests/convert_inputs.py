@@ -93,6 +93,22 @@ def corner_cityjson(root: Path, *, version: str = "2.0", transform: bool = True,
     return path
 
 
+def corner_glb(root: Path, *, origin=ORIGIN) -> Path:
+    """The corner as a GLB (+y up, as exporters write it; float32 positions, as glTF stores them)
+    with materials ``ground`` and ``wall``, its vertices at ``origin`` + the local corner."""
+    import trimesh
+
+    scene = trimesh.Scene()
+    for i, (name, quad) in enumerate((("ground", GROUND), ("wall", WALL))):
+        v = (np.array(quad, float) + origin) @ np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]]).T   # z up -> y up
+        mesh = trimesh.Trimesh(v, [[0, 1, 2], [0, 2, 3]], process=False)
+        mesh.visual = trimesh.visual.TextureVisuals(material=trimesh.visual.material.PBRMaterial(name=name))
+        scene.add_geometry(mesh, node_name=f"node{i}", geom_name=f"geom{i}")
+    path = root / "corner.glb"
+    path.write_bytes(scene.export(file_type="glb"))
+    return path
+
+
 def labelled_ply(root: Path, table: dict) -> Path:
     """The corner as an ASCII PLY (double coordinates) with a face property ``label`` (ground 0,
     wall 1) and the label table ``table`` beside it."""

@@ -3,7 +3,7 @@
 
 Bad input prints one line ``error: <what is wrong and the fix>`` on stderr and exits with status 2,
 writing nothing; warnings (degenerate polygons dropped, labels no face uses, materials without
-faces) are lines ``warning: ...`` on stderr. On success it prints a short summary on stdout.
+faces, glTF float32 positions at survey coordinates) are lines ``warning: ...`` on stderr. On success it prints a short summary on stdout.
 """
 from __future__ import annotations
 
@@ -37,7 +37,8 @@ def parser() -> argparse.ArgumentParser:
                    help="segments from materials, objects, or (CityJSON) object and surface type; "
                         "default: material, semantic for CityJSON")
     p.add_argument("--kernels", nargs="+", default=[], metavar="SEGMENT=k1,k2",
-                   help="kernels of the segments SEGMENT names (a name or a shell pattern such as '*/Window')")
+                   help="kernels of the segments SEGMENT names: a segment's very name (matched first), or a "
+                        "shell pattern such as '*/Window' ([[] matches a literal '[')")
     p.add_argument("--default-kernels", default="diffuse", metavar="k1,k2",
                    help="kernels of the other segments (default diffuse; CityJSON windows: diffuse,specular)")
     return p

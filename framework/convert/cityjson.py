@@ -11,9 +11,12 @@ float64), the geometry types ``MultiSurface``, ``CompositeSurface``, ``Solid``, 
 ``CompositeSolid`` (points and lines are ignored). Each surface is a polygon with holes (its
 first ring the outer boundary, the others holes), triangulated by earcut. An object with several
 geometries is read at its **highest LoD** only (an LoD2 and an LoD3 of one building would overlap).
-Refused, each with one line: an unknown ``version``, a missing ``transform``, geometry templates
-(``GeometryInstance``: dereference them into plain geometry first, or export without templates),
-a ``type`` other than ``CityJSON``.
+Refused, each with one line: an unknown ``version`` (or one written as a JSON number, ``2.0``
+for ``"2.0"``), a missing ``transform``, geometry templates (``GeometryInstance``: dereference
+them into plain geometry first, or export without templates), a ``type`` other than
+``CityJSON``, a CityObject id given twice (JSON would keep the last object only), a semantic or
+material value that is not an index of the geometry's list (a negative one included: Python
+would read it from the end), and a surface that crosses itself.
 """
 from __future__ import annotations
 
@@ -87,7 +90,8 @@ def read_cityjson(path: Path, group: str) -> tuple[Source, dict]:
                 if material is None:
                     raise SceneError(f"{path}: CityObject '{oid}' has a surface without a material of theme "
                                      f"'{materials[0]}'; use --group semantic or object")
-                name, sem, kind = materials[1][material], None, "material"
+                index = _index(material, len(materials[1]), "material", "appearance materials", f"{path}: {poly.where}")
+                name, sem, kind = materials[1][index], None, "material"
             if max(int(r.max()) for r in poly.rings if len(r)) >= n_vertices or min(
                     int(r.min()) for r in poly.rings if len(r)) < 0:
                 raise SceneError(f"{path}: CityObject '{oid}': a vertex index is out of range "
@@ -110,17 +114,34 @@ def _document(path: Path) -> dict:
         raise SceneError(f"{path}: is not UTF-8 text, so not CityJSON; check the file") from None
     if not text.strip():
         raise SceneError(f"{path}: is empty; export the city model again")
+    repeated: list[tuple[dict, list[str]]] = []         # JSON objects with a key given twice, and those keys
     try:
-        doc = json.loads(text)
+        doc = json.loads(text, object_pairs_hook=lambda pairs: _keep_repeats(pairs, repeated))
     except json.JSONDecodeError as exc:
         raise SceneError(f"{path}: is not valid JSON (line {exc.lineno}: {exc.msg}); fix the file") from None
     if not isinstance(doc, dict) or doc.get("type") != "CityJSON":
         raise SceneError(f"{path}: is not CityJSON ('type' must be 'CityJSON'); check the file")
+    twice = next((keys[0] for d, keys in repeated if d is doc.get("CityObjects")), None)
+    if twice is not None:
+        raise SceneError(f"{path}: CityObject id '{twice}' appears twice in CityObjects (JSON keeps the last, so "
+                         "the first would be lost); give each object its own id")
     version = doc.get("version")
+    if isinstance(version, (int, float)) and not isinstance(version, bool):
+        raise SceneError(f"{path}: 'version' is the number {version}; CityJSON writes it as a string: "
+                         f"\"version\": \"{version}\" (the converter reads {' and '.join(VERSIONS)})")
     if version not in VERSIONS:
         raise SceneError(f"{path}: CityJSON version {version!r} is not supported; the converter reads "
                          f"{' and '.join(VERSIONS)} (upgrade the file, e.g. with cjio upgrade)")
     return doc
+
+
+def _keep_repeats(pairs: list[tuple[str, object]], repeated: list) -> dict:
+    """``dict(pairs)``, noting in ``repeated`` the dict and its keys given more than once."""
+    out = dict(pairs)
+    if len(out) != len(pairs):
+        seen: set = set()
+        repeated.append((out, [k for k, _ in pairs if k in seen or seen.add(k)]))
+    return out
 
 
 def _transform(doc: dict, path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -165,13 +186,27 @@ def _surfaces(geom: dict, path: Path, oid: str):
     mat = next(iter((geom.get("material") or {}).values()), None)
     try:
         for poly, path_idx in _walk(geom["boundaries"], depth, ()):
-            s = _at(sem.get("values"), path_idx)
+            where = f"surface {list(path_idx)}"
+            s = _index(_at(sem.get("values"), path_idx), len(types), "semantic", "semantic surfaces",
+                       f"{path}: CityObject '{oid}': {where}")
             m = mat.get("value") if mat is not None and "value" in mat else _at(
                 mat.get("values") if mat else None, path_idx)
-            yield Polygon([np.asarray(r, np.int64) for r in poly]), (types[s] if s is not None else None), m
+            rings = [np.asarray(r, np.int64) for r in poly]
+            yield Polygon(rings, where=f"CityObject '{oid}': {where}"), (types[s] if s is not None else None), m
     except (TypeError, KeyError, IndexError, ValueError):
         raise SceneError(f"{path}: CityObject '{oid}': malformed {t} boundaries or semantics; validate the "
                          "file (cjval)") from None
+
+
+def _index(value, count: int, what: str, noun: str, where: str) -> int | None:
+    """``value``, a semantic or material index of a surface, checked: null, or 0..count-1 (a
+    negative one would pick a surface from the end, as Python indexing does)."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < count:
+        raise SceneError(f"{where} has the {what} value {json.dumps(value)}, not an index of its {count} {noun} "
+                         f"(0..{count - 1}) or null; fix it (cjval validates the file)")
+    return value
 
 
 def _walk(node, depth: int, where: tuple):

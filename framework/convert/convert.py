@@ -9,7 +9,6 @@ segment) before moving it into place: on any error nothing is left behind.
 """
 from __future__ import annotations
 
-import fnmatch
 import hashlib
 import os
 import re
@@ -18,31 +17,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yaml
 
-from framework import kernels as kernel_registry
 from framework.convert.cityjson import read_cityjson
 from framework.convert.gltf import read_gltf
-from framework.convert.model import Triangulated, local_origin, moved, triangulate
+from framework.convert.inputs import (check_folders, check_frames, kernel_list, read_emitters, segment_kernels,
+                                      source_format)
+from framework.convert.model import Triangulated, local_origin, moved, origin_text, triangulate
 from framework.convert.obj import read_obj
-from framework.convert.ply import labels_file, read_ply
+from framework.convert.ply import read_ply
 from framework.errors import SceneError, UserError
 from framework.scene.colmap import read_model
 from framework.scene.write import write_colmap, write_mesh, write_scene_yaml
-
-#: suffix -> (format, the groupings it offers, its default grouping)
-FORMATS = {
-    ".obj": ("OBJ", ("material", "object"), "material"),
-    ".gltf": ("glTF", ("material", "object"), "material"),
-    ".glb": ("glTF", ("material", "object"), "material"),
-    ".ply": ("PLY", ("material",), "material"),
-    ".json": ("CityJSON", ("semantic", "object", "material"), "semantic"),
-    ".jsonl": ("CityJSON", (), "semantic"),
-}
-#: Default kernels of CityJSON semantic surface types (others: ``--default-kernels``).
-SEMANTIC_KERNELS = {"Window": ("diffuse", "specular")}
-EMITTER_FILE_KEYS = ("emitters", "channels")
-
 
 @dataclass
 class Conversion:
@@ -82,7 +67,8 @@ def convert(source: str | os.PathLike, out_dir: str | os.PathLike, *, sparse: st
         ``material``, ``object`` or ``semantic``; the default depends on the format (material;
         semantic for CityJSON).
     kernels : dict, optional
-        Segment name or shell pattern (``*/Window``) -> kernels, overriding the defaults.
+        Segment name or shell pattern (``*/Window``) -> kernels, overriding the defaults; an
+        entry that is a segment's very name wins over the patterns that match it.
     default_kernels : tuple of str, default ("diffuse",)
         Kernels of a segment that no ``kernels`` entry and no semantic default (CityJSON
         ``Window``: diffuse, specular) gives kernels to.
@@ -101,19 +87,15 @@ def convert(source: str | os.PathLike, out_dir: str | os.PathLike, *, sparse: st
         One line naming the input and the fix; nothing is written then.
     """
     source, out_dir, sparse, emitters_path = (Path(p).expanduser().resolve() for p in (source, out_dir, sparse, emitters))
-    fmt, groups, default_group = _format(source)
+    fmt, groups, default_group = source_format(source)
     group = group or default_group
     if group not in groups:
         raise UserError(f"--group {group} does not apply to {fmt} ({source.name}); use "
                         f"{' or '.join(groups)}")
-    _check_out(out_dir)
-    for what, folder in (("--sparse", sparse), ("--images", images), ("--masks", masks)):
-        if folder is not None and not Path(folder).is_dir():
-            raise UserError(f"{what} {folder}: no such folder; give the folder of the "
-                            f"{'COLMAP model' if what == '--sparse' else 'photographs' if what == '--images' else 'masks'}")
-    channels, emitter_list = _emitters(emitters_path)
-    default_kernels = _kernel_list(default_kernels, "--default-kernels")
-    kernels = {k: _kernel_list(v, f"--kernels {k}") for k, v in (kernels or {}).items()}
+    check_folders(out_dir, sparse=sparse, images=images, masks=masks)
+    channels, emitter_list = read_emitters(emitters_path)
+    default_kernels = kernel_list(default_kernels, "--default-kernels")
+    kernels = {k: kernel_list(v, f"--kernels {k}") for k, v in (kernels or {}).items()}
     warnings: list[str] = []
 
     src, facts = _read(source, fmt, group)
@@ -124,8 +106,9 @@ def convert(source: str | os.PathLike, out_dir: str | os.PathLike, *, sparse: st
                         "vertices, or no area)")
     origin = local_origin(parts)
     parts = moved(parts, origin)
-    segment_kernels = _segment_kernels(parts, kernels, default_kernels, source)
+    kernels_of = segment_kernels(parts, kernels, default_kernels, source)
     model = read_model(sparse.parent, sparse=sparse)
+    check_frames(model, origin, source=source, sparse=sparse)
 
     staging = out_dir.parent / f".{out_dir.name}.partial-{os.getpid()}"
     if staging.exists():
@@ -138,7 +121,7 @@ def convert(source: str | os.PathLike, out_dir: str | os.PathLike, *, sparse: st
                 shutil.copytree(folder, staging / name)
         emitter_list = _copy_envmaps(emitter_list, emitters_path, staging)
         scene = {"name": out_dir.name, "channels": channels, "origin": origin.tolist(),
-                 "segments": [{"name": p.name, "meshes": [files[p.name]], "kernels": list(segment_kernels[p.name])}
+                 "segments": [{"name": p.name, "meshes": [files[p.name]], "kernels": list(kernels_of[p.name])}
                               for p in parts],
                  "emitters": emitter_list}
         digest = _sha256(source)
@@ -154,70 +137,13 @@ def convert(source: str | os.PathLike, out_dir: str | os.PathLike, *, sparse: st
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
-    return Conversion(out_dir, origin, segment_kernels, int(sum(len(p.faces) for p in parts)), dropped,
+    return Conversion(out_dir, origin, kernels_of, int(sum(len(p.faces) for p in parts)), dropped,
                       len(model.cameras), warnings)
 
 
 # ----------------------------------------------------------------------------------------------
 # Inputs
 # ----------------------------------------------------------------------------------------------
-
-def _format(source: Path) -> tuple[str, tuple[str, ...], str]:
-    if not source.is_file():
-        raise UserError(f"{source}: no such file; give the mesh or city model to convert")
-    if source.stat().st_size == 0:
-        raise SceneError(f"{source}: is empty; export the mesh or city model again")
-    suffix = source.suffix.lower()
-    if suffix not in FORMATS or suffix == ".jsonl":
-        raise UserError(f"{source}: unknown format '{source.suffix}'; convert an .obj, .gltf/.glb, .ply (with "
-                        f"{labels_file(source).name}) or a CityJSON .json (CityJSONSeq .jsonl: cjio ... save first)")
-    return FORMATS[suffix]
-
-
-def _check_out(out_dir: Path) -> None:
-    if out_dir.exists() and (not out_dir.is_dir() or any(out_dir.iterdir())):
-        raise UserError(f"{out_dir}: exists and is not an empty folder; name a new folder for the scene")
-    if not out_dir.parent.is_dir():
-        raise UserError(f"{out_dir.parent}: no such folder; create it, or name the scene folder elsewhere")
-
-
-def _emitters(path: Path) -> tuple[str, list]:
-    """(channels, the ``emitters`` list) of the emitters file; scene.yaml's schema checks the
-    list itself once the scene is staged (its messages then name this file)."""
-    if not path.is_file():
-        raise UserError(f"--emitters {path}: no such file; write a YAML file with an 'emitters:' list as in "
-                        "scene.yaml (docs/scene-format.md)")
-    try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (yaml.YAMLError, UnicodeDecodeError):
-        raise SceneError(f"{path}: is not valid YAML; fix the syntax") from None
-    if not isinstance(doc, dict) or "emitters" not in doc:
-        raise SceneError(f"{path}: must be a mapping with an 'emitters:' list (as in scene.yaml) and optionally "
-                         "'channels:'; add it")
-    unknown = [k for k in doc if k not in EMITTER_FILE_KEYS]
-    if unknown:
-        raise SceneError(f"{path}: unknown key '{unknown[0]}'; allowed keys: {', '.join(EMITTER_FILE_KEYS)}")
-    if not isinstance(doc["emitters"], list):
-        raise SceneError(f"{path}: 'emitters' must be a list, e.g. [{{type: constant, radiance: 1.0}}]")
-    area = [e for e in doc["emitters"] if isinstance(e, dict) and e.get("type") == "area"]
-    if area:
-        raise SceneError(f"{path}: area emitters name meshes of the scene folder; convert without them and add "
-                         "them to the written scene.yaml")
-    return doc.get("channels", "rgb"), doc["emitters"]
-
-
-def _kernel_list(value, where: str) -> tuple[str, ...]:
-    names = [k.strip() for k in (value.split(",") if isinstance(value, str) else value)]
-    if not names or not all(names):
-        raise UserError(f"{where}: give a comma-separated list of kernels, e.g. diffuse,specular")
-    try:
-        out = tuple(kernel_registry.canonical(k) for k in names)
-    except SceneError as exc:
-        raise UserError(f"{where}: {exc}") from None
-    if len(set(out)) != len(out):
-        raise UserError(f"{where}: a kernel is listed twice ({','.join(out)}); list each once")
-    return out
-
 
 def _read(source: Path, fmt: str, group: str):
     if fmt == "OBJ":
@@ -227,22 +153,6 @@ def _read(source: Path, fmt: str, group: str):
     if fmt == "PLY":
         return read_ply(source), {}
     return read_cityjson(source, group)
-
-
-def _segment_kernels(parts: list[Triangulated], kernels: dict, default: tuple[str, ...],
-                     source: Path) -> dict[str, tuple[str, ...]]:
-    """Each segment's kernels: the first matching ``--kernels`` entry, else its semantic type's
-    default, else ``default``. An entry matching no segment is an error listing them."""
-    names = [p.name for p in parts]
-    for pattern in kernels:
-        if not any(fnmatch.fnmatchcase(n, pattern) for n in names):
-            shown = ", ".join(names[:30]) + (f", ... ({len(names)} segments)" if len(names) > 30 else "")
-            raise UserError(f"--kernels {pattern}=...: no segment of {source.name} is named so; segments: {shown}")
-    out = {}
-    for p in parts:
-        match = next((k for pat, k in kernels.items() if fnmatch.fnmatchcase(p.name, pat)), None)
-        out[p.name] = match or SEMANTIC_KERNELS.get(p.semantic or "", default)
-    return out
 
 
 # ----------------------------------------------------------------------------------------------
@@ -304,15 +214,11 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def _origin_text(origin: np.ndarray) -> str:
-    return "[" + ", ".join(f"{x:.3f}" for x in origin) + "]"
-
-
 def _comment(source: Path, digest: str, fmt: str, group: str, origin: np.ndarray) -> str:
     return (f"Converted by `python -m framework.convert` from {source.name} ({fmt}, --group {group}),\n"
             f"sha256 {digest}; see README.md beside this file.\n"
             f"origin: the survey coordinates of this folder's (0, 0, 0); meshes and cameras were moved by\n"
-            f"-origin = -{_origin_text(origin)} (float64).")
+            f"-origin = -{origin_text(origin)} (float64).")
 
 
 def _write_readme(staging: Path, source: Path, digest: str, fmt: str, group: str, origin: np.ndarray,
@@ -325,7 +231,7 @@ def _write_readme(staging: Path, source: Path, digest: str, fmt: str, group: str
              f"| source sha256 | `{digest}` |",
              f"| grouping | `--group {group}` |",
              f"| COLMAP model | `{sparse.name}/`, moved with the meshes |",
-             f"| origin | `{_origin_text(origin)}`{' in ' + str(crs) if crs else ''}: the survey coordinates of this folder's (0, 0, 0) |",
+             f"| origin | `{origin_text(origin)}`{' in ' + str(crs) if crs else ''}: the survey coordinates of this folder's (0, 0, 0) |",
              f"| segments | {len(parts)} |",
              f"| triangles | {sum(len(p.faces) for p in parts)} |",
              f"| degenerate faces dropped | {dropped} |", "",
@@ -343,13 +249,14 @@ def _check(staging: Path, out_dir: Path, source: Path, sparse: Path, origin: np.
 
     Messages name the user's files: the emitters file for an emitter, the ``--images`` and
     ``--masks`` folders for the copies (``copied``: staged folder -> given folder), ``out_dir``
-    for the rest."""
+    for the rest; the blind-view check's poses are those of ``sparse``, the model the user can fix
+    (the staged one is moved and renumbered)."""
     from framework.render import backend
     from framework.render.checks import check_lit_and_seen
     from framework.scene import load_scene
 
-    def renamed(exc: Exception) -> str:
-        text = str(exc).replace(str(staging / "scene.yaml"), str(emitters_path)) if "emitter" in str(exc) else str(exc)
+    def renamed(text: str) -> str:
+        text = text.replace(str(staging / "scene.yaml"), str(emitters_path)) if "emitter" in text else text
         for staged, given in copied.items():
             text = text.replace(str(staged), str(given))
         return text.replace(str(staging), str(out_dir))
@@ -357,10 +264,11 @@ def _check(staging: Path, out_dir: Path, source: Path, sparse: Path, origin: np.
     try:
         scene = load_scene(staging, observations=observations)
     except SceneError as exc:
-        raise SceneError(renamed(exc)) from None
+        raise SceneError(renamed(str(exc))) from None
     backend.set_variant("auto", channels=scene.channels)
     try:
-        check_lit_and_seen(scene, list(scene.cameras))
+        check_lit_and_seen(scene, list(scene.cameras), views_option=False)
     except SceneError as exc:
-        raise SceneError(f"{sparse}: after the move to the local origin {_origin_text(origin)}, {renamed(exc)} "
+        text = renamed(str(exc).replace(str(staging / "sparse"), str(sparse)))
+        raise SceneError(f"{sparse}: after the move to the local origin {origin_text(origin)}, {text} "
                          f"(is the COLMAP model in the frame of {source.name}?)") from None

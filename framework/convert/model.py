@@ -28,6 +28,7 @@ class Polygon:
     ring first, then the holes (CityJSON's ``[[outer], [hole], ...]``)."""
 
     rings: list[np.ndarray]
+    where: str = ""                     # where the source gives it, for messages: ``line 12``, ``surface [0, 3]``
 
 
 @dataclass
@@ -98,7 +99,7 @@ def triangulate(source: Source) -> tuple[list[Triangulated], int]:
         dropped += int((~keep).sum())
         tris = [faces[keep]]
         for poly in part.polygons:
-            t = _earcut(v, poly)
+            t = _earcut_or_refuse(v, poly, source, part)
             if t is None:
                 dropped += 1
             else:
@@ -131,29 +132,35 @@ def _non_degenerate(v: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return distinct & (area2 > DEGENERATE_RATIO * size2)
 
 
+def _earcut_or_refuse(v: np.ndarray, poly: Polygon, source: Source, part: Part) -> np.ndarray | None:
+    """:func:`_earcut`, with a self-crossing polygon refused: earcut would drop part of it."""
+    try:
+        return _earcut(v, poly)
+    except _Crossing as exc:
+        what = f"{poly.where}: the polygon" if poly.where else "a polygon"
+        raise SceneError(f"{source.path}: {part.kind} '{part.name}': {what} crosses itself (its {exc}); reorder "
+                         "its vertices or split it into polygons that do not cross themselves") from None
+
+
 def _earcut(v: np.ndarray, poly: Polygon) -> np.ndarray | None:
-    """Triangles (k, 3) of one polygon with holes, or None when it is degenerate."""
+    """Triangles (k, 3) of one polygon with holes, or None when it is degenerate; raises
+    :class:`_Crossing` when it crosses itself."""
     import mapbox_earcut
 
     rings = [np.asarray(r, np.int64) for r in poly.rings]
     rings = [r[:-1] if len(r) > 1 and r[0] == r[-1] else r for r in rings]   # closed rings: once
-    if len(rings[0]) < 3:
+    if len(rings[0]) < 3 or len(np.unique(rings[0])) < 3:
         return None
     idx = np.concatenate(rings)
-    pts = v[idx]
-    centred = pts - pts.mean(axis=0)                 # float64, near 0: survey offsets cancel
-    outer = centred[:len(rings[0])]
-    normal = np.cross(outer, np.roll(outer, -1, axis=0)).sum(axis=0)     # Newell: 2 x area normal
-    area2 = np.linalg.norm(normal)
-    perimeter = np.linalg.norm(np.diff(np.vstack([outer, outer[:1]]), axis=0), axis=1).sum()
-    if area2 <= DEGENERATE_RATIO * perimeter ** 2 or len(np.unique(rings[0])) < 3:
+    sizes = [len(r) for r in rings]
+    centred = v[idx] - v[idx].mean(axis=0)           # float64, near 0: survey offsets cancel
+    n = _normal(centred[:sizes[0]])
+    if n is None:
+        _check_cancelling_lobes(centred, sizes)
         return None
-    n = normal / area2
-    u = np.cross(n, [1.0, 0, 0] if abs(n[0]) < 0.9 else [0, 1.0, 0])
-    u /= np.linalg.norm(u)
-    w = np.cross(n, u)                               # (u, w, n) right-handed: earcut keeps the winding
-    ends = np.cumsum([len(r) for r in rings]).astype(np.uint32)
-    tri = np.asarray(mapbox_earcut.triangulate_float64(np.stack([centred @ u, centred @ w], 1), ends))
+    flat = _in_plane(centred, n)
+    _check_no_crossing(flat, sizes)
+    tri = np.asarray(mapbox_earcut.triangulate_float64(flat, np.cumsum(sizes).astype(np.uint32)))
     if len(tri) == 0:
         return None
     tri = idx[tri.reshape(-1, 3)]
@@ -166,6 +173,71 @@ def _earcut(v: np.ndarray, poly: Polygon) -> np.ndarray | None:
     return tri
 
 
+def _normal(outer: np.ndarray) -> np.ndarray | None:
+    """The unit normal of a ring (Newell's), or None when its area is too small for its
+    perimeter (:data:`DEGENERATE_RATIO`)."""
+    normal = np.cross(outer, np.roll(outer, -1, axis=0)).sum(axis=0)     # Newell: 2 x area normal
+    area2 = np.linalg.norm(normal)
+    perimeter = np.linalg.norm(np.diff(np.vstack([outer, outer[:1]]), axis=0), axis=1).sum()
+    return None if area2 <= DEGENERATE_RATIO * perimeter ** 2 else normal / area2
+
+
+def _in_plane(points: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """2D coordinates of ``points`` in the plane of normal ``n``: (u, w, n) right-handed, so that
+    earcut keeps the winding."""
+    u = np.cross(n, [1.0, 0, 0] if abs(n[0]) < 0.9 else [0, 1.0, 0])
+    u /= np.linalg.norm(u)
+    return np.stack([points @ u, points @ np.cross(n, u)], 1)
+
+
+def _check_cancelling_lobes(centred: np.ndarray, sizes: list[int]) -> None:
+    """A ring of no net area that still spans a plane may be a bow-tie whose two lobes cancel:
+    check it for crossing edges in its best-fit plane (a line has no such plane)."""
+    s, vt = np.linalg.svd(centred, full_matrices=False)[1:]
+    if s[1] > np.sqrt(DEGENERATE_RATIO) * s[0]:
+        _check_no_crossing(_in_plane(centred, vt[-1]), sizes)
+
+
+class _Crossing(ValueError):
+    """Two edges of a polygon cross (the message names them)."""
+
+
+def _check_no_crossing(xy: np.ndarray, sizes: list[int]) -> None:
+    """Raise :class:`_Crossing` when two edges of the rings (``sizes`` points each, one after the
+    other in ``xy``) cross at a point inside both. Touching (a shared vertex, a vertex on an
+    edge) is not crossing: earcut takes it."""
+    start = np.repeat(np.cumsum([0] + sizes[:-1]), sizes)
+    size = np.repeat(sizes, sizes)
+    a = np.arange(len(xy))
+    p, q = xy[a], xy[start + (a - start + 1) % size]
+    eps = 1e-12 * max(float(np.ptp(xy, axis=0).max()), 1e-300) ** 2
+
+    def side(o, d, x):                                 # sign of the cross product (d - o) x (x - o)
+        c = (d[..., 0] - o[..., 0]) * (x[..., 1] - o[..., 1]) - (d[..., 1] - o[..., 1]) * (x[..., 0] - o[..., 0])
+        return np.where(np.abs(c) > eps, np.sign(c), 0.0)
+
+    for i0 in range(0, len(a), 512):                   # row blocks bound the memory of huge rings
+        i = slice(i0, i0 + 512)
+        P, Q = p[i, None], q[i, None]
+        cross = (side(P, Q, p[None]) * side(P, Q, q[None]) < 0) & (side(p[None], q[None], P) * side(p[None], q[None], Q) < 0)
+        if cross.any():
+            e1, e2 = np.argwhere(cross)[0] + (i0, 0)
+            raise _Crossing(_edge_pair(int(e1), int(e2), start, size))
+
+
+def _edge_pair(e1: int, e2: int, start: np.ndarray, size: np.ndarray) -> str:
+    """``edges 1 and 3`` (of the outer ring, numbered from 1), or ``edge 2 and hole 1's edge 4``."""
+    ring_starts = list(dict.fromkeys(start.tolist()))
+    (r1, k1), (r2, k2) = sorted((ring_starts.index(int(start[e])), int(e - start[e]) + 1) for e in (e1, e2))
+    if r1 == r2 == 0:
+        return f"edges {k1} and {k2} cross"
+    return f"{_edge_name(r1, k1)} and {_edge_name(r2, k2)} cross"
+
+
+def _edge_name(ring: int, k: int) -> str:
+    return f"edge {k}" if ring == 0 else f"hole {ring}'s edge {k}"
+
+
 def local_origin(parts: list[Triangulated]) -> np.ndarray:
     """The local origin of survey coordinates: ``[0, 0, 0]`` when every coordinate lies within
     :data:`SURVEY_LIMIT` of 0, else the centre of the bounding box in x and y and its bottom in z,
@@ -175,6 +247,11 @@ def local_origin(parts: list[Triangulated]) -> np.ndarray:
     if max(np.abs(lo).max(), np.abs(hi).max()) <= SURVEY_LIMIT:
         return np.zeros(3)
     return np.round(np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]]))
+
+
+def origin_text(origin: np.ndarray) -> str:
+    """``origin`` as the messages and the provenance show it: ``[652340.000, 6862275.000, 35.000]``."""
+    return "[" + ", ".join(f"{x:.3f}" for x in origin) + "]"
 
 
 def moved(parts: list[Triangulated], origin: np.ndarray) -> list[Triangulated]:

@@ -69,14 +69,14 @@ def read_ply(path: Path) -> Source:
         if isinstance(faces, np.ndarray) and faces.ndim == 2:
             part.triangles.append(faces[mask][:, :3] if faces.shape[1] == 3 else np.zeros((0, 3), int))
             if faces.shape[1] > 3:
-                part.polygons += [Polygon([f]) for f in faces[mask]]
+                part.polygons += [Polygon([faces[i]], where=f"face {i}") for i in np.flatnonzero(mask)]
         else:
-            for f in faces[mask]:
-                f = np.asarray(f, np.int64)
+            for i in np.flatnonzero(mask):
+                f = np.asarray(faces[i], np.int64)
                 if len(f) == 3:
                     part.triangles.append(f[None])
                 else:
-                    part.polygons.append(Polygon([f]))
+                    part.polygons.append(Polygon([f], where=f"face {i}"))
     return source
 
 

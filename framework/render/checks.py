@@ -97,7 +97,7 @@ def _pose_file(scene: Scene) -> Path:
 # Light and visibility
 # ------------------------------------------------------------------------------------------------
 def check_lit_and_seen(scene: Scene, cameras: list[Camera], *, max_depth: int = -1,
-                       weights: dict | None = None) -> dict[str, tuple[int, bool]]:
+                       weights: dict | None = None, views_option: bool = True) -> dict[str, tuple[int, bool]]:
     """Raise :class:`SceneError` when no parameter can be observed from ``cameras``.
 
     A view *sees* a segment through the centre of a usable pixel (:meth:`MitsubaScene.segment_map`,
@@ -120,6 +120,9 @@ def check_lit_and_seen(scene: Scene, cameras: list[Camera], *, max_depth: int = 
         reflections reaches none of its renders.
     weights : dict, optional
         view name -> ``(H, W)`` pixel weights (0: unusable); None: every pixel usable.
+    views_option : bool, default True
+        Whether the caller can select other views (a run's ``views=...``), so that the messages
+        may suggest it; the converter has no such option.
 
     Returns
     -------
@@ -148,14 +151,15 @@ def check_lit_and_seen(scene: Scene, cameras: list[Camera], *, max_depth: int = 
     unusable = [c.name for c in cameras if c.name in weights and not np.any(np.asarray(weights[c.name]) > 0)]
     blind = [name for name, (seen, _) in found.items() if seen == 0 and name not in unusable]
     dark = [name for name, (seen, lit) in found.items() if seen and not lit]
+    select = "select other views (views=...)" if views_option else ""
     if len(unusable) == len(found):
         raise SceneError(f"no selected view has a usable pixel ({', '.join(unusable)}: every pixel masked, "
-                         "saturated or black): nothing to fit; fix the photographs or masks, or select other "
-                         "views (views=...)")
+                         "saturated or black): nothing to fit; fix the photographs or masks"
+                         f"{', or ' + select if select else ''}")
     if len(blind) + len(unusable) == len(found):
         raise SceneError(f"no selected view sees any segment ({', '.join(blind)} see only sky or nothing"
-                         f"{' in their usable pixels' if weights else ''}): fix their poses in {_sparse(scene)} "
-                         "or select other views (views=...)")
+                         f"{' in their usable pixels' if weights else ''}): fix their poses in {_sparse(scene)}"
+                         f"{' or ' + select if select else ''}")
     if len(blind) + len(dark) + len(unusable) == len(found):
         raise SceneError(f"no light reaches the segments seen by {', '.join(dark)}: {_light_hint(scene, max_depth)}")
     for name, why in view_problems(found, weights).items():

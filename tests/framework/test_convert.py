@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 import yaml
 
-from convert_inputs import (GROUND, ORIGIN, WALL, camera_local, corner_cityjson, corner_obj, labelled_ply, obj_text,
-                            write_delivery)
+from convert_inputs import (GROUND, ORIGIN, WALL, camera_local, corner_cityjson, corner_glb, corner_obj, labelled_ply,
+                            obj_text, write_delivery)
 from framework.convert import convert
 from framework.errors import SceneError
 from framework.scene import load_scene
@@ -90,19 +90,7 @@ def test_cityjson_window_default_overridden_by_pattern(tmp_path):
 
 def test_gltf_materials_y_up(tmp_path):
     """A GLB (+y up, as exporters write it) of the corner: segments by material, back to +z up."""
-    import trimesh
-
-    meshes = []
-    for name, quad in (("ground", GROUND), ("wall", WALL)):
-        v = (np.array(quad, float) + ORIGIN) @ np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]]).T   # z up -> y up
-        mesh = trimesh.Trimesh(v, [[0, 1, 2], [0, 2, 3]], process=False)
-        mesh.visual = trimesh.visual.TextureVisuals(material=trimesh.visual.material.PBRMaterial(name=name))
-        meshes.append(mesh)
-    scene = trimesh.Scene()
-    for i, m in enumerate(meshes):
-        scene.add_geometry(m, node_name=f"node{i}", geom_name=f"geom{i}")
-    source = tmp_path / "corner.glb"
-    source.write_bytes(scene.export(file_type="glb"))
+    source = corner_glb(tmp_path)
     done = _convert(tmp_path, source)
     assert _areas(done.folder) == pytest.approx({"ground": 400.0, "wall": 160.0}, rel=1e-6)
     # glTF stores float32: the survey offset survives to its resolution (0.5 m at 6.9e6 m), so
