@@ -319,6 +319,15 @@ def test_failed_run_removes_the_cache_folder_it_created(tmp_path):
 # 13. File modes
 # ----------------------------------------------------------------------------------------------
 
+def test_results_json_non_finite_written_as_null(tmp_path, caplog):
+    """A non-finite number reaches results.json as null with a warning naming its place (was: the
+    finished run failed at the write, ValueError "Out of range float values are not JSON compliant")."""
+    from framework.results import write_results
+    path = write_results(tmp_path, {"a": [1.0, float("nan")], "b": {"c": np.float32("inf")}, "d": 0.5})
+    assert json.loads(path.read_text()) == {"a": [1.0, None], "b": {"c": None}, "d": 0.5}
+    assert "non-finite numbers written as null at a[1], b.c" in caplog.text
+
+
 def test_results_json_follows_the_umask(tmp_path):
     """results.json gets 0666 less the umask, as the images do (was: 0600, mkstemp's)."""
     from framework.results import write_results
