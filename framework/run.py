@@ -168,7 +168,8 @@ def _refuse_method_option(exc: Exception, overrides) -> None:
     moves the refusal to the method's option check)."""
     found = re.match(r"Could not override '(method\.[^']+)'", str(exc))
     if found:
-        method = str(compose([o for o in overrides if not o.startswith(("method.", "+method.", "~method."))]).method.name)
+        chosen = [o for o in overrides if not o.startswith(("method.", "+method.", "~method."))]
+        method = str(compose(chosen).method.name)
         raise ConfigError(unknown_method_option(found.group(1), method)) from None
 
 

@@ -110,6 +110,8 @@ TOP_LEVEL = {
     "cost_history": NUMBER_LIST, "cost_times_s": NUMBER_LIST,
     "timings_s": ("an object of numbers",
                   lambda x: isinstance(x, dict) and all(v is None or _number(v) for v in x.values())),
+    "solve_stages_s": ("an object of numbers",
+                       lambda x: isinstance(x, dict) and all(v is None or _number(v) for v in x.values())),
     "settings": ("an object", lambda x: isinstance(x, dict)),
     "correlation": ("an object", lambda x: isinstance(x, dict)),
     "segments": ("a list", lambda x: isinstance(x, list)),

@@ -44,6 +44,7 @@ Robust weights (``method.robust``)
 from __future__ import annotations
 
 import operator
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -395,14 +396,17 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
         codes = merge_codes([0], *(b.codes for v in views for _, b in v.coeffs.blocks()))
         mu = np.stack([MonomialBasis(len(every), degree, codes).evaluate(x[:, c]) for c in range(C)])
         _reweight(views, mu, codes, options, per_pixel=False)
-    iterates, stopped, fit = [], "single solve", None
+    iterates, stopped, fit, stages = [], "single solve", None, {}
     for round_ in range(options.iterations):
+        if round_ == 1:       # the rounds after the first are the robust reweighting's cost
+            t_robust = time.perf_counter()
         system = reduce(operator.iadd, (weighted_system(v.coeffs, v.y, v.weights) for v in views))
         basis = MonomialBasis(len(every), degree, system.codes)
         used = [v.weights for v in views]
         fit = solve(system, basis, every, x, problem, groups=segment_groups(params),
                     views=lambda: ((v.coeffs, v.y, w) for v, w in zip(views, used)))
         iterates += fit.iterates
+        stages = {k: stages.get(k, 0.0) + t for k, t in fit.stages_s.items()}
         moved = np.nanmax(np.abs(fit.estimate - x)) if np.isfinite(fit.estimate).any() else 0.0
         x = np.where(np.isnan(fit.estimate), x, fit.estimate)
         if options.robust == "none":
@@ -413,7 +417,10 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
         stopped = f"{options.iterations} rounds"
         mu = np.stack([basis.evaluate(x[:, c]) for c in range(C)])
         _reweight(views, mu, system.codes, options)
+    if round_:
+        stages["robust_rounds"] = time.perf_counter() - t_robust
     out = _field_outputs(fit, views, used, basis, system, gains, P, C, round_ + 1, stopped, iterates)
+    out = out.replace(stages_s=stages)
     out = out.replace(pixel_reasons=exclusion_reasons(problem, options, views))
     if light is not None:
         out = out.replace(illumination=light.report(fit.estimate, fit.std))

@@ -85,7 +85,8 @@ def check_gauge(scene) -> None:
 
 def _gives_light(emitter) -> bool:
     """Whether ``emitter`` as declared gives any light (an unknown scale multiplies this)."""
-    values = {"directional": emitter.irradiance, "constant": emitter.radiance, "envmap": emitter.image}.get(emitter.type)
+    values = {"directional": emitter.irradiance, "constant": emitter.radiance,
+              "envmap": emitter.image}.get(emitter.type)
     if values is None:
         return True                       # an area light: its meshes carry it
     return bool(np.any(np.asarray(values, float) > 0)) and (emitter.type != "envmap" or emitter.scale != 0)

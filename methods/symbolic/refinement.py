@@ -68,7 +68,9 @@ def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, ren
         if k:      # re-render at the estimate: better kernel selection, and a tail at the estimate
             x0 = np.where(np.isnan(fit.estimate), x0, fit.estimate)
             if alignment is not None:
+                t_align = time.perf_counter()
                 problem = alignment.update(problem, fit, before_pass=k)
+                stages["registration"] = stages.get("registration", 0.0) + time.perf_counter() - t_align
                 field = FieldOptions.resolve(options, problem)    # the boundary pixels follow the cameras
         result = render_pass(problem, params, x0, options, seed=int(problem.seed) + 7777 * renders)
         renders += 1
@@ -79,8 +81,10 @@ def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, ren
         for at, x in fit.iterates:
             trace.record(renders, x, at=at)
         render_s += result.render_s
-        solve_s += time.perf_counter() - t_solve     # PSD projection, solver and uncertainty
-        stages = {name: stages.get(name, 0.0) + t for name, t in fit.stages_s.items()}
+        t_fit = time.perf_counter() - t_solve        # the systems, every robust round's solve and std
+        solve_s += t_fit
+        for name, t in [*fit.stages_s.items(), ("fits", t_fit)]:
+            stages[name] = stages.get(name, 0.0) + t
         if k:
             fit = carried(previous, fit)
             moves.append(moved(previous.estimate, fit.estimate, fit.std, options.refine_tol))
@@ -94,7 +98,8 @@ def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, ren
         fit = extrapolated(fit, lambda j: fit_pass(result.halved(j, problem.observed, system=not field.active),
                                                    params, x0, problem, options, field, start=start),
                            segments=segment_groups(params))
-        solve_s += time.perf_counter() - t_solve
+        stages["bias_refits"] = time.perf_counter() - t_solve
+        solve_s += stages["bias_refits"]
     return Passes(fit, renders, render_s, solve_s, stages, moves, stopped, result.from_cache, field,
                   problem.cameras, alignment.report(problem.cameras) if alignment is not None else None)
 
