@@ -53,6 +53,30 @@ def method_defaults(name: str) -> DictConfig:
     return compose([f"method={name}"]).method
 
 
+def method_names() -> list[str]:
+    """The methods ``method=`` chooses from (``framework/conf/method/<name>.yaml``)."""
+    return sorted(p.stem for p in (Path(__file__).parent / "conf" / "method").glob("*.yaml"))
+
+
+def unknown_method_option(key: str, method: str) -> str:
+    """The message for ``key`` (``method.align``), which method ``method`` lacks: the methods
+    that have it, or that none has, and ``method``'s own options."""
+    parts = key.split(".")[1:]
+    having = [n for n in method_names() if n != method and _has_key(method_defaults(n), parts)]
+    where = (f"the methods that have it: {', '.join(having)} (choose one with method=<name>)" if having
+             else "no method has it")
+    own = ", ".join(str(k) for k in method_defaults(method) if k != "name") if method in method_names() else "?"
+    return f"{key} is not an option of method {method}: {where}; {method}'s options: {own} (docs/cli.md lists them)"
+
+
+def _has_key(node, parts: list[str]) -> bool:
+    for part in parts:
+        if not isinstance(node, DictConfig) or part not in node:
+            return False
+        node = node[part]
+    return True
+
+
 def scene_dir(cfg: DictConfig) -> Path:
     """``scene.dir`` if given, else the bundled folder of ``scene.name``.
 

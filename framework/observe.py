@@ -1,8 +1,9 @@
 """Observed images: the scene's own EXRs, or synthesised from its references (paper section 5.1).
 
 Synthetic observations are rendered with Mitsuba's ``path`` integrator at the reference
-weights (``observe.max_depth``: -1, unbounded, as real light is), optionally with seeded
-Gaussian sensor noise, and cached by everything that affects them, so a sweep renders them once.
+weights (``observe.max_depth``: -1, unbounded, as real light is), through the scene's known
+lens falloff (``photometry: vignetting: [a1, a2, a3]``), optionally with seeded Gaussian sensor
+noise, and cached by everything that affects them, so a sweep renders them once.
 
 Seeds: observations use odd seeds and the inversions' own renders even ones
 (:func:`observation_seed`, :func:`inversion_seed`), so the two noises are never correlated
@@ -20,6 +21,7 @@ from framework.memory import release_freed_memory
 from framework.render.checks import check_memory, check_views, film_bytes
 from framework.render.mitsuba_scene import MitsubaScene
 from framework.scene import Camera, Scene
+from framework.scene.lens import falloff, pixel_radius
 
 log = logging.getLogger(__name__)
 _SEED_SPACE = 2**31 - 1
@@ -88,8 +90,8 @@ def render_references(scene: Scene, cameras: list[Camera], *, spp: int, max_dept
     ms.set_weights(np.nan_to_num(scene.reference(params)), params)
     rng = np.random.default_rng(observation_seed(seed))
     images = []
-    for i, _ in enumerate(tqdm(cameras, desc="observe", unit="view", leave=False)):
-        img = ms.render(i, spp=spp, seed=observation_seed(seed * 7919 + i))
+    for i, cam in enumerate(tqdm(cameras, desc="observe", unit="view", leave=False)):
+        img = ms.render(i, spp=spp, seed=observation_seed(seed * 7919 + i)) * lens_falloff(scene, cam)
         if noise > 0:
             img = np.maximum(img + rng.normal(0.0, noise * img.mean(), img.shape), 0.0)
         images.append(img.astype(np.float32))
@@ -101,7 +103,20 @@ def render_references(scene: Scene, cameras: list[Camera], *, spp: int, max_dept
     return images
 
 
+def lens_falloff(scene: Scene, camera: Camera) -> np.ndarray | float:
+    """``(H, W, 1)`` the known vignetting ``V(r)`` of scene.yaml's ``photometry`` at each pixel of
+    ``camera``, or 1: an observation rendered from the references goes through the lens the fit
+    divides out (:mod:`framework.scene.lens`); an estimated profile starts from no falloff."""
+    photometry = getattr(scene, "photometry", None)
+    if photometry is None or photometry.vignetting != "known":
+        return 1.0
+    factor = falloff(pixel_radius(camera), photometry.vignetting_profile)
+    return factor.reshape(int(camera.height), int(camera.width), 1)
+
+
 def _key(scene: Scene, cam: Camera, obs, variant: str) -> dict:
+    photometry = getattr(scene, "photometry", None)
+    lens = list(photometry.vignetting_profile) if photometry is not None and photometry.vignetting == "known" else None
     return {"scene": scene.content_hash, "view": cam.name, "spp": int(obs.spp),
             "max_depth": int(obs.max_depth), "noise": float(obs.noise), "seed": int(obs.seed),
-            "variant": variant, "version": 1}
+            "variant": variant, "vignetting": lens, "version": 2}

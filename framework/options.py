@@ -9,7 +9,8 @@ nested mapping (``method.solver.*``).
 
 :func:`build` turns the method's config group into the dataclass: every key checked in field
 order, an unknown key refused with the list of options, the first bad value refused with one
-line naming it (``method.refine=9 is out of range: use an integer in [0, 8]``).
+line naming it (``method.refine=9 is out of range: use an integer in [0, 8]``); an infinite or NaN
+number is refused in every option, whatever its check.
 
 The checks are small callables with an ``allowed`` text (the docs' "allowed values" column):
 :func:`choice`, :func:`number`, :func:`flag`, :func:`either`, :func:`nullable` and :data:`ANY`.
@@ -17,6 +18,7 @@ The checks are small callables with an ``allowed`` text (the docs' "allowed valu
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -107,7 +109,8 @@ def option(doc: str, check: Check = ANY):
     return dataclasses.field(metadata={"doc": " ".join(doc.split()), "check": check})
 
 
-def build(cls, cfg: Mapping, *, section: str = "method", ignore: tuple[str, ...] = FRAMEWORK_KEYS):
+def build(cls, cfg: Mapping, *, section: str = "method", ignore: tuple[str, ...] = FRAMEWORK_KEYS,
+          unknown_hint: Callable[[str], str] | None = None):
     """``cls`` from the config mapping ``cfg``, every field checked (module docstring).
 
     Parameters
@@ -120,6 +123,9 @@ def build(cls, cfg: Mapping, *, section: str = "method", ignore: tuple[str, ...]
         The keys' prefix in messages (``method``, ``method.solver``).
     ignore : tuple of str
         Keys of ``cfg`` that belong to the framework (:data:`FRAMEWORK_KEYS`) at the top level.
+    unknown_hint : callable, optional
+        ``unknown_hint(key)``: the message for an unknown key (which other methods have it); by
+        default the list of this section's options.
 
     Raises
     ------
@@ -129,7 +135,10 @@ def build(cls, cfg: Mapping, *, section: str = "method", ignore: tuple[str, ...]
     fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = [str(k) for k in cfg if k not in fields and k not in ignore]
     if unknown:
-        raise ConfigError(f"{section}.{unknown[0]} is not an option of {section}: use one of "
+        key = f"{section}.{unknown[0]}"
+        if unknown_hint is not None:
+            raise ConfigError(unknown_hint(key))
+        raise ConfigError(f"{key} is not an option of {section}: use one of "
                           f"{', '.join(fields)} (docs/cli.md lists them)")
     values = {}
     for name, f in fields.items():
@@ -140,10 +149,27 @@ def build(cls, cfg: Mapping, *, section: str = "method", ignore: tuple[str, ...]
             sub = cfg[name]
             if not isinstance(sub, Mapping):
                 raise ConfigError(f"{key}={sub} is not a mapping: give its keys as {key}.<key>=value")
-            values[name] = build(_resolved(cls, f), sub, section=key, ignore=())
+            values[name] = build(_resolved(cls, f), sub, section=key, ignore=(), unknown_hint=unknown_hint)
         else:
+            _refuse_non_finite(key, _plain(cfg[name]))
             values[name] = f.metadata["check"](key, cfg[name])
     return cls(**values)
+
+
+def _refuse_non_finite(key: str, value) -> None:
+    """Raise ConfigError when ``value`` is or holds an infinite or NaN number: a run would compute
+    with it and results.json, which holds only finite numbers, could not record the setting."""
+    if _non_finite(value):
+        raise ConfigError(f"{key}={value} is not finite (inf or nan): give finite numbers "
+                          "(docs/cli.md lists the allowed values)")
+
+
+def _non_finite(value) -> bool:
+    if isinstance(value, dict):
+        return any(_non_finite(v) for v in value.values())
+    if isinstance(value, tuple):
+        return any(_non_finite(v) for v in value)
+    return isinstance(value, float) and not math.isfinite(value)
 
 
 def _resolved(cls, f):

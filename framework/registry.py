@@ -100,8 +100,10 @@ class Method(ABC):
     def options_from(cls, cfg) -> Any:
         """The checked options of the config group ``cfg``: ConfigError (one line naming the key)
         for a missing, unknown or bad option."""
+        from framework.config import unknown_method_option
         from framework.options import build
-        return cls.check_options(build(cls.Options, cfg))
+        name = getattr(cls, "name", cls.__name__)
+        return cls.check_options(build(cls.Options, cfg, unknown_hint=lambda key: unknown_method_option(key, name)))
 
     @classmethod
     def check_options(cls, options):

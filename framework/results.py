@@ -3,6 +3,8 @@ and the images."""
 from __future__ import annotations
 
 import json
+import logging
+import math
 import os
 import re
 import shutil
@@ -15,6 +17,8 @@ from framework.cache import atomic_write_bytes
 from framework.errors import ConfigError
 from framework.images import write_exr
 from framework.registry import MethodResult, Problem
+
+log = logging.getLogger(__name__)
 
 RESULTS_NAME = "results.json"
 #: What a run writes into its folder besides Hydra's ``.hydra/`` and ``<job>.log``: a failed
@@ -336,7 +340,30 @@ def results_dict(problem: Problem, result: MethodResult, *, method: str, setting
 
 
 def write_results(run_dir: Path, results: dict) -> Path:
-    """Write results.json atomically: it appears whole or not at all."""
+    """Write results.json atomically: it appears whole or not at all.
+
+    A non-finite number (NaN, ±inf) is written as null, as docs/results.md says, with a warning
+    naming where it was: JSON has no such numbers, and a run that computed one should say so.
+    """
     path = Path(run_dir) / RESULTS_NAME
-    atomic_write_bytes(path, (json.dumps(results, indent=2, allow_nan=False) + "\n").encode())
+    found: list[str] = []
+    clean = finite_json(results, "", found)
+    if found:
+        shown = ", ".join(found[:5]) + (f" and {len(found) - 5} more" if len(found) > 5 else "")
+        log.warning("results.json: non-finite numbers written as null at %s", shown)
+    atomic_write_bytes(path, (json.dumps(clean, indent=2, allow_nan=False) + "\n").encode())
     return path
+
+
+def finite_json(value, where: str, found: list[str]):
+    """``value`` with every non-finite float replaced by None; their places appended to ``found``."""
+    if isinstance(value, dict):
+        return {k: finite_json(v, f"{where}.{k}" if where else str(k), found) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_json(v, f"{where}[{i}]", found) for i, v in enumerate(value)]
+    if isinstance(value, (float, np.floating)):
+        if not math.isfinite(value):
+            found.append(where)
+            return None
+        return float(value)
+    return value

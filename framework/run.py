@@ -31,7 +31,7 @@ from omegaconf import DictConfig
 from omegaconf.errors import OmegaConfBaseException
 
 from framework.cache import Cache
-from framework.config import RunSettings, compose, scene_dir
+from framework.config import RunSettings, compose, scene_dir, unknown_method_option
 from framework.errors import ConfigError, UserError
 from framework.experiment import check_config, run_experiment
 from framework.results import HYDRA_NAMES, RunFolder
@@ -157,8 +157,20 @@ def _checked_config(overrides) -> tuple[DictConfig, RunSettings]:
         cfg = compose(overrides, hydra_config=True)
         return cfg, check_config(cfg)
     except (HydraException, OmegaConfBaseException) as exc:
+        _refuse_method_option(exc, overrides)
         key = getattr(exc, "full_key", None)        # OmegaConf's: the key whose value failed
         raise ConfigError(f"{key + ': ' if key else ''}{_first_lines(exc)} (docs/cli.md lists the keys)") from None
+
+
+def _refuse_method_option(exc: Exception, overrides) -> None:
+    """Raise ConfigError naming the methods that have the option when ``exc`` is Hydra's refusal of
+    an override of a ``method.*`` key the chosen method lacks (its own hint, ``+key=value``, only
+    moves the refusal to the method's option check)."""
+    found = re.match(r"Could not override '(method\.[^']+)'", str(exc))
+    if found:
+        chosen = [o for o in overrides if not o.startswith(("method.", "+method.", "~method."))]
+        method = str(compose(chosen).method.name)
+        raise ConfigError(unknown_method_option(found.group(1), method)) from None
 
 
 def _quoted(path: Path) -> str:

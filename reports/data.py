@@ -73,7 +73,8 @@ def check_results(path: Path, data) -> dict:
 
 
 def _number(x) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool)
+    """A finite number: results.json writes NaN and infinities as null (docs/results.md)."""
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
 
 
 def _numbers(x) -> bool:
@@ -92,7 +93,16 @@ def _matrix(rows: int, cols: int):
 #: first is what lets a bad file fail before any report file is written.
 NUMBER = ("a number", _number)
 NUMBER_OR_NULL = ("a number or null", lambda x: x is None or _number(x))
-PER_CHANNEL = ("numbers per channel or null", lambda x: x is None or _number(x) or _numbers(x))
+
+
+def _per_channel(channels: list) -> tuple[str, object]:
+    """``(words, check)`` of a per-channel field: a list of one finite number (or null) per
+    channel, a single number (the same in every channel), or null."""
+    names = ", ".join(map(str, channels))
+    return (f"{len(channels)} finite numbers (one per channel: {names}; null where unknown) or null",
+            lambda x: x is None or _number(x) or (_numbers(x) and len(x) == len(channels)))
+
+
 NUMBER_LIST = ("a list of numbers", _numbers)
 OBJECT_LIST = ("a list of objects", lambda x: isinstance(x, list) and all(isinstance(v, dict) for v in x))
 TOP_LEVEL = {
@@ -100,6 +110,8 @@ TOP_LEVEL = {
     "cost_history": NUMBER_LIST, "cost_times_s": NUMBER_LIST,
     "timings_s": ("an object of numbers",
                   lambda x: isinstance(x, dict) and all(v is None or _number(v) for v in x.values())),
+    "solve_stages_s": ("an object of numbers",
+                       lambda x: isinstance(x, dict) and all(v is None or _number(v) for v in x.values())),
     "settings": ("an object", lambda x: isinstance(x, dict)),
     "correlation": ("an object", lambda x: isinstance(x, dict)),
     "segments": ("a list", lambda x: isinstance(x, list)),
@@ -112,7 +124,7 @@ def _typed_fields(data: dict):
     """``(field, value, (words, check))`` of every present, non-null field the reports compute with."""
     yield from ((k, data[k], shape) for k, shape in TOP_LEVEL.items() if data.get(k) is not None)
     for i, par in enumerate(data["parameters"]):
-        yield from ((f"parameters[{i}].{k}", par[k], PER_CHANNEL)
+        yield from ((f"parameters[{i}].{k}", par[k], _per_channel(data["channels"]))
                     for k in ("estimate", "reference", "error", "std") if k in par)
     correlation = data.get("correlation")
     if isinstance(correlation, dict) and "matrix" in correlation:

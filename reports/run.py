@@ -15,6 +15,7 @@ from framework.scene.model import EXCLUSION_REASONS
 from reports.data import RESULTS_NAME, as_list, check_results, fmt_num, kernel_label, load_results, seed_of
 from reports.doc import Doc, staged
 from reports.plots import plot_convergence, plot_correlation, plot_difference, plot_segments
+from reports.time_spent import section_time_spent, weights_caption
 
 FILES_DIR = "report_files"
 KEY_SETTINGS = ("seed", "spp", "max_bounces", "variant", "views", "budget_renders", "executor")
@@ -227,7 +228,7 @@ def _view_panel(doc: Doc, ctx: _RunContext, view: dict, index: int) -> None:
     if weights is not None:
         path, src = ctx.out(f"{stem}_weights.png")
         images.write_png(path, np.round(255 * np.clip(weights[..., 0], 0.0, 1.0)).astype(np.uint8))
-        items.append((src, "pixel weight in the fit (black: ignored or outlier)"))
+        items.append((src, weights_caption(weights[..., 0])))
     reasons = _load_reasons(doc, ctx, view)
     if reasons is not None:
         path, src = ctx.out(f"{stem}_excluded.png")
@@ -381,7 +382,7 @@ def write_run_report(run_dir, results: dict | None = None) -> tuple[Path, Path]:
     with staged(run_dir, (FILES_DIR, "report.md", "report.html")) as tmp:
         ctx = _RunContext(run_dir, res, tmp / FILES_DIR)
         for section in (_section_overview, _section_parameters, _section_exposure, _section_illumination,
-                        _section_timings):
+                        _section_timings, section_time_spent):
             section(doc, res)
         for section in (_section_convergence, _section_views, _section_correlation, _section_relit):
             section(doc, ctx)

@@ -228,6 +228,12 @@ class FieldOptions:
                     and photometry.exposure == "per_view")
         reference = photometry.reference_view if per_view else None
         names = [c.name for c in problem.cameras]
+        left_out = getattr(problem, "views_left_out", {}) or {}
+        if per_view and reference in left_out:
+            raise ConfigError(f"photometry reference_view {reference} was left out of this run: it "
+                              f"{left_out[reference]}, so its gains cannot be the fit's reference; name "
+                              f"another view as reference_view in scene.yaml ({', '.join(names)}), fix its "
+                              "photograph or mask, or set method.exposure=known")
         if per_view and reference not in names:
             raise ConfigError(f"photometry reference_view {reference} is not among this run's views "
                               f"({', '.join(names)}): add it to views, or set method.exposure=known")

@@ -75,6 +75,9 @@ class Fit:
     spp_bias : numpy.ndarray or None
         ``method.bias=richardson``: ``(P, C)`` the finite-spp bias removed from ``estimate``
         (:mod:`methods.symbolic.richardson`), NaN where not estimated.
+    spp_bias_actions : numpy.ndarray or None
+        ``method.bias=richardson``: ``(P, C)`` what the correction did to each weight (one of
+        :data:`~methods.symbolic.richardson.ACTIONS`).
     """
 
     estimate: np.ndarray
@@ -102,6 +105,7 @@ class Fit:
     irls_stopped: str | None = None
     clusters: dict | None = None
     spp_bias: np.ndarray | None = None
+    spp_bias_actions: np.ndarray | None = None
 
     def replace(self, **changes) -> Fit:
         return dataclasses.replace(self, **changes)

@@ -66,17 +66,30 @@ def split_environments(scene) -> list[int]:
 
 
 def check_gauge(scene) -> None:
-    """Raise :class:`ConfigError` (one line, the remedies) when every emitter's scale is unknown
-    and no segment is known: ρ and a common scale of the light trade off (module docstring)."""
-    emitters = list(scene.emitters)
+    """Raise :class:`ConfigError` (one line, the remedies) when every emitter that gives light has
+    an unknown scale and no segment is known: ρ and a common scale of the light trade off (module
+    docstring). An emitter of known scale that gives no light (a sunsky's ``sun_scale: 0``, an
+    irradiance of 0) fixes nothing, so it does not count."""
+    emitters = [e for e in scene.emitters if _gives_light(e)]
     if not emitters or not all(e.scale_unknown for e in emitters):
         return
     if any(seg.known for seg in scene.segments):
         return
     where = f"{scene.root}/scene.yaml" if getattr(scene, "root", None) is not None else "scene.yaml"
-    raise ConfigError(f"{where}: every emitter's scale is unknown and no segment is known, so the reflectances "
+    dark = sorted({_label(e.source, e.part) for e in scene.emitters if not _gives_light(e)}, key=str)
+    but = f" (emitter {', '.join(dark)} gives no light, so its known scale fixes nothing)" if dark else ""
+    raise ConfigError(f"{where}: every emitter's scale is unknown{but} and no segment is known, so the reflectances "
                       "and a common scale of the light cannot be told apart; give one emitter's scale as a number, "
                       "or mark a calibration panel with known: {kernel: value} on its segment")
+
+
+def _gives_light(emitter) -> bool:
+    """Whether ``emitter`` as declared gives any light (an unknown scale multiplies this)."""
+    values = {"directional": emitter.irradiance, "constant": emitter.radiance,
+              "envmap": emitter.image}.get(emitter.type)
+    if values is None:
+        return True                       # an area light: its meshes carry it
+    return bool(np.any(np.asarray(values, float) > 0)) and (emitter.type != "envmap" or emitter.scale != 0)
 
 
 def nominal(rho: np.ndarray, scene) -> np.ndarray:

@@ -31,7 +31,8 @@ def method_result(passes: Passes, problem, params, guess: np.ndarray, options: S
               "cost": options.cost}
     if fit.spp_bias is not None:
         extras["spp_bias"] = {"method": "richardson", "spp": int(problem.settings.spp),
-                              "bias": np.where(np.isfinite(fit.spp_bias), fit.spp_bias, None).tolist()}
+                              "bias": np.where(np.isfinite(fit.spp_bias), fit.spp_bias, None).tolist(),
+                              "correction": fit.spp_bias_actions.tolist()}
     if fit.clusters is not None:
         extras["std_clusters"] = fit.clusters
     if fit.per_segment is not None:

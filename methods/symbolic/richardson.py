@@ -35,7 +35,10 @@ cache), and the last pass is solved three times.
 Limitations: a weight the fit puts on its bound 0 is not extrapolated, nor its segment's other
 weights when a half fit moves one of them onto or off the bound (measured: on the field scene
 with ``method.footprint=pixel`` the awning's mirror weight sat at 0 while the half fits found
-0.12, and the extrapolation gave -0.12 to it and +0.036 to the awning's diffuse weight);
+0.12, and the extrapolation gave -0.12 to it and +0.036 to the awning's diffuse weight), nor
+a segment whose extrapolated weights would leave the feasible set (a weight below 0 or above 1,
+their sum above 1: on ``urban_canyon_survey`` a balcony's mirror weight, solved just above 0,
+was extrapolated to −0.061); results.json ``spp_bias.correction`` says which held for each weight;
 ``spp`` a multiple of 4 and ``method.gram=cross``; only the weights ρ are
 corrected (exposure gains, vignetting and emitter scales are reported as fitted); a bias that
 does not fall as 1/n (a model the photographs do not follow) is not seen, and where the
@@ -65,6 +68,12 @@ from methods.symbolic.fit import Fit
 #: an estimate within this of 0 sits on its bound (the solver's box ρ >= 0) and is not extrapolated
 AT_BOUND = 1e-9
 
+#: what the correction did to each weight (results.json ``spp_bias.correction``): extrapolated;
+#: kept as solved because a half fit did not observe it, because it sits on its bound 0, because
+#: the fits disagree on which weights of its segment sit on it, or because the extrapolated
+#: weights of its segment would leave the feasible set (a weight outside [0, 1], Σρ > 1)
+ACTIONS = ("corrected", "not observed", "on its bound", "bounds differ", "infeasible")
+
 
 def extrapolated(fit: Fit, refit: Callable[[int], Fit], *, segments: list[list[int]] | None = None) -> Fit:
     """``fit`` with its estimate ρ̂_n replaced by 2ρ̂_n − ρ̂_{n/2} (module docstring).
@@ -87,19 +96,44 @@ def extrapolated(fit: Fit, refit: Callable[[int], Fit], *, segments: list[list[i
     -------
     Fit
         ``estimate`` extrapolated where both half fits observed the parameter, it is off its
-        bound 0 and its segment's weights are on the bound in all three fits or in none;
-        ``spp_bias`` the (P, C) bias removed, NaN where it was not. ``evaluated_at`` (and the
-        reconstructions) stay at the estimate as solved: the polynomials are those of ρ̂_n's pass.
+        bound 0, its segment's weights are on the bound in all three fits or in none, and the
+        segment's extrapolated weights stay feasible (each in [0, 1], their sum at most 1);
+        ``spp_bias`` the (P, C) bias removed, NaN where it was not; ``spp_bias_actions`` (P, C)
+        which of :data:`ACTIONS` applied. ``evaluated_at`` (and the reconstructions) stay at the
+        estimate as solved: the polynomials are those of ρ̂_n's pass.
     """
     halves = [refit(j).estimate for j in (0, 1)]
     beta = 0.5 * (halves[0] + halves[1]) - fit.estimate        # NaN where a half did not observe it
+    groups = segments if segments is not None else [[i] for i in range(len(beta))]
+    actions = np.full(beta.shape, ACTIONS[0], dtype=object)
+    actions[~np.isfinite(beta)] = "not observed"
     # at the bound ρ = 0 the estimate is not smooth in the noise, so its bias has no 1/n
     # expansion: a weight on it is kept as solved, and so is every weight of its segment when the
     # half fits and the whole one disagree on which weights are on it (the others trade with it)
     at = [np.abs(x) <= AT_BOUND for x in (fit.estimate, *halves)]
-    known = np.isfinite(beta) & ~at[0]
-    for group in segments if segments is not None else [[i] for i in range(len(beta))]:
+    actions[(actions == ACTIONS[0]) & at[0]] = "on its bound"
+    for group in groups:
         differs = np.any((at[0][group] != at[1][group]) | (at[0][group] != at[2][group]), axis=0)
-        known[np.ix_(group, np.flatnonzero(differs))] = False
-    estimate = np.where(known, fit.estimate - beta, fit.estimate)
-    return fit.replace(estimate=estimate, spp_bias=np.where(known, beta, np.nan))
+        _mark(actions, group, differs, "bounds differ")
+    # an extrapolation out of the feasible set is the expansion failing near a bound the whole fit
+    # did not reach: the segment keeps its weights as solved there, as on the bound
+    trial = np.where(actions == ACTIONS[0], fit.estimate - beta, fit.estimate)
+    for group in groups:
+        _mark(actions, group, _infeasible(trial[group]), "infeasible")
+    known = actions == ACTIONS[0]
+    return fit.replace(estimate=np.where(known, fit.estimate - beta, fit.estimate),
+                       spp_bias=np.where(known, beta, np.nan), spp_bias_actions=actions)
+
+
+def _mark(actions: np.ndarray, group: list[int], channels: np.ndarray, why: str) -> None:
+    """Mark the still corrected weights of ``group`` in the ``channels`` (a (C,) mask) with ``why``."""
+    block = actions[np.ix_(group, np.flatnonzero(channels))]
+    block[block == ACTIONS[0]] = why
+    actions[np.ix_(group, np.flatnonzero(channels))] = block
+
+
+def _infeasible(rho: np.ndarray) -> np.ndarray:
+    """``(C,)`` whether a segment's weights ``rho`` (k, C) leave the solver's feasible set."""
+    with np.errstate(invalid="ignore"):
+        outside = np.any((rho < 0) | (rho > 1), axis=0)
+        return outside | (np.nansum(rho, axis=0) > 1 + AT_BOUND)

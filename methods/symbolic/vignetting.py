@@ -4,7 +4,7 @@ The model
     A photograph's pixel is ``V(r) · L(ρ)`` with the lens falloff ``V(r) = 1 + a1 r² + a2 r⁴ +
     a3 r⁶`` of its COLMAP camera (views sharing a camera id share the lens) and ``r`` the
     distance of the pixel centre from the principal point divided by half the image diagonal
-    (:func:`pixel_radius`): ``r = 1`` at the corners of an image whose principal point is its
+    (:func:`~framework.scene.lens.pixel_radius`): ``r = 1`` at the corners of an image whose principal point is its
     centre, a little more at the far corners of one whose principal point is off centre. ``r``
     is measured in the *delivered* image: for a view resampled from a distorted camera
     (:mod:`framework.scene.undistort`), at the point of the delivered image each pinhole pixel
@@ -53,6 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from framework.scene.lens import falloff, pixel_radius
 from methods.symbolic.basis import code_digits, encode_digits
 
 #: ``segment_name`` of a camera's profile parameters: this prefix, then the camera's key
@@ -65,30 +66,6 @@ VIGNETTING_PREFIX = "vignetting:"
 PROFILE_BOUND = 1.0
 #: names of the three coefficients (the parameters' ``kernel``)
 COEFFICIENTS = ("a1", "a2", "a3")
-
-
-def pixel_radius(camera) -> np.ndarray:
-    """``(H·W,)`` ``r`` of each pixel of ``camera`` (a :class:`~framework.scene.model.Camera`),
-    row-major: the distance of the pixel centre, in the delivered image, from the principal
-    point over half the image diagonal (module docstring)."""
-    h, w = int(camera.height), int(camera.width)
-    if getattr(camera, "distortion", None) is None:
-        xs, ys = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
-        x, y, cx, cy = xs.ravel(), ys.ravel(), float(camera.cx), float(camera.cy)
-    else:
-        from framework.scene.undistort import source_pixels
-        delivered = camera.delivered()
-        at = source_pixels(source=delivered, target=camera.pinhole()).reshape(-1, 2)
-        x, y = at[:, 0], at[:, 1]
-        cx, cy = float(delivered.principal_point_x), float(delivered.principal_point_y)
-    return np.hypot(x - cx, y - cy) / (0.5 * np.hypot(w, h))
-
-
-def falloff(r: np.ndarray, profile) -> np.ndarray:
-    """``V(r) = 1 + a1 r² + a2 r⁴ + a3 r⁶`` for ``profile = (a1, a2, a3)``."""
-    r2 = np.asarray(r, float) ** 2
-    a1, a2, a3 = (float(a) for a in profile)
-    return 1.0 + r2 * (a1 + r2 * (a2 + r2 * a3))
 
 
 def estimate_terms(r: np.ndarray, *, bound: float = PROFILE_BOUND) -> list[np.ndarray]:

@@ -50,7 +50,26 @@ SETTING_ERRORS = [
     ("foo=1", "Could not override 'foo'. To append to your config use +foo=1 (docs/cli.md lists the keys)"),
     ("scene.dir=/tmp/ü", "scene.dir=/tmp/ü: Hydra reads non-ASCII characters only inside quotes; write the "
                          "argument as 'scene.dir=\"/tmp/ü\"'"),
+    # non-finite option values: accepted before, the run then failed at the results.json write
+    ("method.align_max_px=inf", "method.align_max_px=inf is not finite (inf or nan): give finite numbers"),
+    ("method.refine_tol=inf", "method.refine_tol=inf is not finite (inf or nan): give finite numbers"),
+    ("method.irls.tol=inf", "method.irls.tol=inf is not finite (inf or nan): give finite numbers"),
+    ("method.relight.sun_irradiance=[1,inf,1]", "method.relight.sun_irradiance=(1, inf, 1) is not finite"),
+    # an option of other methods: Hydra's hint (+method.align=...) only led to another refusal
+    ("method.align=rotation", "method.align is not an option of method iterative: the methods that have it: "
+                              "lambertian_prior, symbolic, symbolic_paper (choose one with method=<name>); "
+                              "iterative's options: "),
+    ("+method.align=rotation", "method.align is not an option of method iterative: the methods that have it: "
+                               "lambertian_prior, symbolic, symbolic_paper"),
+    ("method.solver.starts=2", "method.solver.starts is not an option of method iterative: the methods that "
+                               "have it: lambertian_prior, symbolic, symbolic_paper"),
+    ("+method.nonsense=1", "method.nonsense is not an option of method iterative: no method has it; "
+                           "iterative's options: "),
 ]
+
+#: the overrides above that are about another method than the default one
+OTHER_METHOD = {"method.align=rotation": "method=iterative", "+method.align=rotation": "method=iterative",
+                "method.solver.starts=2": "method=iterative", "+method.nonsense=1": "method=iterative"}
 
 
 @pytest.fixture
@@ -69,7 +88,8 @@ def preflight_error(tiny_scene, tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("override, message", SETTING_ERRORS, ids=[c[0] for c in SETTING_ERRORS])
 def test_setting_errors(override, message, preflight_error):
-    assert preflight_error(override).startswith(message)
+    chosen = [OTHER_METHOD[override]] if override in OTHER_METHOD else []
+    assert preflight_error(*chosen, override).startswith(message)
 
 
 def test_cache_dir_errors(preflight_error, tiny_scene, tmp_path):

@@ -82,6 +82,19 @@ def test_view_without_usable_pixel_is_left_out(tiny_scene, tmp_path, caplog):
     assert results["settings"]["views"] == ["view_1.png"]
 
 
+def test_reference_view_left_out_errors(tiny_scene):
+    """A per-view exposure's reference view without a usable pixel: the error says it was left out
+    and why (was: "reference_view view_0.png is not among this run's views", though it was selected)."""
+    _photos(tiny_scene, {"view_0.png": GREY, "view_1.png": GREY})
+    write_png8(tiny_scene / "masks/view_0.png.png", np.zeros((16, 16)))
+    edit_scene_yaml(tiny_scene, lambda d: d.update(photometry={"exposure": "per_view", "reference_view": "view_0.png"}))
+    with pytest.raises(ConfigError, match=r"^photometry reference_view view_0.png was left out of this run: it has "
+                       r"no usable pixel \(every pixel masked, saturated or black\), so its gains cannot be the "
+                       r"fit's reference; name another view as reference_view in scene.yaml \(view_1.png\), fix "
+                       r"its photograph or mask, or set method.exposure=known$"):
+        prepare(compose_config(tiny_scene, "views=all"))
+
+
 @pytest.mark.slow
 def test_sky_only_view_one_rule(tmp_path):
     """A view whose usable pixels see only sky: the same for photographs (its segment pixels
@@ -318,6 +331,15 @@ def test_failed_run_removes_the_cache_folder_it_created(tmp_path):
 # ----------------------------------------------------------------------------------------------
 # 13. File modes
 # ----------------------------------------------------------------------------------------------
+
+def test_results_json_non_finite_written_as_null(tmp_path, caplog):
+    """A non-finite number reaches results.json as null with a warning naming its place (was: the
+    finished run failed at the write, ValueError "Out of range float values are not JSON compliant")."""
+    from framework.results import write_results
+    path = write_results(tmp_path, {"a": [1.0, float("nan")], "b": {"c": np.float32("inf")}, "d": 0.5})
+    assert json.loads(path.read_text()) == {"a": [1.0, None], "b": {"c": None}, "d": 0.5}
+    assert "non-finite numbers written as null at a[1], b.c" in caplog.text
+
 
 def test_results_json_follows_the_umask(tmp_path):
     """results.json gets 0666 less the umask, as the images do (was: 0600, mkstemp's)."""

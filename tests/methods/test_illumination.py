@@ -6,12 +6,14 @@ the sun 15 % brighter, or the sun 15 % brighter and the sky 15 % dimmer. Measure
 in each test's docstring.
 """
 import dataclasses
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from factory import method_config, run_symbolic
 from framework.errors import ConfigError
+from framework.scene.model import Emitter
 from methods.symbolic import SymbolicMethod
 from methods.symbolic.illumination import SCALE_MAX, Illumination, check_gauge
 
@@ -111,6 +113,30 @@ def test_gauge_is_refused(photographed):
         SymbolicMethod(method_config("symbolic")).check_problem(free)
     check_gauge(_declared(problem, sun_unknown=True, sky_unknown=True, known_ground=True).scene)
     check_gauge(_declared(problem, sun_unknown=True, sky_unknown=False).scene)
+
+
+DARK_BESIDE_UNKNOWN = [
+    ("sunsky sun_scale 0", [Emitter("envmap", image=np.ones((4, 8, 3)), scale_unknown=True, source=0, part="sky"),
+                            Emitter("directional", direction=np.array([0, 0, -1.0]), irradiance=np.zeros(3),
+                                    source=0, part="sun")], "emitter 0/sun gives no light"),
+    ("directional of irradiance 0", [Emitter("constant", radiance=np.ones(3), scale_unknown=True, source=0),
+                                     Emitter("directional", direction=np.array([0, 0, -1.0]), irradiance=np.zeros(3),
+                                             source=1)], "emitter 1 gives no light"),
+    ("envmap of scale 0", [Emitter("constant", radiance=np.ones(3), scale_unknown=True, source=0),
+                           Emitter("envmap", image=np.ones((4, 8, 3)), scale=0.0, source=1)], "emitter 1 gives no light"),
+]
+
+
+@pytest.mark.parametrize("emitters, dark", [c[1:] for c in DARK_BESIDE_UNKNOWN], ids=[c[0] for c in DARK_BESIDE_UNKNOWN])
+def test_gauge_errors_dark_emitter(emitters, dark):
+    """An emitter of known scale that gives no light beside one of unknown scale: refused as the
+    gauge case it is (was: run, the unknown scale came back 1.9, 4.0 or 0.53 whatever the truth)."""
+    scene = SimpleNamespace(emitters=emitters, segments=[], root=None)
+    with pytest.raises(ConfigError, match=rf"^scene.yaml: every emitter's scale is unknown \({dark}, so its known "
+                       r"scale fixes nothing\) and no segment is known"):
+        check_gauge(scene)
+    lit = dataclasses.replace(emitters[1], irradiance=np.ones(3), scale=1.0)
+    check_gauge(SimpleNamespace(emitters=[emitters[0], lit], segments=[], root=None))     # a lit one fixes it
 
 
 def test_per_segment_is_refused(photographed):

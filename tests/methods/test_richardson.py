@@ -61,6 +61,25 @@ def test_a_segment_whose_bound_differs_between_fits_is_not_extrapolated():
     assert out.spp_bias[0, 1] == pytest.approx(0.01)
 
 
+def test_an_extrapolation_out_of_the_feasible_set_is_not_applied():
+    """Segment {0, 1}, three channels. Channel 0: the mirror weight 0.01 with half fits 0.05, 0.05
+    would become 0.01 - 0.04 = -0.03 (was: applied, a negative weight); the segment keeps its
+    weights as solved. Channel 1: the sum 0.6 + 0.39 would become 0.58 + 0.43 = 1.01 > 1: kept.
+    Channel 2: feasible (0.5 -> 0.48, 0.2 -> 0.19), corrected. Parameter 2 is on its bound and
+    parameter 3 was not observed by a half: the correction says so for each weight."""
+    fit = _fit([[0.5, 0.6, 0.5], [0.01, 0.39, 0.2], [0.0, 0.0, 0.0], [0.3, 0.3, 0.3]])
+    halves = {0: np.array([[0.5, 0.62, 0.52], [0.05, 0.35, 0.21], [0.1, 0.1, 0.1], [np.nan, 0.3, 0.3]]),
+              1: np.array([[0.5, 0.62, 0.52], [0.05, 0.35, 0.21], [0.1, 0.1, 0.1], [0.3, 0.3, 0.3]])}
+    out = extrapolated(fit, lambda j: _fit(halves[j]), segments=[[0, 1], [2], [3]])
+    np.testing.assert_allclose(out.estimate[:2], [[0.5, 0.6, 0.48], [0.01, 0.39, 0.19]], atol=1e-12)
+    assert np.all(out.estimate[:2] >= 0) and np.all(out.estimate[:2].sum(axis=0) <= 1)
+    assert out.spp_bias_actions.tolist() == [["infeasible", "infeasible", "corrected"],
+                                             ["infeasible", "infeasible", "corrected"],
+                                             ["on its bound"] * 3,
+                                             ["not observed", "corrected", "corrected"]]
+    assert np.isnan(out.spp_bias[:3, :2]).all() and out.spp_bias[0, 2] == pytest.approx(0.02)
+
+
 def _quarters(rng, n=40, m=6, C=2):
     """Random sparse quarter-sample coefficients ``q1..q4`` (C channels) and the block kept from them."""
     q = [[sp.random(n, m, density=0.4, random_state=rng, format="csr") for _ in range(C)] for _ in range(4)]
@@ -144,6 +163,9 @@ def test_richardson_run_extrapolates_the_plain_estimate(tmp_path):
     assert np.isfinite(beta).any() and np.abs(beta[np.isfinite(beta)]).max() > 0
     np.testing.assert_allclose(runs["richardson"].estimate + np.nan_to_num(beta), runs["none"].estimate, atol=1e-9)
     np.testing.assert_array_equal(runs["richardson"].std, runs["none"].std)
+    corrected = np.array(report["correction"]) == "corrected"        # what it did, per weight
+    np.testing.assert_array_equal(corrected, np.isfinite(beta))
+    assert set(np.array(report["correction"])[at_bound]) == {"on its bound"}
 
 
 class _Field:

@@ -183,3 +183,46 @@ def test_excluded_pixels_map_and_legend(tmp_path):
             in md)
     drawn = [p for p in run.rglob("*_excluded.png")]
     assert len(drawn) == 1 and np.asarray(Image.open(drawn[0])).shape == (4, 4, 3)
+
+
+@pytest.mark.parametrize("values, caption", [
+    (np.ones((8, 8)), "pixel weight in the fit: every pixel had weight 1 (a plain white image)"),
+    (np.r_[np.zeros(16), np.full(32, 0.5), np.ones(16)].reshape(8, 8),
+     "pixel weight in the fit, black 0 (ignored or outlier) to white 1; here 0.000 to 1.000, median 0.500"),
+])
+def test_pixel_weight_caption(tmp_path, values, caption):
+    """The weight panel says what its shades mean (was: "pixel weight in the fit (black: ignored
+    or outlier)" under an empty white box when every weight was 1)."""
+    from framework.images import write_exr
+    run = make_fake_run(tmp_path / "run", correlation=False)
+    write_exr(run / "images/v0.png.weights.exr", values.astype(np.float32)[..., None], ("Y",))
+    res = json.loads((run / "results.json").read_text())
+    res["views"][0]["weights"] = "images/v0.png.weights.exr"
+    (run / "results.json").write_text(json.dumps(res))
+    md = write_run_report(run)[0].read_text()
+    assert caption in md
+
+
+def test_where_the_time_went(tmp_path):
+    """results.json's ``timings_s`` and ``solve_stages_s`` (numbers by hand) become a table of the
+    method's time by part with its share, the rest as "other" (was: only render/solve/total, and a
+    convergence plot spanning the last 2.5 s of a 192 s solve read as the whole)."""
+    run = make_fake_run(tmp_path / "run", correlation=False)
+    res = json.loads((run / "results.json").read_text())
+    res["timings_s"].update(render=20.0, solve=70.0, method=100.0)
+    res["solve_stages_s"] = {"psd": 1.0, "solver": 5.0, "uncertainty": 2.0, "field_setup": 4.0,
+                             "weighted_systems": 8.0, "robust_weights": 20.0, "registration": 5.0,
+                             "bias_refits": 20.0, "other": 5.0}
+    res["cost_times_s"] = [97.5, 98.0, 100.0]
+    (run / "results.json").write_text(json.dumps(res))
+    md = write_run_report(run)[0].read_text()
+    assert "### Where the time went" in md
+    for row in ("| renders (the polynomial passes) | 20.00 | 20 % |",
+                "| solver | 5.00 | 5 % |",
+                "| photographs: robust reweighting | 20.00 | 20 % |",
+                "| registration of the views (method.align) | 5.00 | 5 % |",
+                "| finite-spp bias correction: the half-spp refits (method.bias) | 20.00 | 20 % |",
+                "| other parts of the solve | 5.00 | 5 % |",
+                "| outside the passes and the solve: prior, reconstructions, relighting, bookkeeping | 10.00 | 10 % |"):
+        assert row in md, row
+    assert "cost evaluations span 97.5–100.0 s after the method started (2.50 s)" in md

@@ -72,7 +72,7 @@ def test_run_report_in_browser(tmp_path):
     attrs = _page_check(html_path, tmp_path)
     assert attrs["broken-images"] == "", f"images that did not load: {attrs['broken-images']}"
     assert int(attrs["image-count"]) == _count(html_path, r"<img ") == 7
-    assert int(attrs["table-count"]) == _count(html_path, r"<table>") == 4
+    assert int(attrs["table-count"]) == _count(html_path, r"<table>") == 5      # with "where the time went"
     _screenshot(html_path, "run_report.png", tmp_path)
 
 

@@ -12,7 +12,16 @@ from reports.__main__ import main
 
 BAD_FIELDS = [
     (lambda d: d["parameters"][0].update(estimate=["a", "b", "c"]),
-     "parameters[0].estimate must be numbers per channel or null, got ['a', 'b', 'c']"),
+     "parameters[0].estimate must be 3 finite numbers (one per channel: R, G, B; null where unknown) or null, "
+     "got ['a', 'b', 'c']"),
+    # a NaN (JSON's NaN, which Python reads) and too few channels: the report was written before
+    (lambda d: d["parameters"][0].update(estimate=[float("nan"), 0.5, 0.5]),
+     "parameters[0].estimate must be 3 finite numbers (one per channel: R, G, B; null where unknown) or null, "
+     "got [nan, 0.5, 0.5]"),
+    (lambda d: d["parameters"][1].update(estimate=[0.5, 0.5]),
+     "parameters[1].estimate must be 3 finite numbers (one per channel: R, G, B; null where unknown) or null, "
+     "got [0.5, 0.5]"),
+    (lambda d: d.update(image_rmse=float("inf")), "image_rmse must be a number or null, got inf"),
     (lambda d: d.update(cost_times_s=["1s", "2s"]), "cost_times_s must be a list of numbers"),
     (lambda d: d.update(timings_s={"total": "fast"}), "timings_s must be an object of numbers"),
     (lambda d: d["correlation"].update(matrix=[[1, 0], [0]]), "correlation.matrix must be a 2 x 2 list of numbers"),
