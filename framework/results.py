@@ -145,6 +145,7 @@ def parameter_rows(problem: Problem, result: MethodResult) -> list[dict]:
     params = result.parameters or problem.parameters
     ref = problem.scene.reference(params)
     ill = result.extras.get("ill_determined")       # (P,) bools, from methods with a std
+    why = result.extras.get("ill_determined_why")   # (P,) reasons of a poor fit, or None
     rows = []
     for p in params:
         est = result.estimate[p.index]
@@ -159,6 +160,8 @@ def parameter_rows(problem: Problem, result: MethodResult) -> list[dict]:
             row["observable"] = observable
         if ill is not None:
             row["ill_determined"] = bool(ill[p.index])
+        if why is not None and why[p.index]:
+            row["why"] = str(why[p.index])
         if _known(problem.scene, p):
             row["known"] = True          # held at scene.yaml's value: estimate = it, std 0
         rows.append(row)

@@ -15,6 +15,7 @@ from framework.scene.model import EXCLUSION_REASONS
 from reports.data import RESULTS_NAME, as_list, check_results, fmt_num, kernel_label, load_results, seed_of
 from reports.doc import Doc, staged
 from reports.plots import plot_convergence, plot_correlation, plot_difference, plot_segments
+from reports.fit_quality import section_fit_quality
 from reports.time_spent import section_time_spent, weights_caption
 
 FILES_DIR = "report_files"
@@ -382,7 +383,7 @@ def write_run_report(run_dir, results: dict | None = None) -> tuple[Path, Path]:
     with staged(run_dir, (FILES_DIR, "report.md", "report.html")) as tmp:
         ctx = _RunContext(run_dir, res, tmp / FILES_DIR)
         for section in (_section_overview, _section_parameters, _section_exposure, _section_illumination,
-                        _section_timings, section_time_spent):
+                        section_fit_quality, _section_timings, section_time_spent):
             section(doc, res)
         for section in (_section_convergence, _section_views, _section_correlation, _section_relit):
             section(doc, ctx)

@@ -17,6 +17,7 @@ SOLVE_PARTS = (("psd", "projection of the Gram matrices (PSD)"),
                ("field_setup", "photographs: pixel weights, gains' and lens' coefficients"),
                ("weighted_systems", "photographs: each robust round's Gram system"),
                ("robust_weights", "photographs: robust reweighting"),
+               ("fit_quality", "photographs: how well the model explains each material"),
                ("registration", "registration of the views (method.align)"),
                ("bias_refits", "finite-spp bias correction: the half-spp refits (method.bias)"),
                ("other", "other parts of the solve"))

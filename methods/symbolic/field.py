@@ -52,9 +52,10 @@ import scipy.sparse as sp
 from framework.results import per_channel
 from methods.symbolic.basis import MonomialBasis, code_digits, encode_digits, merge_codes
 from methods.symbolic.fit import Fit, StageClock
+from methods.symbolic.fit_quality import material_fit
 from methods.symbolic.gram import weighted_system
 from methods.symbolic.options import ROBUST_LOSSES, SymbolicOptions
-from methods.symbolic.robust_scale import cauchy_weight, robust_scale
+from methods.symbolic.robust_scale import LEFT_OUT, cauchy_weight, pixel_variance, robust_scale
 from methods.symbolic.coefficients import TiledCoefficients, ViewCoefficients, predicted, predicted_with_variance
 from methods.symbolic.consistency import MIN_OTHERS, ViewPairs
 from methods.symbolic.illumination import Illumination, unknown_emitters
@@ -420,30 +421,17 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
         with clock("robust_weights"):
             mu = np.stack([basis.evaluate(x[:, c]) for c in range(C)])
             _reweight(views, mu, system.codes, options)
+    with clock("fit_quality"):        # how well the model explains each material (no ground truth)
+        from framework.render.mitsuba_scene import segment_maps
+        mu = np.stack([basis.evaluate(fit.evaluated_at[:, c]) for c in range(C)])
+        quality = material_fit(problem, views, mu, system.codes, segment_maps(problem.scene, problem.cameras))
     with clock("field_outputs"):
         out = _field_outputs(fit, views, used, basis, system, gains, P, C, round_ + 1, stopped, iterates)
-        out = out.replace(pixel_reasons=exclusion_reasons(problem, options, views), stages_s=clock.seconds)
+        out = out.replace(pixel_reasons=exclusion_reasons(problem, options, views), stages_s=clock.seconds,
+                          fit_quality=quality)
     if light is not None:
         out = out.replace(illumination=light.report(fit.estimate, fit.std))
     return out if lens is None else out.replace(vignetting=lens.report(fit.estimate, fit.std, fit.correlation))
-
-
-#: side (pixels) of the square over which a pixel's Monte Carlo variance is averaged
-VARIANCE_WINDOW = 5
-
-
-def _pixel_variance(raw: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """``(n, C)``: each pixel's Monte Carlo variance, the larger of its own one-degree-of-freedom
-    estimate and the mean of its :data:`VARIANCE_WINDOW`² neighbours' (the variance changes
-    slowly across an image). The pixel's own keeps a rare bright path's variance where it
-    happened; the neighbours' keeps a pixel whose two halves agreed by chance (its own estimate
-    near 0: a chi-square of one degree of freedom is below 0.1 of its mean one time in four) from
-    being measured against the shared scale alone. Measured on the tiny scene with a van: with
-    the own estimate alone a third of the clean pixels weighed under 0.5, with this 0-7 %."""
-    from scipy.ndimage import uniform_filter
-    img = raw.reshape(*shape, -1)
-    smooth = uniform_filter(img, size=(VARIANCE_WINDOW, VARIANCE_WINDOW, 1), mode="nearest")
-    return np.maximum(img, smooth).reshape(raw.shape)
 
 
 def _reweight(views, mu: np.ndarray, codes: np.ndarray, options: FieldOptions, *, per_pixel: bool = True) -> None:
@@ -453,7 +441,7 @@ def _reweight(views, mu: np.ndarray, codes: np.ndarray, options: FieldOptions, *
     pred, var = {}, {}
     for v in views:
         pred[v.name], raw = predicted_with_variance(v.coeffs, mu, codes)
-        var[v.name] = _pixel_variance(raw, v.shape)
+        var[v.name] = pixel_variance(raw, v.shape)
     usable = {v.name: np.ones(len(v.y), bool) if v.scene_w is None else v.scene_w > 0 for v in views}
     agree = options.consistency.weights({v.name: v.y for v in views}, pred, usable, var) \
         if options.consistency is not None else {}
@@ -465,11 +453,6 @@ def _reweight(views, mu: np.ndarray, codes: np.ndarray, options: FieldOptions, *
         if v.compared is not None:
             w = np.where(v.compared, agree[v.name], w)
         v.robust_w = w
-
-
-#: robust weight below which the report counts a pixel as left out (the Cauchy weight
-#: 1 / (1 + (r / cσ)²) is 1/2 at a residual of cσ: beyond it a pixel counts less than half)
-LEFT_OUT = 0.5
 
 
 def exclusion_reasons(problem, options: FieldOptions, views) -> dict[str, np.ndarray]:

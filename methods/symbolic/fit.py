@@ -72,6 +72,9 @@ class Fit:
     clusters : dict or None
         ``std_method`` ``cluster``: the clusters' side and the residuals' correlation length
         (:func:`~methods.symbolic.clusters.view_clusters`).
+    fit_quality : dict or None
+        The field path: how well the model explains each material's pixels (results.json
+        ``fit_quality``, :func:`~methods.symbolic.fit_quality.material_fit`).
     spp_bias : numpy.ndarray or None
         ``method.bias=richardson``: ``(P, C)`` the finite-spp bias removed from ``estimate``
         (:mod:`methods.symbolic.richardson`), NaN where not estimated.
@@ -105,6 +108,7 @@ class Fit:
     irls_stopped: str | None = None
     clusters: dict | None = None
     spp_bias: np.ndarray | None = None
+    fit_quality: dict | None = None
     spp_bias_actions: np.ndarray | None = None
 
     def replace(self, **changes) -> Fit:

@@ -10,6 +10,7 @@ import numpy as np
 from framework.registry import MethodResult
 from framework.relight import relight_outputs
 from methods._common import Trace
+from methods.symbolic.fit_quality import poor_parameters
 from methods.symbolic.options import SymbolicOptions
 from methods.symbolic.refinement import Passes
 from methods.symbolic.uncertainty import ill_determined
@@ -18,6 +19,7 @@ def method_result(passes: Passes, problem, params, guess: np.ndarray, options: S
                   started: float, trace: Trace) -> MethodResult:
     """The run's result from its passes; relit images when ``options.relight.enabled``."""
     fit, sol = passes.fit, passes.fit.solve
+    poor, why = poor_parameters(fit.fit_quality, params)        # a material the model does not explain
     stages = dict(passes.stages_s)
     extras = {"n_monomials": fit.n_monomials, "gram_nnz": fit.gram_nnz,
               "parameter_blocks": len(sol.blocks) if sol else 0, "psd_skipped_components": list(fit.psd_skipped),
@@ -25,7 +27,7 @@ def method_result(passes: Passes, problem, params, guess: np.ndarray, options: S
               "solver_evaluations_from_guess": sol.guess_evals if sol else 0,
               "initial_guess": guess.tolist(), "views_from_cache": passes.from_cache,
               "correlation": fit.correlation, "residual_variance": fit.sigma2, "std_method": fit.std_method,
-              "ill_determined": ill_determined(fit.std, fit.observable).tolist(),
+              "ill_determined": (ill_determined(fit.std, fit.observable) | poor).tolist(),
               "executor": str(problem.settings.executor.get("name", "serial")),
               "solve_stages_s": stages, "refine_moves": passes.moves, "refine_stopped": passes.stopped,
               "cost": options.cost}
@@ -33,6 +35,9 @@ def method_result(passes: Passes, problem, params, guess: np.ndarray, options: S
         extras["spp_bias"] = {"method": "richardson", "spp": int(problem.settings.spp),
                               "bias": np.where(np.isfinite(fit.spp_bias), fit.spp_bias, None).tolist(),
                               "correction": fit.spp_bias_actions.tolist()}
+    if fit.fit_quality is not None:
+        extras["fit_quality"] = fit.fit_quality
+        extras["ill_determined_why"] = why
     if fit.clusters is not None:
         extras["std_clusters"] = fit.clusters
     if fit.per_segment is not None:

@@ -226,3 +226,21 @@ def test_where_the_time_went(tmp_path):
                 "| outside the passes and the solve: prior, reconstructions, relighting, bookkeeping | 10.00 | 10 % |"):
         assert row in md, row
     assert "cost evaluations span 97.5–100.0 s after the method started (2.50 s)" in md
+
+
+def test_fit_quality_table(tmp_path):
+    """results.json ``fit_quality`` (numbers by hand) becomes a table, one row per material with
+    its verdict; a run without it (rendered observations) has no such table."""
+    run = make_fake_run(tmp_path / "run", correlation=False)
+    md = write_run_report(run)[0].read_text()
+    assert "How well the model explains each material" not in md
+    res = json.loads((run / "results.json").read_text())
+    res["fit_quality"] = {"ground": {"pixels": 120, "dropped": 0.49, "chi2": 2.14, "poor": True,
+                                     "why": "the robust weights left out 49 % of its pixels", "views": {}},
+                          "block": {"pixels": 80, "dropped": 0.063, "chi2": 0.756, "poor": False, "why": None,
+                                    "views": {}}}
+    (run / "results.json").write_text(json.dumps(res))
+    md = write_run_report(run)[0].read_text()
+    assert "### How well the model explains each material" in md
+    assert "| ground | 120 | 49 % | 2.14 | **poor**: the robust weights left out 49 % of its pixels |" in md
+    assert "| block | 80 | 6 % | 0.76 | explained |" in md
