@@ -39,7 +39,7 @@ def monomial_columns(keys: np.ndarray, n_params: int, max_degree: int) -> tuple[
     the column of each key among them (``codes[cols] == multiset_codes(keys)``).
 
     Only the distinct keys are decoded: a tile has millions of events but at most a few thousand
-    distinct keys, and sorting every event (``np.unique``) was a third of the pass's time.
+    distinct keys, and sorting every event (``np.unique``) would cost a third of the pass's time.
     """
     keys = np.asarray(keys, dtype=np.int64)
     span = (int(n_params) + 1) ** int(max_degree)

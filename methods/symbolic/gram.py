@@ -435,7 +435,7 @@ def _spread(g: sp.csr_matrix, pos: np.ndarray, n: int) -> sp.csr_matrix:
 
     Built in CSR directly, sharing ``g``'s values: an increasing ``pos`` keeps every row's
     columns in order, so only the row pointers and column indices are new (a COO round trip
-    held 3-4 copies of a 200 MB matrix at once)."""
+    holds 3-4 copies of a 200 MB matrix at once)."""
     g = g.tocsr()
     counts = np.zeros(n + 1, dtype=np.int64)
     counts[np.asarray(pos) + 1] = np.diff(g.indptr)

@@ -169,8 +169,8 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
 
         while dr.hint(active, max_iterations=N_max + self.tail_bounces, label="Polynomial path"):
             # slot 0 (the camera ray's emitter) is stored in the first iteration, not before the
-            # loop: a scatter before it made Dr.Jit launch the camera rays as a kernel of their own,
-            # writing and reading back the first hit (11 % of a 256-spp pass)
+            # loop: a scatter before it makes Dr.Jit launch the camera rays as a kernel of their
+            # own, writing and reading back the first hit (11 % of a 256-spp pass)
             first = active & (depth == 0)
             emitter0 = si.emitter(scene, first)
             self._store_site(store, mi.UInt32(0), mi.UInt32(0), β * emitter0.eval(si, first), emitter0, ray.d, first)

@@ -119,8 +119,7 @@ class SymbolicOptions(StartOptions):
         "bundled field scene, whose poses are right, corrections of 0.03-0.09 px passed the "
         "significance test at 3-5 standard errors and turned right cameras back and forth between "
         "passes (unaligned its RMS z was 1.20 and 1.77 at seeds 0 and 1; aligned without this floor "
-        "1.90 and 4.05, with it 2.30 and 1.78; on the misfit scene 1.30 without it, 1.06 with it, "
-        "before the bias correction left weights on their bounds alone); a "
+        "1.90 and 4.05, with it 2.30 and 1.78: docs/design-notes.md); a "
         "surveyed pose that is 0.5-1 px off is corrected by the first registration", number(0.0))
     exposure: str = option(
         "`scene`: as scene.yaml's `photometry` says (with `exposure: per_view`, one gain per view and "

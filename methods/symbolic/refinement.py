@@ -203,8 +203,8 @@ def moved(previous: np.ndarray, current: np.ndarray, std: np.ndarray, tol: float
     Each pass has its own samples, so two passes' estimates differ by Monte Carlo noise of standard
     deviation at most ``√2 std`` (``std`` also holds the image noise, which both passes share).
     Compared one by one against a fixed multiple of that, one weight of many always moves beyond
-    it: with the former ``2 std`` each weight did so with probability 0.16, and a street of 128
-    weights x 3 channels never stopped before the cap. ``z_n`` (:func:`noise_bound`) is the bound
+    it: against ``2 std`` each weight does so with probability 0.16, and a street of 128
+    weights x 3 channels would never stop before the cap. ``z_n`` (:func:`noise_bound`) is the bound
     that ``n`` such differences all keep with probability 0.95, so below 1 the passes agree within
     their noise (or within ``tol``) for the run as a whole. Parameters estimated in both passes
     with a finite std count (``n`` of them): one without (the data do not pin it; reported

@@ -45,9 +45,8 @@ does not fall as 1/n (a model the photographs do not follow) is not seen, and wh
 estimate's error is not of that form the extrapolation can add to it: on ``urban_canyon_survey``
 (unknown sun and sky scales, vignetting, a known panel; BENCHMARKS.md section 10, row b) the bias
 removed had the sign of the error, not the opposite, and the worst errors doubled (diffuse 0.0026
-to 0.0057, specular 0.0074 to 0.0148, RMS z 1.42 to 2.47 with the cluster std; still within that
-section's targets; measured at a44154f, before weights on their bounds were left alone: since, the
-worst specular is 0.0076, the rest the same). The plain estimate's error there moves with spp
+to 0.0057, specular 0.0074 to 0.0148 where a weight on its bound was extrapolated too, 0.0076 with
+the rule above; RMS z 1.42 to 2.47 with the cluster std; still within that section's targets). The plain estimate's error there moves with spp
 towards the corrected one
 (window ρ_s, R: −0.0003, +0.0020, +0.0029 at 32, 64, 128 spp; corrected at 64 spp +0.0064; wall
 ρ_d +0.0024 and +0.0035 at 64 and 128, corrected +0.0047): the survey scene holds an error that
