@@ -190,7 +190,7 @@ def _write_run(cfg, run_dir: Path, problem: Problem, result, segment_maps: dict,
     result.timings_s.setdefault("observe", t_observe)
     result.timings_s["total"] = time.perf_counter() - t0
     summary = {"scene_dir": str(scene.root), "scene_hash": scene.content_hash, "views": [c.name for c in cameras],
-               "variant": settings.variant,
+               "variant": settings.variant, "device": backend.device_name(settings.variant),
                "seed": settings.seed, "spp": settings.spp, "max_bounces": settings.max_bounces,
                "tail_bounces": settings.tail_bounces,
                "budget_renders": settings.budget_renders, "executor": str(settings.executor.get("name")),

@@ -17,7 +17,7 @@ from reports.doc import Doc, staged
 from reports.plots import plot_convergence, plot_correlation, plot_difference, plot_segments
 
 FILES_DIR = "report_files"
-KEY_SETTINGS = ("seed", "spp", "max_bounces", "variant", "views", "budget_renders", "executor")
+KEY_SETTINGS = ("seed", "spp", "max_bounces", "variant", "device", "views", "budget_renders", "executor")
 
 
 def _safe(name: str) -> str:

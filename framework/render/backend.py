@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import glob
 import os
+import platform
 import re
 import sys
 
@@ -87,3 +88,38 @@ def set_variant(variant: str, *, channels: tuple[str, ...] | None = None) -> str
         raise ConfigError(f"variant={variant} cannot start on this machine ({exc}); "
                           "use an llvm_ad_* variant") from None
     return variant
+
+
+def device_name(variant: str) -> str:
+    """The device a Mitsuba ``variant`` renders on, in words: the GPU's name for a ``cuda_*``
+    variant (CUDA device 0, the one Dr.Jit uses), else the CPU's model and the cores this
+    process may use; ``unknown`` where the system does not say."""
+    if variant.startswith("cuda"):
+        return _cuda_device_name() or "unknown CUDA GPU"
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return f"{_cpu_model()}, {cores} cores"
+
+
+def _cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as info:
+            for line in info:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
+
+
+def _cuda_device_name() -> str | None:
+    """Name of CUDA device 0 from the driver library (the one Dr.Jit loads), or None."""
+    import ctypes
+    try:
+        cuda = ctypes.CDLL("libcuda.so.1")
+        device, name = ctypes.c_int(), ctypes.create_string_buffer(256)
+        if cuda.cuInit(0) or cuda.cuDeviceGet(ctypes.byref(device), 0) \
+                or cuda.cuDeviceGetName(name, len(name), device):
+            return None                 # a CUresult other than CUDA_SUCCESS (0)
+        return name.value.decode(errors="replace")
+    except (OSError, AttributeError):
+        return None
