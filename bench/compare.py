@@ -183,8 +183,8 @@ def markdown(rows: list[dict], sizes, report_path, *, path: dict | None = None) 
              "`run_experiment`. Observations come from a shared observation cache (rendered once per "
              "view set, copied into each run's otherwise empty cache), so totals exclude them. Errors: "
              "over the parameters and channels the symbolic run on the same views reports observable. "
-             "Times are wall-clock seconds on a shared 2-core machine whose load changed during the section "
-             "(other sections or tests may run beside it): renders are the load-free measure of cost. "
+             "Times are wall-clock seconds on a machine that may have been shared (other sections or tests "
+             "may run beside it): renders are the load-free measure of cost. "
              + (baseline_cost.device_line(rows) if rows else ""),
              "The comparison report of the run folders (`python -m reports`) is written to the bench's "
              "run folder (`--runs`), which is not committed.", ""]
