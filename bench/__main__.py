@@ -93,8 +93,9 @@ def measure(name: str, sizes, root: Path, resume: bool = False):
         return memory.run(sizes, root / "memory", log)
     if name == "compare":
         rows = compare.run(sizes, root, log, resume=resume)
+        path = compare.path_render(sizes, root, log)
         lr = compare.lr_sweep(sizes, root, log, resume=resume)
-        return {"rows": rows, "lr": lr, "report": _rel(comparison_report(rows, root / "comparison"))}
+        return {"rows": rows, "lr": lr, "path": path, "report": _rel(comparison_report(rows, root / "comparison"))}
     if name == "paper":
         return paper.run(sizes, root, log)
     if name == "materials":

@@ -12,6 +12,7 @@ import shutil
 import time
 from pathlib import Path
 
+from bench import baseline_cost
 from bench.common import compose, resized_copy, seed_cache, views_override
 from bench.render_ratio import build_problem
 from framework.config import BUNDLED_SCENES
@@ -107,6 +108,18 @@ def warm_observations(sizes, root: Path, scene: str, n_views: int) -> float:
     return time.perf_counter() - t
 
 
+def path_render(sizes, root: Path, log=print) -> dict:
+    """A plain ``path`` render of the single view timed in this process, as the iterative
+    baseline's runs render it (:func:`bench.baseline_cost.measure`)."""
+    overrides = next(o for label, o, _ in METHODS if label == "iterative (noise fresh)")
+    cfg = compose([*overrides, *_scene(sizes, root, "urban_canyon", 1), f"render.spp={sizes.cmp_spp}",
+                   f"observe.spp={sizes.cmp_observe_spp}", f"cache.dir={root / 'cache' / 'observed' / 'urban_canyon' / 'single'}",
+                   *_extra(sizes, overrides)])
+    out = baseline_cost.measure(cfg, reps=max(3, sizes.ratio_reps))
+    log(f"[compare] path render of {out['view']} at {out['spp']} spp: {out['path_s']:.4f} s")
+    return out
+
+
 #: runs that raised: ``(scene, views, label, repr of the exception)``, listed in BENCHMARKS.md
 FAILED: list[tuple] = []
 
@@ -155,7 +168,8 @@ def run(sizes, root: Path, log=print, resume: bool = False) -> list[dict]:
 SPEEDUP_TARGET = {"iterative (noise fresh)": 100, "iterative (noise fixed)": 100, "differentiable": 20}
 
 
-def markdown(rows: list[dict], sizes, report_path) -> list[str]:
+def markdown(rows: list[dict], sizes, report_path, *, path: dict | None = None) -> list[str]:
+    """Section 3's text; ``path``: the plain render timed beside the runs (:func:`path_render`)."""
     lines = ["## 3. Method comparison at equal spp", "",
              f"urban_canyon, render.spp = {sizes.cmp_spp}, observe.spp = {sizes.cmp_observe_spp}, "
              f"budget.renders = {sizes.cmp_budget}"
@@ -169,8 +183,9 @@ def markdown(rows: list[dict], sizes, report_path) -> list[str]:
              "`run_experiment`. Observations come from a shared observation cache (rendered once per "
              "view set, copied into each run's otherwise empty cache), so totals exclude them. Errors: "
              "over the parameters and channels the symbolic run on the same views reports observable. "
-             "Times are wall-clock seconds on a shared 2-core machine whose load changed during the section "
-             "(other sections or tests may run beside it): renders are the load-free measure of cost.",
+             "Times are wall-clock seconds on a machine that may have been shared (other sections or tests "
+             "may run beside it): renders are the load-free measure of cost. "
+             + (baseline_cost.device_line(rows) if rows else ""),
              "The comparison report of the run folders (`python -m reports`) is written to the bench's "
              "run folder (`--runs`), which is not committed.", ""]
     for vtag in ("single", "all"):
@@ -184,6 +199,7 @@ def markdown(rows: list[dict], sizes, report_path) -> list[str]:
                   + (f" ({image} pixels wide)" if image else ""), ""]
         lines += summary_table(sub)
         lines += [""] + _speedup_verdicts(sub, keys) + [""] + _equal_error(sub, keys)
+        lines += baseline_cost.markdown(sub, path)
     for scene, vtag, label, err in FAILED:
         lines.append(f"- FAILED: {scene} {vtag} {label}: `{err}` (no numbers)")
     return lines + ([""] if FAILED else [])

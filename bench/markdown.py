@@ -41,7 +41,8 @@ def render(machine: dict, command: str, sizes, stored: dict) -> str:
         "ratio": lambda: render_ratio.markdown(data["ratio"]),
         "megapixel": lambda: megapixel.markdown(data["megapixel"]),
         "memory": lambda: memory.markdown(data["memory"], sizes),
-        "compare": lambda: compare.markdown(cmp["rows"], sizes, cmp["report"]) + compare.lr_sweep_markdown(cmp["rows"], cmp["lr"]),
+        "compare": lambda: (compare.markdown(cmp["rows"], sizes, cmp["report"], path=cmp.get("path"))
+                            + compare.lr_sweep_markdown(cmp["rows"], cmp["lr"])),
         "paper": lambda: paper.markdown(data["paper"], cmp["rows"]),
         "materials": lambda: materials.markdown(data["materials"], sizes),
         "defaults": lambda: accuracy.markdown(data["defaults"]),

@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from reports.data import as_list, find_run_dirs, fmt_num, fmt_pm, kernel_label, load_results, seed_of
+from reports.data import (as_list, device_of, find_run_dirs, fmt_num, fmt_pm, kernel_label, load_results,
+                          seed_of)
 from reports.doc import Doc, link_cell, staged
 from reports.convergence import equal_error_rows, error_curve, observable_set
 from reports.plots import plot_bars, plot_error_time, plot_spread
@@ -43,12 +44,14 @@ def _flat(tree: dict, prefix: str = "") -> dict:
 
 
 def _variant_settings(res) -> dict:
-    """What makes a run a variant of its method: its method options and the observation and
-    tail settings (not the seed, which repetitions vary, nor the views, grouped apart)."""
+    """What makes a run a variant of its method: its method options, the observation and tail
+    settings and where it ran (Mitsuba variant, device: times on a CPU and a GPU are not seeds of
+    one measurement); not the seed, which repetitions vary, nor the views, grouped apart."""
     s = res.get("settings") or {}
     observe = {k: v for k, v in (s.get("observe") or {}).items() if k != "seed"}
     return _flat({"method": {k: v for k, v in (s.get("method_settings") or {}).items() if k != "name"},
-                  "observe": observe, "render": {"tail_bounces": s.get("tail_bounces", 0)}})
+                  "observe": observe, "render": {"tail_bounces": s.get("tail_bounces", 0)},
+                  "variant": s.get("variant"), "device": s.get("device")})
 
 
 def variant_labels(runs) -> list[str]:
@@ -342,7 +345,7 @@ def write_comparison(dirs, *, out=None) -> tuple[Path, Path]:
             write_run_report(run_dir)
     by_scene, notes = group_by_scene(runs)
     doc = Doc("Comparison of runs")
-    doc.para(f"{len(runs)} runs, {len(by_scene)} scene(s); baseline for ratios: {BASELINE}.")
+    doc.para(f"{len(runs)} runs, {len(by_scene)} scene(s); baseline for ratios: {BASELINE}. {_devices(runs)}")
     for note in notes:
         doc.para(note)
     with staged(out, (FILES_DIR, "comparison.md", "comparison.html")) as tmp:
@@ -363,6 +366,16 @@ def write_comparison(dirs, *, out=None) -> tuple[Path, Path]:
         (tmp / "comparison.md").write_text(doc.render_md(), encoding="utf-8")
         (tmp / "comparison.html").write_text(doc.render_html(), encoding="utf-8")
     return out / "comparison.md", out / "comparison.html"
+
+
+def _devices(runs) -> str:
+    """Where the runs rendered (results.json ``settings.variant`` and ``settings.device``): times
+    and their ratios hold for that device only."""
+    places = sorted({device_of(res) for _, res in runs})
+    if len(places) == 1:
+        return f"Every run rendered with {places[0]}: the times and ratios below are measured there."
+    return (f"The runs rendered on {len(places)} devices ({'; '.join(places)}): a method's runs on each "
+            "are a variant of their own (labelled), and times across devices are not comparable.")
 
 
 def _default_out(dirs) -> Path:

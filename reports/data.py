@@ -211,6 +211,14 @@ def kernel_label(kernel: str, *, html: bool = False) -> str:
     return pair[1] if html else pair[0]
 
 
+def device_of(results: dict) -> str:
+    """Where a run rendered, in words: ``<variant> on <device>`` from its ``settings`` (the variant
+    alone for a run that did not record its device)."""
+    settings = results.get("settings") or {}
+    variant, device = settings.get("variant") or "unknown variant", settings.get("device")
+    return f"{variant} on {device}" if device else f"{variant} (device not recorded)"
+
+
 def seed_of(results: dict):
     """The run's seed from ``settings.seed`` (or a top-level ``seed``), else None."""
     settings = results.get("settings") or {}

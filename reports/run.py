@@ -19,7 +19,7 @@ from reports.fit_quality import section_fit_quality
 from reports.time_spent import section_time_spent, weights_caption
 
 FILES_DIR = "report_files"
-KEY_SETTINGS = ("seed", "spp", "max_bounces", "variant", "views", "budget_renders", "executor")
+KEY_SETTINGS = ("seed", "spp", "max_bounces", "variant", "device", "views", "budget_renders", "executor")
 
 
 def _safe(name: str) -> str:

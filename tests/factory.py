@@ -161,6 +161,25 @@ def view_systems(problem, params, x0, *, max_bounces: int, spp: int, seed: int =
             for i in range(len(problem.cameras))]
 
 
+def kernels_per_call(call, args) -> list[int]:
+    """Dr.Jit kernels compiled (or loaded from the disk cache, not found in this process's
+    memory) by ``call(a)`` for each ``a`` of ``args``, in order
+    (:class:`framework.render.jit_timing.CompileTimer`)."""
+    from framework.render.jit_timing import CompileTimer
+    counts = []
+    for a in args:
+        with CompileTimer() as timer:
+            call(a)
+        counts.append(timer.kernels)
+    return counts
+
+
+def fresh_weights(problem, n: int, *, seed: int = 0) -> list[np.ndarray]:
+    """``n`` random (P, C) weight arrays in [0.05, 0.45] (feasible for up to two kernels)."""
+    rng = np.random.default_rng(seed)
+    return [rng.uniform(0.05, 0.45, (len(problem.parameters), problem.n_channels)) for _ in range(n)]
+
+
 def max_error(problem, result) -> float:
     """max |ρ - ρ_ref| over the parameters and channels of a method's result."""
     return float(np.max(np.abs(result.estimate - problem.scene.reference(problem.parameters))))

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import glob
 import os
+import platform
 import re
 import sys
 
@@ -96,26 +97,8 @@ def use_backend(variant: str) -> None:
     set_variant(f"{jit_backend(variant)}_ad_rgb")
 
 
-def device_name(variant: str | None = None) -> str:
-    """The device a variant runs on, in words: the GPU's name for ``cuda_*`` (``nvidia-smi``, or
-    its compute capability), the CPU model and core count for ``llvm_*``."""
-    import subprocess
-    if jit_backend(variant) == "cuda":
-        try:
-            out = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"],
-                                 capture_output=True, text=True, timeout=10).stdout.strip().splitlines()
-            if out:
-                return out[0].strip()
-        except (OSError, subprocess.SubprocessError):
-            pass
-        import drjit as dr
-        return f"CUDA GPU (compute capability {dr.detail.cuda_compute_capability()})"
-    return f"{cpu_model()} ({os.cpu_count()} cores)"
-
-
 def cpu_model() -> str:
     """The CPU's model name (``/proc/cpuinfo``), or the platform's processor string."""
-    import platform
     try:
         with open("/proc/cpuinfo") as f:
             for line in f:
@@ -158,3 +141,27 @@ def set_variant(variant: str, *, channels: tuple[str, ...] | None = None) -> str
         raise ConfigError(f"{how}, which cannot start on this machine ({exc}); "
                           f"use a {other} variant") from None
     return variant
+
+
+def device_name(variant: str | None = None) -> str:
+    """The device a Mitsuba ``variant`` (default: the active one, :func:`jit_backend`) renders on,
+    in words: the GPU's name for a ``cuda_*`` variant (CUDA device 0, the one Dr.Jit uses), else
+    the CPU's model and the cores this process may use."""
+    if jit_backend(variant) == "cuda":
+        return _cuda_device_name() or "unknown CUDA GPU"
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return f"{cpu_model()}, {cores} cores"
+
+
+def _cuda_device_name() -> str | None:
+    """Name of CUDA device 0 from the driver library (the one Dr.Jit loads), or None."""
+    import ctypes
+    try:
+        cuda = ctypes.CDLL("libcuda.so.1")
+        device, name = ctypes.c_int(), ctypes.create_string_buffer(256)
+        if cuda.cuInit(0) or cuda.cuDeviceGet(ctypes.byref(device), 0) \
+                or cuda.cuDeviceGetName(name, len(name), device):
+            return None                 # a CUresult other than CUDA_SUCCESS (0)
+        return name.value.decode(errors="replace")
+    except (OSError, AttributeError):
+        return None

@@ -8,7 +8,8 @@ this process compiles while it is active (kernels found in the in-memory cache a
 launch costs every render, it is not a warm-up; kernels loaded from Dr.Jit's disk cache count with
 their small load time) (Dr.Jit's kernel history, drained by a background
 thread every :data:`DRAIN_S` seconds so its intermediate representations do not pile up);
-kernels compiled in Dask workers are not counted.
+kernels compiled in Dask workers are not counted. It also counts those kernels
+(:attr:`CompileTimer.kernels`): a loop that compiles again at every iteration shows there.
 """
 from __future__ import annotations
 
@@ -18,13 +19,15 @@ DRAIN_S = 0.5
 
 
 class CompileTimer:
-    """``with CompileTimer() as t: ...``; then ``t.seconds``: Dr.Jit compilation time inside.
+    """``with CompileTimer() as t: ...``; then ``t.seconds``: Dr.Jit compilation time inside, and
+    ``t.kernels``: how many kernels it compiled or loaded from the disk cache.
 
-    Zero when Dr.Jit has no kernel history (the flag missing from the build).
+    Both zero when Dr.Jit has no kernel history (the flag missing from the build).
     """
 
     def __init__(self):
         self.seconds = 0.0
+        self.kernels = 0
         self._stop = threading.Event()
         self._thread = None
         self._lock = threading.Lock()
@@ -38,6 +41,7 @@ class CompileTimer:
                     continue
                 self.seconds += (float(kernel.get("codegen_time", 0.0))
                                  + float(kernel.get("backend_time", 0.0))) / 1000.0   # ms
+                self.kernels += kernel.get("type") == dr.KernelType.JIT        # not memsets, reductions
 
     def _loop(self) -> None:
         while not self._stop.wait(DRAIN_S):

@@ -179,10 +179,17 @@ class MitsubaScene:
         return out
 
     def weight_value(self, values):
-        """A Dr.Jit value of the weights' type (``Color3f`` for rgb, ``Float`` for mono) holding
-        ``values`` (one number per channel)."""
+        """An opaque Dr.Jit value of the weights' type (``Color3f`` for rgb, ``Float`` for mono)
+        holding ``values`` (one number per channel).
+
+        Opaque, because a literal is compiled into the kernels that read it: every new set of
+        weights would compile a new render kernel (0.2 s on the CPU, 97 % of a GPU render).
+        """
+        import drjit as dr
         kind = type(self.params[self._weight_slots[0][0]])
-        return kind(*[float(x) for x in values]) if len(values) > 1 else kind(float(values[0]))
+        value = kind(*[float(x) for x in values]) if len(values) > 1 else kind(float(values[0]))
+        dr.make_opaque(value)
+        return value
 
     def set_weights(self, rho: np.ndarray, parameters) -> None:
         """Write ρ (P, C) of ``parameters`` into every mesh's BSDF; kernels not listed get 0."""

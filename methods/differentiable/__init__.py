@@ -118,6 +118,7 @@ class _Fit:
         self.costs: list[float] = []
         self.times: list[float] = []     # seconds since the method started, at each iteration
         self.trace = trace or C.Trace(time.perf_counter())
+        self._targets = _device_targets(self.observed, self.weights)
 
     def optimise(self, rho: np.ndarray) -> np.ndarray:
         """Adam + projection until ``iterations`` or the budget (keeping one render for the end)."""
@@ -138,13 +139,13 @@ class _Fit:
         import mitsuba as mi
         variables = self.write(rho, grad=True)
         cost, t0 = 0.0, time.perf_counter()
-        for v, obs in enumerate(self.observed):
+        for v, (obs, pixel_weights) in enumerate(self._targets):
             seed, seed_grad = self.seeds(it, v)
             img = mi.render(self.ms.scene, self.ms.params, sensor=v, spp=self.spp,
                             spp_grad=self.spp_grad, seed=seed, seed_grad=seed_grad)
-            residual2 = dr.square(img[..., : obs.shape[-1]] - mi.TensorXf(obs.astype(np.float32)))
-            if self.weights is not None:                       # masked / saturated pixels: 0
-                residual2 = residual2 * mi.TensorXf(self.weights[v].astype(np.float32))
+            residual2 = dr.square(img[..., : obs.shape[-1]] - obs)
+            if pixel_weights is not None:                      # masked / saturated pixels: 0
+                residual2 = residual2 * pixel_weights
             loss = dr.sum(residual2, axis=None)
             cost += float(loss.array[0])
             dr.backward(loss)
@@ -160,9 +161,8 @@ class _Fit:
     def write(self, rho: np.ndarray, *, grad: bool) -> list:
         """Write ρ into every mesh's BSDF; with ``grad``, as fresh differentiable variables."""
         import drjit as dr
-        variables = [self.ms.weight_value(row) for row in rho]
+        variables = [self.ms.weight_value(row) for row in rho]      # opaque: no new kernel per iterate
         for var in variables:
-            dr.make_opaque(var)  # a literal would change the kernel, and recompile it, every iteration
             if grad:
                 dr.enable_grad(var)
         self.ms.assign_weights(variables, self.problem.parameters)
@@ -175,6 +175,17 @@ class _Fit:
         self.write(rho, grad=False)
         seeds = [self.seeds(len(self.costs), v)[0] for v in range(len(self.observed))]
         return C.render_pass(self.ms, spp=self.spp, seeds=seeds, ledger=self.ledger)
+
+
+def _device_targets(observed: list[np.ndarray], weights: list | None) -> list[tuple]:
+    """Per view, the observed image and the pixel weights (or None) as ``mi.TensorXf``, made once.
+
+    Made once, because Dr.Jit reads a numpy array in place and compiles its alignment into the
+    kernel: a fresh array per iteration recompiled the cost kernels whenever it moved."""
+    import mitsuba as mi
+    weights = weights or [None] * len(observed)
+    return [(mi.TensorXf(obs.astype(np.float32)), None if w is None else mi.TensorXf(w.astype(np.float32)))
+            for obs, w in zip(observed, weights)]
 
 
 def _to_numpy(value, n_channels: int) -> np.ndarray:

@@ -21,7 +21,8 @@ def _fake_results(err: float, observable: bool = True) -> dict:
                             "error": None, "observable": False}],
             "trace": [{"time_s": 0.5, "renders": 1, "estimate": [[0.5], [None]]},
                       {"time_s": 2.0, "renders": 1, "estimate": [[0.72 + err], [None]]}],
-            "timings_s": {"total": 2.0}, "renders": 1}
+            "timings_s": {"total": 2.0, "render": 1.5, "compile": 0.25}, "renders": 1,
+            "settings": {"variant": "llvm_ad_mono", "device": "cpu x"}}
 
 
 def test_error_stats_skip_unobservable():
@@ -60,6 +61,7 @@ def test_markdown_renders_from_fake_numbers():
     mono = [{"label": lab, "scene": "urban_canyon_mono", "views": v, "n_views": 1, "budget": 20,
              "run_dir": "x", "results": _fake_results(0.01)}
             for lab, v in (("lambertian_prior", "single"), ("symbolic", "single"), ("symbolic", "all"))]
+    path = {"path_s": 0.5, "reps": 3, "spp": 4, "view": "v", "max_depth": 4}
     machine = {"cpu": "c", "cores": 2, "ram_gib": 1.0, "variant": "v", "mitsuba": "m", "drjit": "d",
                "python": "p", "platform": "x", "date": "today", "git": "g"}
     stamp = {"date": "today", "git": "g", "sizes": "quick", "wall_s": 60.0}
@@ -69,7 +71,7 @@ def test_markdown_renders_from_fake_numbers():
               "gain_error": 0.01, "ill_determined": 1, "image_rmse": 0.01, "renders": 2, "wall_s": 5.0,
               "met": True}]
     stored = {name: {**stamp, "data": data} for name, data in (
-        ("ratio", ratio), ("memory", mem), ("compare", {"rows": rows, "lr": [], "report": "r.md"}), ("paper", mono),
+        ("ratio", ratio), ("memory", mem), ("compare", {"rows": rows, "lr": [], "report": "r.md", "path": path}), ("paper", mono),
         ("defaults", defaults), ("field", field))}
     text = markdown.render(machine, "python -m bench --quick", sizes, stored)
     assert "## 6. Accurate by default" in text and "## 7. Field photographs" in text
@@ -79,6 +81,9 @@ def test_markdown_renders_from_fake_numbers():
     # every method ends at the same error 0.01 at t = 2 s: the baselines reach the symbolic's there
     assert "| differentiable | 0.010 | 2.0 s (1 renders), 1.0 x symbolic | 0.010 (too few iterates to tell) |" in text
     assert "| 4 | 64x64 | dask |" in text
+    # 42: the device, and a baseline's render (1.5 s, compile 0.25 s apart) against path's 0.5 s
+    assert "Rendered with llvm_ad_mono on cpu x: every time and ratio below is measured there." in text
+    assert "| iterative (noise fresh) | 1 | 1.5 | 0.25 | 1.5000 | 3.00 | **not met** |" in text
     assert "32x32: +2 % (133 MiB at 1 view to 136 MiB at 4); 64x64: +2 % (165 MiB at 1 view to 168 MiB at 4)" in text
 
 

@@ -85,4 +85,4 @@ def test_device_is_named():
     """results.json's ``device``: the CPU model and cores for an LLVM variant."""
     import os
     from framework.render import backend
-    assert backend.device_name("llvm_ad_rgb").endswith(f"({os.cpu_count()} cores)")
+    assert backend.device_name("llvm_ad_rgb").endswith(f", {len(os.sched_getaffinity(0))} cores")

@@ -3,9 +3,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from factory import max_error, run_differentiable, tiny_problem
+from factory import fresh_weights, kernels_per_call, max_error, method_config, run_differentiable, tiny_problem
 
 from framework.errors import ConfigError
+from methods._common import RenderLedger
+from methods.differentiable import DifferentiableMethod, _Fit
 
 
 @pytest.mark.slow
@@ -54,6 +56,18 @@ def test_differentiable_specular_weights_move(tmp_path):
     assert "zero_gradient" not in result.extras
     spec = [p.index for p in problem.parameters if p.kernel == "specular"]
     assert np.all(np.abs(result.estimate[spec] - 0.5) > 0.01)
+
+
+def test_differentiable_compiles_once_for_all_weights(tmp_path):
+    """20 iterations (forward and backward passes) at fresh random AD weights and fresh seeds
+    compile no kernel after the first: the weights reach Mitsuba as opaque values (Adam runs on
+    the host: its learning rate and steps never enter a kernel)."""
+    problem = tiny_problem(tmp_path / "s", kernels=("diffuse", "specular"), budget=40, obs_spp=16)
+    options = DifferentiableMethod(method_config("differentiable")).options
+    fit = _Fit(problem, RenderLedger(40, desc="test"), options)
+    weights = fresh_weights(problem, 20)
+    counts = kernels_per_call(lambda it: fit.cost_and_gradient(weights[it], it), range(20))
+    assert sum(counts[1:]) == 0, counts
 
 
 @pytest.mark.parametrize("key, value", [

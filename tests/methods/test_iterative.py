@@ -7,9 +7,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from factory import max_error, run_iterative, tiny_problem
+from factory import fresh_weights, kernels_per_call, max_error, method_config, run_iterative, tiny_problem
 
 from framework.errors import ConfigError
+from methods._common import RenderLedger
+from methods.iterative import IterativeMethod, _Objective
 
 
 def expected_renders(result, D: int) -> int:
@@ -66,6 +68,16 @@ def test_iterative_central_counts(tmp_path):
     n_grad, n_eval = result.extras["gradient_evaluations"], result.extras["evaluations"]
     assert n_eval <= 3
     assert result.renders == n_grad * (2 * D + 1) + (n_eval - n_grad) + 1
+
+
+def test_iterative_compiles_once_for_all_weights(tmp_path):
+    """20 passes at fresh random weights and fresh seeds compile no kernel after the first: the
+    weights reach Mitsuba as opaque values (as literals, every pass compiled its render kernel)."""
+    problem = tiny_problem(tmp_path / "s", kernels=("diffuse", "specular"), budget=20, obs_spp=16)
+    options = IterativeMethod(method_config("iterative", noise="fresh")).options
+    objective = _Objective(problem, RenderLedger(20, desc="test"), options)
+    counts = kernels_per_call(objective.render, fresh_weights(problem, 20))
+    assert sum(counts[1:]) == 0, counts
 
 
 @pytest.mark.parametrize("key, value", [

@@ -46,11 +46,14 @@ def test_run_records_the_scene_hash(tmp_path):
     from factory import compose_config, make_tiny_scene
 
     from framework.experiment import run_experiment
+    from framework.render.backend import device_name
     from framework.scene import load_scene
     scene = make_tiny_scene(tmp_path / "tiny", n_views=1)
     results = run_experiment(compose_config(scene, "views=all", "render.spp=4", "observe.spp=8",
                                             "method.refine=0"), tmp_path / "run")
     assert results["settings"]["scene_hash"] == load_scene(scene).content_hash
+    # 42: the device the run rendered on, beside its variant
+    assert results["settings"]["device"] == device_name(results["settings"]["variant"])
     # 17: Dr.Jit's compilation is reported apart, and is part of the total
     assert 0.0 <= results["timings_s"]["compile"] <= results["timings_s"]["total"]
     assert results["timings_s"]["imports"] >= 0.0          # before the clock: not part of total
