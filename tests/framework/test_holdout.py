@@ -1,0 +1,103 @@
+"""Held-out views (issue 45, ``holdout=[...]``): refused names, metrics by hand, the prediction
+at the estimate against the floor at the true reflectance, and every method with a view held out."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from factory import compose_config, make_tiny_scene, write_png8
+
+from framework.errors import ConfigError
+from framework.experiment import prepare, run_experiment
+from framework.holdout_metrics import view_metrics
+from framework.registry import available_methods
+
+FAST = ["render.spp=8", "observe.spp=32", "budget.renders=12", "report=false"]
+METHOD_FAST = {"iterative": ["method.max_eval=2", "method.noise=fixed"], "differentiable": ["method.iterations=2"],
+               "symbolic": ["method.solver.starts=1"], "lambertian_prior": ["method.solver.starts=1"]}
+KEYS = {"view", "pixels", "rmse", "psnr", "psnr_srgb", "ssim", "z_rms", "segments"}
+
+
+@pytest.fixture
+def three_views(tmp_path):
+    return make_tiny_scene(tmp_path / "tiny3", n_views=3)
+
+
+def test_holdout_errors(three_views):
+    """A name that is not a view, every view held out, a held-out view with no usable pixel."""
+    with pytest.raises(ConfigError, match=r"^holdout names view_9.png, which is not a view of scene tiny: "
+                                          r"name one of its views \(view_0.png, view_1.png, view_2.png\)$"):
+        prepare(compose_config(three_views, "views=all", "holdout=[view_9.png]"))
+    with pytest.raises(ConfigError, match=r"^holdout=\[view_0.png, view_1.png\] holds out every selected view"):
+        prepare(compose_config(three_views, "views=[view_0.png,view_1.png]", "holdout=[view_0.png,view_1.png]"))
+    with pytest.raises(ConfigError, match=r"^holdout lists view_1.png more than once"):
+        prepare(compose_config(three_views, "views=all", "holdout=[view_1.png,view_1.png]"))
+    for name in ("view_0.png", "view_1.png", "view_2.png"):
+        write_png8(three_views / "images" / name, np.full((16, 16, 3), 120))
+    write_png8(three_views / "masks/view_2.png.png", np.zeros((16, 16)))
+    with pytest.raises(ConfigError, match=r"^holdout view view_2.png has no usable pixel \(every pixel masked, "
+                                          r"saturated or black\), so there is nothing to compare"):
+        prepare(compose_config(three_views, "views=all", "holdout=[view_2.png]"))
+
+
+def test_held_out_view_is_not_fitted(three_views):
+    problem, _, _ = prepare(compose_config(three_views, "views=all", "holdout=[view_2.png]"))
+    assert [c.name for c in problem.cameras] == ["view_0.png", "view_1.png"]
+    assert set(problem.observed) == {"view_0.png", "view_1.png"}
+    assert [c.name for c in problem.held_out.cameras] == ["view_2.png"]
+    assert problem.held_out.observed["view_2.png"].shape == (16, 16, 3)
+
+
+def test_view_metrics_by_hand():
+    """A prediction off by a known amount: RMSE is that amount, PSNR follows from the peak, z_rms
+    is 1 when the variance is the squared offset; the masked pixel does not count."""
+    obs = np.full((8, 8, 3), 0.5)
+    obs[0, 0] = 0.8                                       # the peak
+    pred = obs + np.array([0.01, 0.02, 0.04])
+    used = np.ones((8, 8), bool)
+    used[7, 7] = False
+    pred[7, 7] = 5.0                                      # masked: must not count
+    seg = np.zeros((8, 8), int)
+    seg[:, 4:] = 1
+    m = view_metrics(obs, pred, used, seg, ["a", "b"], variance=np.broadcast_to([1e-4, 4e-4, 16e-4], obs.shape))
+    assert m["pixels"] == 63
+    np.testing.assert_allclose(m["rmse"], [0.01, 0.02, 0.04], rtol=1e-9)
+    mse = (0.01 ** 2 + 0.02 ** 2 + 0.04 ** 2) / 3
+    assert m["psnr"] == pytest.approx(10 * np.log10(0.8 ** 2 / mse), rel=1e-9)
+    assert m["z_rms"] == pytest.approx(1.0, rel=1e-9)
+    assert 0 < m["ssim"] < 1 and 0 < m["psnr_srgb"]
+    assert set(m["segments"]) == {"a", "b"} and m["segments"]["a"]["pixels"] == 32
+    assert m["segments"]["b"]["pixels"] == 31
+    same = view_metrics(obs, obs, used, seg, ["a", "b"])
+    assert same["psnr"] is None and same["ssim"] == pytest.approx(1.0) and same["z_rms"] is None
+
+
+def test_symbolic_prediction_against_the_floor(three_views, tmp_path):
+    """The default method on two views predicts the third: the floor (the true reflectance's
+    prediction) has an RMSE of the Monte Carlo noise alone, and the estimate's is close to it."""
+    cfg = compose_config(three_views, "views=all", "holdout=[view_2.png]", "observe.spp=256", "render.spp=32",
+                         "report=false", f"cache.dir={tmp_path / 'cache'}")
+    results = run_experiment(cfg, tmp_path / "run")
+    (entry,) = json.loads((tmp_path / "run/results.json").read_text())["holdout"]
+    assert results["settings"]["holdout"] == ["view_2.png"] and results["settings"]["views"] == ["view_0.png",
+                                                                                                 "view_1.png"]
+    assert set(entry) >= KEYS | {"floor", "images"} and entry["view"] == "view_2.png"
+    assert set(entry["segments"]) == {"ground", "block"}
+    floor, ours = np.array(entry["floor"]["rmse"]), np.array(entry["rmse"])
+    print("holdout", entry)
+    assert np.all(floor < 0.05) and np.all(ours < 2.0 * floor + 0.005)
+    assert 0.3 < entry["z_rms"] < 3.0
+    assert (tmp_path / "run" / entry["images"]["prediction"]).is_file()
+
+
+@pytest.mark.parametrize("method", available_methods())
+def test_every_method_runs_with_a_view_held_out(method, tiny_scene, tmp_path):
+    """Each registered method, fitted on view_0, predicts view_1 and reports its metrics."""
+    cfg = compose_config(tiny_scene, "views=all", "holdout=[view_1.png]", f"method={method}",
+                         f"cache.dir={tmp_path / 'cache'}", *FAST, *METHOD_FAST.get(method, []))
+    results = run_experiment(cfg, tmp_path / "run")
+    (entry,) = results["holdout"]
+    assert set(entry) >= KEYS and entry["view"] == "view_1.png" and entry["pixels"] == 256
+    assert len(entry["rmse"]) == 3 and all(np.isfinite(entry["rmse"]))
+    assert results["settings"]["views"] == ["view_0.png"]
