@@ -45,7 +45,8 @@ def region_metrics(observed: np.ndarray, predicted: np.ndarray, used: np.ndarray
     used : numpy.ndarray
         ``(H, W)`` bool, the pixels that count.
     variance : numpy.ndarray or None
-        ``(H, W, C)`` predicted variance of each residual; None: ``z_rms`` is None.
+        Predicted variance of each residual, ``(H, W, C)`` or broadcast to it (``(C,)``: one per
+        channel); None: ``z_rms`` is None.
     ssim : numpy.ndarray or None
         ``(H, W)`` SSIM map of the whole sRGB image (:func:`ssim_map`), averaged over ``used``.
 
@@ -60,7 +61,7 @@ def region_metrics(observed: np.ndarray, predicted: np.ndarray, used: np.ndarray
     y8, p8 = srgb_encode(np.clip(y, 0, 1)), srgb_encode(np.clip(p, 0, 1))
     z = None
     if variance is not None:
-        var = variance[used]
+        var = np.broadcast_to(variance, observed.shape)[used]
         ok = var > 0
         z = _finite(np.sqrt(np.mean(r[ok] ** 2 / var[ok]))) if ok.any() else None
     return {"pixels": int(used.sum()), "rmse": [float(x) for x in np.sqrt(np.mean(r * r, axis=0))],

@@ -25,13 +25,31 @@ def fit_noise(problem, result) -> np.ndarray | None:
     return sq / n if n else None
 
 
+def observation_noise(problem, result, held: HeldOut, mc_var: dict) -> dict:
+    """Variance ``(C,)`` of each held-out photograph's noise: rendered observations have the
+    prediction's Monte Carlo variance (the same renderer at the same spp) plus ``observe.noise``'s
+    Gaussian noise; photographs the fit's residual mean square (:func:`fit_noise`; None when the
+    method returned no reconstruction)."""
+    if problem.scene.images is None:
+        rel = problem.settings.observe.noise
+        return {c.name: mc_var[c.name] + (rel * held.observed[c.name].mean()) ** 2 for c in held.cameras}
+    noise = fit_noise(problem, result)
+    return {c.name: noise for c in held.cameras}
+
+
+#: Largest std a weight in [0, 1] can have to first order: that of a uniform distribution over
+#: the box; an ill-determined weight's linearised std (often >> 1) is capped there.
+STD_CAP = 1.0 / np.sqrt(12.0)
+
+
 def covariance(result, params) -> np.ndarray | None:
-    """``(C, P, P)`` covariance of the weights ``params`` from the method's ``std`` and the
-    channel-mean ``correlation`` (identity without one); NaN std (unobservable, undetermined)
-    counts as 0. None for a method without a std."""
+    """``(C, P, P)`` covariance of the weights ``params`` from the method's ``std`` (capped at
+    :data:`STD_CAP`) and the channel-mean ``correlation`` (identity without one); NaN std
+    (unobservable, undetermined) counts as 0. None for a method without a std."""
     if result.std is None:
         return None
     std = np.nan_to_num(np.asarray(result.std, float)[[p.index for p in params]])      # (P, C)
+    std = np.minimum(std, STD_CAP)
     corr = np.eye(len(params))
     table = result.extras.get("correlation") or {}
     if table.get("matrix"):
@@ -68,15 +86,14 @@ def jacobian_variance(problem, cameras, rho, params, cov: np.ndarray) -> dict:
     return out
 
 
-def _variances(problem, result, held: HeldOut, rho, params, mc_var: dict, noise) -> dict:
-    """Predicted residual variance of each held-out pixel, per view: the fit's noise, the
-    prediction's Monte Carlo variance and ``J Σ Jᵀ`` (None without ``noise``: the method gave
-    no reconstruction to say what the observation noise is)."""
-    if noise is None:
-        return {c.name: None for c in held.cameras}
+def _variances(problem, result, held: HeldOut, rho, params, mc_var: dict, noise: dict) -> dict:
+    """Predicted residual variance of each held-out pixel, per view: the observation noise, the
+    prediction's Monte Carlo variance and ``J Σ Jᵀ`` (None where the observation noise is
+    unknown)."""
     cov = covariance(result, params)
     model = jacobian_variance(problem, held.cameras, rho, params, cov) if cov is not None else {}
-    return {c.name: noise + mc_var[c.name] + model.get(c.name, 0.0) for c in held.cameras}
+    return {c.name: None if noise[c.name] is None else noise[c.name] + mc_var[c.name] + model.get(c.name, 0.0)
+            for c in held.cameras}
 
 
 def holdout_entries(problem, result, held: HeldOut, run_dir: Path | None = None) -> list[dict]:
@@ -88,8 +105,9 @@ def holdout_entries(problem, result, held: HeldOut, run_dir: Path | None = None)
         return []
     params = list(result.parameters or problem.parameters)
     rho = np.nan_to_num(np.asarray(result.estimate, float)[[p.index for p in params]])
-    gain, noise = held_out_gain(result.extras, problem.n_channels), fit_noise(problem, result)
+    gain = held_out_gain(result.extras, problem.n_channels)
     preds, mc_var = predict(problem, held.cameras, rho, params)
+    noise = observation_noise(problem, result, held, mc_var)
     variances = _variances(problem, result, held, rho, params, mc_var, noise)
     floor = _floor(problem, held)
     seg = view_segment_maps(problem.scene, held.cameras)
@@ -102,7 +120,7 @@ def holdout_entries(problem, result, held: HeldOut, run_dir: Path | None = None)
         entry = {"view": c.name, **view_metrics(obs, pred, used, seg[c.name], names, variance=var),
                  "gain": [float(g) for g in gain]}
         if floor is not None:
-            f_var = None if noise is None else (noise + floor[1][c.name]) * scale ** 2
+            f_var = None if noise[c.name] is None else (noise[c.name] + floor[1][c.name]) * scale ** 2
             entry["floor"] = view_metrics(obs, floor[0][c.name] * scale, used, seg[c.name], names, variance=f_var)
         if run_dir is not None:
             entry["images"] = _write(run_dir, paths[c.name], obs, pred, problem.scene.channels)

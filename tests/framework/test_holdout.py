@@ -73,10 +73,13 @@ def test_view_metrics_by_hand():
     assert same["psnr"] is None and same["ssim"] == pytest.approx(1.0) and same["z_rms"] is None
 
 
-def test_symbolic_prediction_against_the_floor(three_views, tmp_path):
-    """The default method on two views predicts the third: the floor (the true reflectance's
-    prediction) has an RMSE of the Monte Carlo noise alone, and the estimate's is close to it."""
-    cfg = compose_config(three_views, "views=all", "holdout=[view_2.png]", "observe.spp=256", "render.spp=32",
+def test_symbolic_prediction_against_the_floor(tmp_path):
+    """The default method on two views of a diffuse scene predicts the third: the floor (the
+    true reflectance's prediction) has the residuals of the Monte Carlo noise alone (RMS z 1), and
+    the estimate's RMSE is within 1.1x of it with an honest image-space std (measured: 1.02x,
+    RMS z 1.03; floor RMS z 1.05)."""
+    root = make_tiny_scene(tmp_path / "tiny3", n_views=3, kernels=("diffuse",))
+    cfg = compose_config(root, "views=all", "holdout=[view_2.png]", "observe.spp=256", "render.spp=32",
                          "report=false", f"cache.dir={tmp_path / 'cache'}")
     results = run_experiment(cfg, tmp_path / "run")
     (entry,) = json.loads((tmp_path / "run/results.json").read_text())["holdout"]
@@ -85,9 +88,8 @@ def test_symbolic_prediction_against_the_floor(three_views, tmp_path):
     assert set(entry) >= KEYS | {"floor", "images"} and entry["view"] == "view_2.png"
     assert set(entry["segments"]) == {"ground", "block"}
     floor, ours = np.array(entry["floor"]["rmse"]), np.array(entry["rmse"])
-    print("holdout", entry)
-    assert np.all(floor < 0.05) and np.all(ours < 2.0 * floor + 0.005)
-    assert 0.3 < entry["z_rms"] < 3.0
+    assert np.all(ours < 1.1 * floor)
+    assert 0.7 < entry["floor"]["z_rms"] < 1.5 and 0.7 < entry["z_rms"] < 1.5
     assert (tmp_path / "run" / entry["images"]["prediction"]).is_file()
 
 
