@@ -6,12 +6,13 @@ import json
 
 import numpy as np
 import pytest
-from factory import compose_config, make_tiny_scene, write_png8
+from factory import cli, compose_config, error_line, make_problem, make_tiny_scene, write_png8
 
 from framework.errors import ConfigError
 from framework.experiment import prepare, run_experiment
 from framework.holdout_metrics import view_metrics
-from framework.registry import available_methods
+from framework.holdout_run import holdout_entries
+from framework.registry import MethodResult, available_methods
 
 FAST = ["render.spp=8", "observe.spp=32", "budget.renders=12", "report=false"]
 METHOD_FAST = {"iterative": ["method.max_eval=2", "method.noise=fixed"], "differentiable": ["method.iterations=2"],
@@ -39,6 +40,14 @@ def test_holdout_errors(three_views):
     with pytest.raises(ConfigError, match=r"^holdout view view_2.png has no usable pixel \(every pixel masked, "
                                           r"saturated or black\), so there is nothing to compare"):
         prepare(compose_config(three_views, "views=all", "holdout=[view_2.png]"))
+
+
+def test_holdout_error_on_the_command_line(three_views, tmp_path):
+    """One line, status 2, no run folder left."""
+    proc = cli([f"scene.dir={three_views}", "render.spp=4", "observe.spp=8", "report=false", "cache.dir=null",
+                "views=all", "holdout=[view_9.png]", f"hydra.run.dir={tmp_path / 'run'}"], tmp_path)
+    assert error_line(proc).startswith("error: holdout names view_9.png, which is not a view of scene tiny")
+    assert not (tmp_path / "run").exists()
 
 
 def test_held_out_view_is_not_fitted(three_views):
@@ -103,3 +112,18 @@ def test_every_method_runs_with_a_view_held_out(method, tiny_scene, tmp_path):
     assert set(entry) >= KEYS and entry["view"] == "view_1.png" and entry["pixels"] == 256
     assert len(entry["rmse"]) == 3 and all(np.isfinite(entry["rmse"]))
     assert results["settings"]["views"] == ["view_0.png"]
+
+
+def test_image_space_std_carries_the_parameters_covariance(tmp_path):
+    """Every weight 0.1 off its reference: with a std of 0.1 on each weight the residuals are
+    about one predicted std (the delta method through each pixel), with no std (a baseline)
+    many times the noise alone."""
+    root = make_tiny_scene(tmp_path / "tiny3", n_views=3, kernels=("diffuse",))
+    problem = make_problem(root, None, "holdout=[view_2.png]", "observe.spp=256", "render.spp=32")
+    ref = problem.scene.reference(problem.parameters)
+    z = {}
+    for label, std in (("std", np.full_like(ref, 0.1)), ("none", None)):
+        result = MethodResult(estimate=ref + 0.1, renders=0, std=std)
+        (entry,) = holdout_entries(problem, result, problem.held_out)
+        z[label] = entry["z_rms"]
+    assert 0.6 < z["std"] < 1.5 and z["none"] > 3.0, z
