@@ -117,7 +117,7 @@ def test_every_method_runs_with_a_view_held_out(method, tiny_scene, tmp_path):
 def test_image_space_std_carries_the_parameters_covariance(tmp_path):
     """Every weight 0.1 off its reference: with a std of 0.1 on each weight the residuals are
     about one predicted std (the delta method through each pixel), with no std (a baseline)
-    many times the noise alone."""
+    many times the noise alone (measured: RMS z 0.80 and 3.71)."""
     root = make_tiny_scene(tmp_path / "tiny3", n_views=3, kernels=("diffuse",))
     problem = make_problem(root, None, "holdout=[view_2.png]", "observe.spp=256", "render.spp=32")
     ref = problem.scene.reference(problem.parameters)
