@@ -127,3 +127,27 @@ def test_image_space_std_carries_the_parameters_covariance(tmp_path):
         (entry,) = holdout_entries(problem, result, problem.held_out)
         z[label] = entry["z_rms"]
     assert 0.6 < z["std"] < 1.5 and z["none"] > 3.0, z
+
+
+def test_held_out_gain_and_falloff(three_views):
+    """A held-out view gets the per-channel median of the fitted views' gains (1 without), and its
+    lens's falloff 1 + a1 r² + a2 r⁴ + a3 r⁶ (r = 1 at the image corner)."""
+    import dataclasses
+
+    from framework.holdout import _falloff, held_out_gain
+    from framework.scene import load_scene
+    from framework.scene.model import Photometry
+    exposure = [{"view": "a", "estimate": [1.0, 1.0, 1.0]}, {"view": "b", "estimate": [1.5, 0.8, 1.2]},
+                {"view": "c", "estimate": [2.0, 0.6, 1.1]}]
+    np.testing.assert_allclose(held_out_gain({"exposure": exposure}, 3), [1.5, 0.8, 1.1])
+    np.testing.assert_array_equal(held_out_gain({}, 3), [1.0, 1.0, 1.0])
+    scene = load_scene(three_views)
+    lens = dataclasses.replace(scene, photometry=Photometry(vignetting="known", vignetting_profile=(-0.3, 0.1, -0.05)))
+    cam = scene.camera("view_2.png")
+    assert _falloff(scene, cam, {}) == 1.0
+    v = _falloff(lens, cam, {})[..., 0]
+    corner = np.hypot(cam.width / 2 - 0.5, cam.height / 2 - 0.5) / (0.5 * np.hypot(cam.width, cam.height))
+    r2 = corner ** 2
+    assert v[0, 0] == pytest.approx(1 - 0.3 * r2 + 0.1 * r2 ** 2 - 0.05 * r2 ** 3, rel=1e-9)
+    estimated = {"vignetting": [{"camera": str(cam.camera_id), "estimate": [-0.5, 0.0, 0.0]}]}
+    assert _falloff(lens, cam, estimated)[0, 0, 0] == pytest.approx(1 - 0.5 * r2, rel=1e-9)
