@@ -2,7 +2,9 @@
 predicted at the estimate and compared with their photographs (results.json ``holdout``).
 
 The prediction is a Mitsuba ``path`` render at the estimate (:func:`framework.relight.render_relit`)
-at the observations' spp and depth (``observe.spp``, ``observe.max_depth``), times the exposure
+at the observations' spp and depth (``observe.spp``, ``observe.max_depth``), integrated over the
+footprint of the photograph's resampling where the loader resampled it from a distorted camera
+(:mod:`framework.holdout_footprint`), times the exposure
 gain and the lens falloff the fitted views get: a held-out view has no gain of its own, so it
 gets the per-channel median of the fitted views' estimated gains (1 when the method estimated
 none), and the vignetting profile of its lens (scene.yaml's, or the one the fit estimated).
@@ -23,7 +25,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from framework.errors import ConfigError
-from framework.relight import render_relit
+from framework.holdout_footprint import render_resampled
 
 #: Step of the forward differences in the weights (the pixel is a polynomial of low degree in
 #: them, so the truncation error is of this order relative to the derivative).
@@ -131,7 +133,7 @@ def held_out_gain(extras: dict, n_channels: int) -> np.ndarray:
 
 def _render(problem, cameras, rho, params, *, spp: int, seed: int) -> dict:
     obs = problem.settings.observe
-    return render_relit(problem.scene, cameras, rho, params, spp=spp, seed=seed, max_depth=obs.max_depth)
+    return render_resampled(problem.scene, cameras, rho, params, spp=spp, seed=seed, max_depth=obs.max_depth)
 
 
 def predict(problem, cameras, rho, params) -> tuple[dict, dict]:

@@ -151,3 +151,28 @@ def test_held_out_gain_and_falloff(three_views):
     assert v[0, 0] == pytest.approx(1 - 0.3 * r2 + 0.1 * r2 ** 2 - 0.05 * r2 ** 3, rel=1e-9)
     estimated = {"vignetting": [{"camera": str(cam.camera_id), "estimate": [-0.5, 0.0, 0.0]}]}
     assert _falloff(lens, cam, estimated)[0, 0, 0] == pytest.approx(1 - 0.5 * r2, rel=1e-9)
+
+
+@pytest.mark.parametrize("kernel", ["bilinear", "cubic"])
+def test_prediction_integrates_the_resampling_footprint(tmp_path, kernel):
+    """A resampled view's prediction is the footprint's weighted sum of source-pixel means: on a
+    fine image linear in the pinhole coordinates (whose box means are its centre values, and
+    which bilinear reads exactly) it is sum_k w_k f(position_k), by hand."""
+    from factory import make_field_scene
+
+    from framework.holdout_footprint import integrate
+    from framework.scene import load_scene
+    from framework.scene.undistort import Resampling
+    cam = load_scene(make_field_scene(tmp_path / "field", [("OPENCV", {"fx": 26.0, "fy": 29.5})], size=32)).cameras[0]
+    footprint = Resampling(source=cam.delivered(), target=cam.pinhole(), kernel=kernel).footprint()
+    s = 4
+    ys, xs = np.mgrid[0:cam.height * s, 0:cam.width * s] + 0.5
+    fine = np.stack([0.3 * xs / s + 0.1 * ys / s + 2.0, np.ones_like(xs)], axis=-1)
+    out = integrate(fine, footprint, cam, s).reshape(-1, 2)
+    p = footprint.position
+    by_hand = np.einsum("nk,nk->n", footprint.weight, 0.3 * p[..., 0] + 0.1 * p[..., 1] + 2.0)
+    inner = np.all((p > 1.5) & (p < np.array([cam.width, cam.height]) - 1.5), axis=(1, 2))
+    assert inner.sum() > 500
+    np.testing.assert_allclose(out[inner, 0], by_hand[inner], rtol=1e-5)
+    np.testing.assert_allclose(out[:, 1], 1.0, rtol=1e-5)
+    assert np.ptp(footprint.jacobian[inner]) > 0.01 and footprint.weight.max() < 1     # not the identity
