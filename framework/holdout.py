@@ -7,7 +7,8 @@ footprint of the photograph's resampling where the loader resampled it from a di
 (:mod:`framework.holdout_footprint`), times the exposure
 gain and the lens falloff the fitted views get: a held-out view has no gain of its own, so it
 gets the per-channel median of the fitted views' estimated gains (1 when the method estimated
-none), and the vignetting profile of its lens (scene.yaml's, or the one the fit estimated).
+none), and the vignetting profile of its lens (scene.yaml's, or the one the fit estimated). An
+emitter of unknown scale shines at the scale the fit estimated (:func:`estimated_light`).
 
 Image-space std (``z_rms``): each pixel's predicted variance is the delta method through the
 pixel at the estimate, ``J Σ Jᵀ`` per channel (``J`` the pixel's derivatives in the weights,
@@ -109,7 +110,7 @@ def _lens_radius(camera) -> np.ndarray:
     return np.hypot(x - cx, y - cy) / (0.5 * np.hypot(w, h))
 
 
-def _falloff(scene, camera, extras: dict) -> np.ndarray | float:
+def lens_falloff(scene, camera, extras: dict) -> np.ndarray | float:
     """The lens falloff ``1 + a1 r² + a2 r⁴ + a3 r⁶`` of ``camera``: scene.yaml's profile, or the
     one the fit estimated for the camera's lens (results.json ``vignetting``); 1 without one."""
     photometry = scene.photometry
@@ -124,6 +125,27 @@ def _falloff(scene, camera, extras: dict) -> np.ndarray | float:
     return (1.0 + r2 * (a1 + r2 * (a2 + r2 * a3)))[..., None]
 
 
+def estimated_light(scene, extras: dict):
+    """``scene`` with each emitter of unknown scale multiplied by the scale the fit estimated
+    (results.json ``illumination``, per channel; an emitter whose scale was not observable keeps
+    its nominal light)."""
+    import dataclasses
+    import hashlib
+    entries = [e for e in extras.get("illumination") or [] if e.get("estimate") and None not in e["estimate"]]
+    if not entries:
+        return scene
+    emitters, h = list(scene.emitters), hashlib.sha256(scene.content_hash.encode())
+    for entry in entries:
+        k = np.asarray(entry["estimate"], float)
+        for i, e in enumerate(emitters):
+            if e.scale_unknown and e.source == entry["emitter"] and e.part == entry.get("part"):
+                emitters[i] = dataclasses.replace(e, **{a: getattr(e, a) * (k if a != "image" else k[None, None])
+                                                        for a in ("radiance", "irradiance", "image")
+                                                        if getattr(e, a) is not None})
+        h.update(k.tobytes())
+    return dataclasses.replace(scene, emitters=tuple(emitters), content_hash=h.hexdigest()[:16])
+
+
 def held_out_gain(extras: dict, n_channels: int) -> np.ndarray:
     """``(C,)``: the per-channel median of the fitted views' estimated exposure gains
     (results.json ``exposure``), or 1 when the method estimated none."""
@@ -131,7 +153,9 @@ def held_out_gain(extras: dict, n_channels: int) -> np.ndarray:
     return np.median(np.asarray(gains, float), axis=0) if gains else np.ones(n_channels)
 
 
-def _render(problem, cameras, rho, params, *, spp: int, seed: int) -> dict:
+def render_at(problem, cameras, rho, params, *, spp: int, seed: int) -> dict:
+    """Unit-gain ``path`` renders of ``cameras`` at ``rho`` (rows in ``params`` order), at
+    ``observe.max_depth``, resampled views through their footprint; view ``i`` seeded ``seed + i``."""
     obs = problem.settings.observe
     return render_resampled(problem.scene, cameras, rho, params, spp=spp, seed=seed, max_depth=obs.max_depth)
 
@@ -142,8 +166,8 @@ def predict(problem, cameras, rho, params) -> tuple[dict, dict]:
     the mean squared difference of the two."""
     spp = max(1, problem.settings.observe.spp // 2)
     seed = 2 * int(problem.seed) + PREDICTION_SEED
-    a = _render(problem, cameras, rho, params, spp=spp, seed=seed)
-    b = _render(problem, cameras, rho, params, spp=spp, seed=seed + len(cameras))
+    a = render_at(problem, cameras, rho, params, spp=spp, seed=seed)
+    b = render_at(problem, cameras, rho, params, spp=spp, seed=seed + len(cameras))
     means = {n: 0.5 * (a[n] + b[n]) for n in a}
     mc_var = {n: ((a[n] - b[n]) ** 2).reshape(-1, a[n].shape[-1]).mean(axis=0) / 4.0 for n in a}
     return means, mc_var

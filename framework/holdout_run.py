@@ -2,11 +2,13 @@
 (results.json ``holdout``; :mod:`framework.holdout` says what is predicted and how)."""
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 
-from framework.holdout import FD_STEP, PREDICTION_SEED, HeldOut, _falloff, _render, held_out_gain, predict
+from framework.holdout import (FD_STEP, PREDICTION_SEED, HeldOut, estimated_light, held_out_gain, lens_falloff,
+                               predict, render_at)
 from framework.holdout_metrics import view_metrics
 from framework.images import write_exr
 from framework.render.mitsuba_scene import segment_maps as view_segment_maps
@@ -68,7 +70,7 @@ def jacobian_variance(problem, cameras, rho, params, cov: np.ndarray) -> dict:
     derivative, not two renders' noise); only parameters with a non-zero variance are rendered."""
     spp, seed = problem.settings.spp, 2 * int(problem.seed) + PREDICTION_SEED + 1000
     live = [i for i in range(len(params)) if np.any(np.diagonal(cov, axis1=1, axis2=2)[:, i] > 0)]
-    base = _render(problem, cameras, rho, params, spp=spp, seed=seed)
+    base = render_at(problem, cameras, rho, params, spp=spp, seed=seed)
     out = {c.name: np.zeros_like(base[c.name], dtype=float) for c in cameras}
     if not live:
         return out
@@ -77,7 +79,7 @@ def jacobian_variance(problem, cameras, rho, params, cov: np.ndarray) -> dict:
         step = -FD_STEP if np.max(rho[i]) + FD_STEP > 1 else FD_STEP
         moved = rho.copy()
         moved[i] += step
-        img = _render(problem, cameras, moved, params, spp=spp, seed=seed)
+        img = render_at(problem, cameras, moved, params, spp=spp, seed=seed)
         grads[i] = {n: (img[n] - base[n]) / step for n in img}
     for c in cameras:
         J = np.stack([grads[i][c.name] for i in live], axis=-1)                  # (H, W, C, L)
@@ -103,18 +105,19 @@ def holdout_entries(problem, result, held: HeldOut, run_dir: Path | None = None)
     EXRs under ``images/holdout/`` when ``run_dir`` is given."""
     if not held.cameras:
         return []
+    floor = _floor(problem, held)
+    problem = dataclasses.replace(problem, scene=estimated_light(problem.scene, result.extras))
     params = list(result.parameters or problem.parameters)
     rho = np.nan_to_num(np.asarray(result.estimate, float)[[p.index for p in params]])
     gain = held_out_gain(result.extras, problem.n_channels)
     preds, mc_var = predict(problem, held.cameras, rho, params)
     noise = observation_noise(problem, result, held, mc_var)
     variances = _variances(problem, result, held, rho, params, mc_var, noise)
-    floor = _floor(problem, held)
     seg = view_segment_maps(problem.scene, held.cameras)
     names = [s.name for s in problem.scene.segments]
     entries, paths = [], image_paths(c.name for c in held.cameras)
     for c in held.cameras:
-        scale = gain * _falloff(problem.scene, c, result.extras)
+        scale = gain * lens_falloff(problem.scene, c, result.extras)
         pred, obs, used = (preds[c.name] * scale).astype(np.float32), held.observed[c.name], held.used(c.name)
         var = None if variances[c.name] is None else variances[c.name] * scale ** 2
         entry = {"view": c.name, **view_metrics(obs, pred, used, seg[c.name], names, variance=var),
@@ -129,7 +132,8 @@ def holdout_entries(problem, result, held: HeldOut, run_dir: Path | None = None)
 
 
 def _floor(problem, held: HeldOut):
-    """Predictions at the scene's ``reference`` weights (None when some weight has none)."""
+    """Predictions at the scene's ``reference`` weights under its light as declared (None when
+    some weight has none)."""
     params = problem.parameters
     ref = problem.scene.reference(params)
     if ref is None or np.isnan(ref).any():

@@ -134,7 +134,7 @@ def test_held_out_gain_and_falloff(three_views):
     lens's falloff 1 + a1 r² + a2 r⁴ + a3 r⁶ (r = 1 at the image corner)."""
     import dataclasses
 
-    from framework.holdout import _falloff, held_out_gain
+    from framework.holdout import held_out_gain, lens_falloff
     from framework.scene import load_scene
     from framework.scene.model import Photometry
     exposure = [{"view": "a", "estimate": [1.0, 1.0, 1.0]}, {"view": "b", "estimate": [1.5, 0.8, 1.2]},
@@ -144,13 +144,13 @@ def test_held_out_gain_and_falloff(three_views):
     scene = load_scene(three_views)
     lens = dataclasses.replace(scene, photometry=Photometry(vignetting="known", vignetting_profile=(-0.3, 0.1, -0.05)))
     cam = scene.camera("view_2.png")
-    assert _falloff(scene, cam, {}) == 1.0
-    v = _falloff(lens, cam, {})[..., 0]
+    assert lens_falloff(scene, cam, {}) == 1.0
+    v = lens_falloff(lens, cam, {})[..., 0]
     corner = np.hypot(cam.width / 2 - 0.5, cam.height / 2 - 0.5) / (0.5 * np.hypot(cam.width, cam.height))
     r2 = corner ** 2
     assert v[0, 0] == pytest.approx(1 - 0.3 * r2 + 0.1 * r2 ** 2 - 0.05 * r2 ** 3, rel=1e-9)
     estimated = {"vignetting": [{"camera": str(cam.camera_id), "estimate": [-0.5, 0.0, 0.0]}]}
-    assert _falloff(lens, cam, estimated)[0, 0, 0] == pytest.approx(1 - 0.5 * r2, rel=1e-9)
+    assert lens_falloff(lens, cam, estimated)[0, 0, 0] == pytest.approx(1 - 0.5 * r2, rel=1e-9)
 
 
 @pytest.mark.parametrize("kernel", ["bilinear", "cubic"])
@@ -176,3 +176,18 @@ def test_prediction_integrates_the_resampling_footprint(tmp_path, kernel):
     np.testing.assert_allclose(out[inner, 0], by_hand[inner], rtol=1e-5)
     np.testing.assert_allclose(out[:, 1], 1.0, rtol=1e-5)
     assert np.ptp(footprint.jacobian[inner]) > 0.01 and footprint.weight.max() < 1     # not the identity
+
+
+def test_held_out_light_at_the_estimated_scale(three_views):
+    """An emitter of unknown scale shines at the scale the fit estimated; the others as declared."""
+    from factory import edit_scene_yaml
+
+    from framework.holdout import estimated_light
+    from framework.scene import load_scene
+    edit_scene_yaml(three_views, lambda d: d["emitters"][0].update(scale="unknown"))
+    scene = load_scene(three_views)
+    lit = estimated_light(scene, {"illumination": [{"emitter": 0, "part": None, "estimate": [2.0, 1.0, 0.5]}]})
+    np.testing.assert_allclose(lit.emitters[0].radiance, scene.emitters[0].radiance * [2.0, 1.0, 0.5])
+    np.testing.assert_array_equal(lit.emitters[1].irradiance, scene.emitters[1].irradiance)
+    assert lit.content_hash != scene.content_hash
+    assert estimated_light(scene, {"illumination": [{"emitter": 0, "part": None, "estimate": None}]}) is scene
