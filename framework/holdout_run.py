@@ -109,26 +109,45 @@ def holdout_entries(problem, result, held: HeldOut, run_dir: Path | None = None)
     problem = dataclasses.replace(problem, scene=estimated_light(problem.scene, result.extras))
     params = list(result.parameters or problem.parameters)
     rho = np.nan_to_num(np.asarray(result.estimate, float)[[p.index for p in params]])
-    gain = held_out_gain(result.extras, problem.n_channels)
     preds, mc_var = predict(problem, held.cameras, rho, params)
     noise = observation_noise(problem, result, held, mc_var)
     variances = _variances(problem, result, held, rho, params, mc_var, noise)
+    gain = held_out_gain(result.extras, problem.n_channels)
     seg = view_segment_maps(problem.scene, held.cameras)
-    names = [s.name for s in problem.scene.segments]
-    entries, paths = [], image_paths(c.name for c in held.cameras)
+    paths = image_paths(c.name for c in held.cameras)
+    entries = []
     for c in held.cameras:
         scale = gain * lens_falloff(problem.scene, c, result.extras)
-        pred, obs, used = (preds[c.name] * scale).astype(np.float32), held.observed[c.name], held.used(c.name)
-        var = None if variances[c.name] is None else variances[c.name] * scale ** 2
-        entry = {"view": c.name, **view_metrics(obs, pred, used, seg[c.name], names, variance=var),
-                 "gain": [float(g) for g in gain]}
+        compare = _Comparison(problem, held, c, scale, seg[c.name])
+        entry = {**compare.metrics(preds[c.name], variances[c.name]), "gain": [float(g) for g in gain]}
         if floor is not None:
-            f_var = None if noise[c.name] is None else (noise[c.name] + floor[1][c.name]) * scale ** 2
-            entry["floor"] = view_metrics(obs, floor[0][c.name] * scale, used, seg[c.name], names, variance=f_var)
+            entry["floor"] = compare.metrics(floor[0][c.name], None if noise[c.name] is None else
+                                             noise[c.name] + floor[1][c.name])
         if run_dir is not None:
-            entry["images"] = _write(run_dir, paths[c.name], obs, pred, problem.scene.channels)
+            entry["images"] = _write(run_dir, paths[c.name], held.observed[c.name],
+                                     (preds[c.name] * scale).astype(np.float32), problem.scene.channels)
         entries.append(entry)
     return entries
+
+
+@dataclasses.dataclass
+class _Comparison:
+    """One held-out view's photograph against unit-gain predictions."""
+
+    problem: object
+    held: HeldOut
+    camera: object
+    scale: np.ndarray                      # gain times lens falloff, broadcast to (H, W, C)
+    segment_map: np.ndarray
+
+    def metrics(self, unit_prediction: np.ndarray, unit_variance) -> dict:
+        """``view`` and :func:`view_metrics` of the prediction scaled by :attr:`scale` (its
+        variance by its square; None: no ``z_rms``)."""
+        name = self.camera.name
+        var = None if unit_variance is None else unit_variance * self.scale ** 2
+        return {"view": name, **view_metrics(self.held.observed[name], unit_prediction * self.scale,
+                                             self.held.used(name), self.segment_map,
+                                             [s.name for s in self.problem.scene.segments], variance=var)}
 
 
 def _floor(problem, held: HeldOut):
