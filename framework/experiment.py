@@ -18,6 +18,8 @@ from framework.cache import Cache
 from framework.config import RunSettings, requested_views, scene_dir
 from framework.errors import ConfigError
 from framework.executor import check_address
+from framework.holdout import HeldOut, check_held_out, holdout_names, split_holdout
+from framework.holdout_run import holdout_entries
 from framework.kernels import canonical
 from framework.observe import observed_images
 from framework.registry import Method, Problem, get_method, refuse_survey_unknowns
@@ -51,6 +53,7 @@ def check_config(cfg: DictConfig) -> RunSettings:
     settings = RunSettings.from_config(cfg)
     get_method(str(cfg.method.name)).options_from(cfg.method)
     requested_views(cfg)
+    holdout_names(cfg)
     check_address((settings.executor or {}).get("address"))
     cache, root = Cache(settings.cache_dir), scene_dir(cfg).resolve()
     if cache.dir is not None and cache.dir.is_relative_to(root):
@@ -118,16 +121,20 @@ def prepare(cfg: DictConfig, run_dir: str | Path | None = None) -> tuple[Problem
     scene = load_scene(scene_dir(cfg))
     refuse_survey_unknowns(scene, type(method))
     settings = dataclasses.replace(settings, variant=backend.set_variant(str(cfg.variant), channels=scene.channels))
-    cameras = select_cameras(scene, cfg)
-    _check_samples(scene, cameras, settings)
+    cameras, held = split_holdout(scene, select_cameras(scene, cfg), holdout_names(cfg))
+    _check_samples(scene, cameras + held, settings)
     _check_kernels_present(scene, getattr(method.options, "kernels", None))
     if run_dir is not None:
-        check_output_names(run_dir, [c.name for c in cameras])
+        check_output_names(run_dir, [c.name for c in cameras + held])
+    check_held_out(scene, held)
     cameras, left_out = _usable_cameras(scene, cameras)
-    observed, t_observe = observed_images(scene, cameras, settings, cache=Cache(settings.cache_dir), check=False)
+    observed, t_observe = observed_images(scene, cameras + held, settings, cache=Cache(settings.cache_dir),
+                                          check=False)
     weights = None if scene.weights is None else {c.name: scene.weights[c.name] for c in cameras}
+    held_out = HeldOut(held, {c.name: observed.pop(c.name) for c in held},
+                       None if scene.weights is None else {c.name: scene.weights[c.name] for c in held})
     problem = Problem(scene=scene, cameras=cameras, observed=observed, parameters=scene.parameters(),
-                      settings=settings, weights=weights, views_left_out=left_out)
+                      settings=settings, weights=weights, views_left_out=left_out, held_out=held_out)
     method.check_problem(problem)        # what the method cannot do with this scene: before any run folder
     return problem, method, t_observe
 
@@ -188,9 +195,13 @@ def _write_run(cfg, run_dir: Path, problem: Problem, result, segment_maps: dict,
     """The run folder's images, report and (last) results.json; the results dict."""
     scene, cameras, settings = problem.scene, problem.cameras, problem.settings
     result.timings_s["compile"] = compile_s
+    t_holdout = time.perf_counter()
+    holdout = holdout_entries(problem, result, problem.held_out, run_dir) if problem.held_out else []
+    result.timings_s["holdout"] = time.perf_counter() - t_holdout
     result.timings_s.setdefault("observe", t_observe)
     result.timings_s["total"] = time.perf_counter() - t0
     summary = {"scene_dir": str(scene.root), "scene_hash": scene.content_hash, "views": [c.name for c in cameras],
+               "holdout": [c.name for c in problem.held_out.cameras] if problem.held_out else [],
                "variant": settings.variant, "device": backend.device_name(settings.variant),
                "seed": settings.seed, "spp": settings.spp, "max_bounces": settings.max_bounces,
                "tail_bounces": settings.tail_bounces,
@@ -201,6 +212,7 @@ def _write_run(cfg, run_dir: Path, problem: Problem, result, segment_maps: dict,
     relit = write_relit_images(run_dir, problem, result)
     results = results_dict(problem, result, method=str(cfg.method.name), settings=summary, views=views,
                            relit=relit)
+    results["holdout"] = holdout
     if write_report is not None:
         t_report = time.perf_counter()
         write_report(run_dir, results)

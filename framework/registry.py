@@ -44,6 +44,9 @@ class Problem:
     #: image motion, for cameras a method registered to the model (``method.align``); a camera
     #: absent (or None) is taken as exact
     pose_covariance: dict[str, np.ndarray] | None = None
+    #: the views of ``holdout=[...]`` (:class:`framework.holdout.HeldOut`): read and checked, never
+    #: handed to the method's fit; None or empty when nothing is held out
+    held_out: Any = None
 
     @property
     def seed(self) -> int:

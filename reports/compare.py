@@ -11,6 +11,7 @@ import numpy as np
 from reports.data import (as_list, device_of, find_run_dirs, fmt_num, fmt_pm, kernel_label, load_results,
                           seed_of)
 from reports.doc import Doc, link_cell, staged
+from reports.holdout import section_holdout_table
 from reports.convergence import equal_error_rows, error_curve, observable_set
 from reports.plots import plot_bars, plot_error_time, plot_spread
 from reports.run import _safe, finite_or_none, mean_abs_error, write_run_report
@@ -357,6 +358,7 @@ def write_comparison(dirs, *, out=None) -> tuple[Path, Path]:
             _section_summary(doc, scene)
             doc.heading("Parameter errors", level=3)
             _section_errors(doc, scene)
+            section_holdout_table(doc, scene)
             doc.heading("Spread, time and renders", level=3)
             _section_plots(doc, scene, files, FILES_DIR)
             doc.heading("Error against time", level=3)

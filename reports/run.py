@@ -14,6 +14,7 @@ from framework import images
 from framework.scene.model import EXCLUSION_REASONS
 from reports.data import RESULTS_NAME, as_list, check_results, fmt_num, kernel_label, load_results, seed_of
 from reports.doc import Doc, staged
+from reports.holdout import section_holdout
 from reports.plots import plot_convergence, plot_correlation, plot_difference, plot_segments
 from reports.fit_quality import section_fit_quality
 from reports.time_spent import section_time_spent, weights_caption
@@ -385,7 +386,7 @@ def write_run_report(run_dir, results: dict | None = None) -> tuple[Path, Path]:
         for section in (_section_overview, _section_parameters, _section_exposure, _section_illumination,
                         section_fit_quality, _section_timings, section_time_spent):
             section(doc, res)
-        for section in (_section_convergence, _section_views, _section_correlation, _section_relit):
+        for section in (_section_convergence, _section_views, section_holdout, _section_correlation, _section_relit):
             section(doc, ctx)
         doc.para(f"Report generated in {time.perf_counter() - start:.2f} s.", note=True)
         (tmp / "report.md").write_text(doc.render_md(), encoding="utf-8")
