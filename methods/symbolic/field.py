@@ -219,8 +219,8 @@ class FieldOptions:
     def resolve(cls, options: SymbolicOptions, problem, *, boundaries: bool = True) -> "FieldOptions":
         """Resolve ``method.exposure`` (``scene``: as scene.yaml says | ``known``),
         ``method.weights`` (``scene`` | ``none``), ``method.robust`` (``auto``: Cauchy for
-        photographs, i.e. a scene's ``images/`` in any encoding, pixel weights or per-view
-        exposure; none for the observations a run renders itself), ``method.boundary`` and ``method.irls`` against ``problem``;
+        photographs, i.e. images decoded from 8/16-bit files, pixel weights or per-view exposure;
+        none for linear radiance), ``method.boundary`` and ``method.irls`` against ``problem``;
         ``boundaries=False`` skips the segment maps the boundary needs (the checks before a run)."""
         from framework.errors import ConfigError
         scene = problem.scene
@@ -248,9 +248,8 @@ class FieldOptions:
         floors = {n: np.median(np.asarray(noise[n], float).reshape(-1, noise[n].shape[-1]), axis=0)
                   for n in names if n in noise}
         robust = options.robust
-        if robust == "auto":       # photographs in any encoding: a linear EXR is no more exact than a JPEG
-            photographs = getattr(scene, "images", None) is not None
-            robust = "cauchy" if (photographs or weights is not None or per_view or noise) else "none"
+        if robust == "auto":
+            robust = "cauchy" if (weights is not None or per_view or noise) else "none"
         iterations = options.irls.iterations if robust != "none" else 1
         vignetting = photometry.vignetting if photometry is not None else "none"
         compare = robust != "none" and options.consistency == "auto" and len(names) > MIN_OTHERS

@@ -130,9 +130,8 @@ class SymbolicOptions(StartOptions):
         choice("scene", "none"))
     robust: str = option(
         "robust reweighting of the pixels (IRLS from the stored coefficients, no render) against "
-        "objects the model lacks; `auto`: `cauchy` for photographs (a scene's `images/` in any encoding, "
-        "8/16-bit or linear EXR; pixel weights; per-view exposure), `none` for observations the run "
-        "renders itself (no `images/`)", choice("auto", *ROBUST_LOSSES))
+        "objects the model lacks; `auto`: `cauchy` for photographs (8/16-bit images, pixel weights or "
+        "per-view exposure), `none` for linear radiance", choice("auto", *ROBUST_LOSSES))
     consistency: str = option(
         "with robust reweighting and at least 3 views, `auto` weighs each pixel whose model point "
         "two or more other views see by how far its relative residual departs from theirs at that "
