@@ -286,8 +286,8 @@ def test_glossy_gradient_matches_finite_differences(glossy_gradients):
 # ------------------------------------------------------------------------------------------------
 def test_symbolic_run_names_glossy_parameters(tmp_path):
     """method=symbolic on the tiny scene with a glossy ground: the parameters, and results.json's
-    rows (:func:`framework.results.parameter_rows`), name the kernel ``glossy(0.2)``; the estimate
-    is finite and in [0, 1]."""
+    rows (:func:`framework.results.parameter_rows`), name the kernel ``glossy(0.2)``; each row
+    holds its parameter's estimate, and its error is the estimate less the reference."""
     from framework.results import parameter_rows
     problem = make_problem(_glossy_scene(tmp_path / "s"), ["view_0.png"], "render.spp=8")
     result = run_symbolic(problem)
@@ -297,8 +297,9 @@ def test_symbolic_run_names_glossy_parameters(tmp_path):
     rows = parameter_rows(problem, result)
     assert [r["kernel"] for r in rows] == ["diffuse", GLOSSY, "diffuse"]
     assert rows[1]["reference"] == [0.1, 0.15, 0.2]
-    est = result.estimate[np.isfinite(result.estimate)]
-    assert est.size and (est >= 0).all() and (est <= 1).all()
+    for p, row in zip(params, rows):
+        np.testing.assert_allclose(row["estimate"], result.estimate[p.index], rtol=1e-12)
+        np.testing.assert_allclose(row["error"], np.subtract(row["estimate"], row["reference"]), atol=1e-12)
 
 
 
