@@ -12,9 +12,10 @@ was 95 % of the pass; here the device does it, in three steps and one small host
    scales) and sends back the key -> column table;
 2. each non-empty event gets its cell ``(block · n + pixel) · N_e,tile + column`` (the blocks are
    the sample halves ``A``, ``B``; with ``quarters`` the first halves ``A₁``, ``B₁`` are their
-   events again, two blocks on), the cells are radix-sorted (``dr.argsort``), the first event of
-   each run of equal cells is marked (``dr.prefix_sum`` numbers the runs) and every event is added
-   to its run (``dr.scatter_reduce``: the sorted runs are contiguous);
+   events again, two blocks on), the cells are radix-sorted (``dr.argsort``), and each run of
+   equal cells is summed as the difference of a float64 prefix sum (``dr.prefix_sum``) at its two
+   ends: deterministic, where atomic adds (``dr.scatter_reduce``) sum in a thread-dependent order
+   and so round differently from run to run;
 3. the runs' cells and sums are copied out: sorted by (block, pixel, column), each block arrives
    as a canonical CSR matrix.
 
@@ -22,8 +23,8 @@ Memory on the device is that of the non-empty events (a fraction of the event bu
 size is chosen for, ``method.memory_mb``). Key ranges above
 :data:`~methods.symbolic.basis.TABLE_KEYS` (hundreds of parameters) have no key table:
 :func:`pixel_sums` returns None and the caller sums on the host
-(:func:`~methods.symbolic.events.tile_matrices`). Sums are float32 on the device (the host path
-sums float32 values in float64): the two agree to float32 rounding
+(:func:`~methods.symbolic.events.tile_matrices`). Sums are float64 prefix-sum differences on the
+device (the host path sums the float32 values in float64): the two agree to float32 rounding
 (``tests/methods/test_polynomial_integrator.py``).
 """
 from __future__ import annotations
@@ -103,6 +104,8 @@ def _summed(events, keep, table, *, n: int, spp: int, split: int, n_cols: int, b
     summed values (steps 2 and 3). The quarters' cells (blocks 2 and 3) are their blocks' events
     again, those of the first half of each block's samples."""
     at = dr.compress(keep)                          # the events only: a fraction of the slots
+    if dr.width(at) == 0:                           # no light reached the tile (and Dr.Jit cannot
+        return np.zeros(0, np.int64), [np.zeros(0) for _ in events.values]   # divide an empty array)
     lane = at // dr.opaque(mi.UInt32, events.slots)
     row, block, first_quarter = _lane_cells(lane, n, spp, split, blocks)
     col = dr.gather(mi.UInt32, table, dr.gather(mi.UInt32, events.mono, at))
@@ -119,22 +122,25 @@ def _summed(events, keep, table, *, n: int, spp: int, split: int, n_cols: int, b
 
 
 def _cell_sums(cell, values) -> tuple[np.ndarray, list]:
-    """The distinct ``cell`` indices, sorted, and the sum of each channel's ``values`` per cell:
-    a radix sort, the first event of each run of equal cells, and an add per run."""
+    """The distinct ``cell`` indices, sorted, and the sum of each channel's ``values`` per cell: a
+    radix sort, then each run of equal cells summed as the difference of a float64 prefix sum at
+    its ends. Deterministic, unlike atomic adds (whose order, and so whose float rounding, changes
+    from run to run): the same seed gives the same coefficients, bit for bit."""
     if dr.width(cell) == 0:
         return np.zeros(0, np.int64), [np.zeros(0, np.float32) for _ in values]
     order = dr.argsort(cell)
     cell = dr.gather(mi.UInt32, cell, order)
-    i = dr.arange(mi.UInt32, dr.width(cell))
+    n = dr.width(cell)
+    i = dr.arange(mi.UInt32, n)
     previous = dr.gather(mi.UInt32, cell, dr.maximum(i, 1) - 1)
-    head = (i == 0) | (cell != previous)
-    first = mi.UInt32(head)
-    run = dr.prefix_sum(first) + first - 1          # the run of each event (exclusive sum: its predecessors')
-    starts = dr.compress(head)                      # one per distinct cell (synchronises)
+    following = dr.gather(mi.UInt32, cell, dr.minimum(i + 1, dr.opaque(mi.UInt32, n - 1)))
+    starts = dr.compress((i == 0) | (cell != previous))             # first event of each run
+    ends = dr.compress((i == dr.opaque(mi.UInt32, n - 1)) | (cell != following))   # and its last
     sums = []
     for v in values:
-        total = dr.zeros(mi.Float, dr.width(starts))
-        dr.scatter_reduce(dr.ReduceOp.Add, total, dr.gather(mi.Float, v, order), run)
+        v64 = dr.gather(mi.Float64, mi.Float64(v), order)
+        before = dr.prefix_sum(v64)                                  # exclusive: the events before
+        total = dr.gather(mi.Float64, before + v64, ends) - dr.gather(mi.Float64, before, starts)
         sums.append(total)
     dr.eval(sums)
     return (dr.gather(mi.UInt32, cell, starts).numpy().astype(np.int64), [s.numpy() for s in sums])

@@ -542,12 +542,19 @@ def _assert_same_matrices(device, host):
 def test_device_sums_equal_host_sums(quarters, monkeypatch):
     """Coefficients summed per pixel and monomial on the device (methods.symbolic.pixel_sums) and
     on the host (events.tile_matrices) from the same render: same codes and sparsity, values to
-    float32 rounding, for the halves (and quarters) over several tiles and for the plain pass."""
+    float32 rounding, for the halves (and quarters) over several tiles and for the plain pass; the
+    device sums of one render are the same bits every time (no atomic adds)."""
     rho = np.full((5, 3), 0.3)
     scene, ss = cornell(rho, res=16)
     integ = PolynomialPathIntegrator.create(ss, SEGMENTS, 5, rho, max_bounces=3, tile_pixels=100)
     halves = lambda: integ.coefficients_halves(scene, spp=8, seed=5, quarters=quarters)
-    _assert_same_matrices(*_both_sums(integ, halves, monkeypatch))
+    device, host = _both_sums(integ, halves, monkeypatch)
+    _assert_same_matrices(device, host)
+    monkeypatch.setattr(type(integ), "device_sums", True)
+    again = halves()                                   # deterministic: the same render, the same bits
+    for d, a in zip(device[1:], again[1:]):
+        for c in range(3):
+            assert abs(d[c] - a[c]).max() == 0
     plain = lambda: integ.coefficients_sparse(scene, spp=4, seed=5)
     _assert_same_matrices(*_both_sums(integ, plain, monkeypatch))
 
@@ -569,3 +576,16 @@ def test_device_sums_with_emitter_groups_and_wide_keys(monkeypatch):
     for d, h in zip(fallback[1:], host[1:]):
         for c in range(3):
             assert abs(d[c] - h[c]).max() == 0          # the host path itself: the same bits
+
+
+def test_device_sums_of_a_dark_tile(monkeypatch):
+    """A scene without light: no event reaches the sums; the coefficients are the constant monomial's
+    empty column on both paths (Dr.Jit cannot divide an empty array: the device path stops first)."""
+    scene = mi.load_dict({"type": "scene", "sensor": plane_scene().sensors()[0],
+                          "plane": {"type": "rectangle", "to_world": T().scale(1000)}}, optimize=False)
+    integ = PolynomialPathIntegrator.create([(scene.shapes()[0], 0)], [[("diffuse", 0)]], 1,
+                                            np.full((1, 3), 0.5), max_bounces=2)
+    device, host = _both_sums(integ, lambda: integ.coefficients_halves(scene, spp=4, seed=1), monkeypatch)
+    np.testing.assert_array_equal(device[0], [0])
+    for m in device[1] + device[2] + host[1]:
+        assert m.shape == (256, 1) and m.nnz == 0
