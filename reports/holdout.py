@@ -5,10 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from framework import images
 from reports.data import fmt_num, fmt_pm
 from reports.doc import Doc
-from reports.plots import plot_difference
+from reports.plots import image_pair
 
 METRIC_COLUMNS = ["Pixels", "RMSE (mean over ch.)", "PSNR (dB)", "PSNR sRGB (dB)", "SSIM", "RMS z"]
 
@@ -51,16 +50,8 @@ def section_holdout(doc: Doc, ctx) -> None:
         paths = entry.get("images") or {}
         obs = ctx.load_image(paths.get("observed"), doc, "held-out photograph")
         pred = ctx.load_image(paths.get("prediction"), doc, "prediction")
-        items, exposure = [], images.auto_exposure(obs) if obs is not None else None
-        for img, label in ((obs, "photograph"), (pred, "prediction")):
-            if img is not None:
-                path, src = ctx.out(f"holdout{i:02d}_{label}.png")
-                images.write_png(path, images.tonemap(img, exposure=exposure))
-                items.append((src, label, "pixels"))
-        if obs is not None and pred is not None and obs.shape == pred.shape:
-            path, src = ctx.out(f"holdout{i:02d}_difference.png")
-            plot_difference(path, (pred - obs).mean(axis=-1), title="prediction − photograph")
-            items.append((src, "signed difference (mean over channels)"))
+        items = image_pair(ctx.out, f"holdout{i:02d}", obs, pred, ("photograph", "prediction"),
+                           "prediction − photograph")
         if items:
             doc.figures(items)
 

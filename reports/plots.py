@@ -7,6 +7,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
+from framework import images
 from framework.images import NO_SEGMENT_RGB, colorize_segments
 
 DPI = 100
@@ -86,6 +87,23 @@ def plot_difference(path, diff: np.ndarray, *, title: str) -> None:
     cax = fig.add_axes((frac + 0.02, 0.1, 0.06 * 3.5 / (img_w + 1.0), 0.72))
     fig.colorbar(im, cax=cax, extend="both").ax.tick_params(labelsize=7)
     _save(fig, path)
+
+
+def image_pair(out, stem: str, reference, other, labels: tuple[str, str], title: str) -> list:
+    """Figure items of two images of one view, tone-mapped at ``reference``'s exposure, and of their
+    signed difference ``other - reference`` (mean over channels) when both exist with one shape;
+    ``out(name) -> (path, src)`` names the files ``<stem>_<label>.png`` and ``<stem>_difference.png``."""
+    items, exposure = [], images.auto_exposure(reference) if reference is not None else None
+    for img, label in ((reference, labels[0]), (other, labels[1])):
+        if img is not None:
+            path, src = out(f"{stem}_{label}.png")
+            images.write_png(path, images.tonemap(img, exposure=exposure))
+            items.append((src, label, "pixels"))
+    if reference is not None and other is not None and reference.shape == other.shape:
+        path, src = out(f"{stem}_difference.png")
+        plot_difference(path, (other - reference).mean(axis=-1), title=title)
+        items.append((src, "signed difference (mean over channels)"))
+    return items
 
 
 def plot_segments(path, seg_map: np.ndarray, names) -> None:

@@ -15,7 +15,7 @@ from framework.scene.model import EXCLUSION_REASONS
 from reports.data import RESULTS_NAME, as_list, check_results, fmt_num, kernel_label, load_results, seed_of
 from reports.doc import Doc, staged
 from reports.holdout import section_holdout
-from reports.plots import plot_convergence, plot_correlation, plot_difference, plot_segments
+from reports.plots import image_pair, plot_convergence, plot_correlation, plot_segments
 from reports.fit_quality import section_fit_quality
 from reports.time_spent import section_time_spent, weights_caption
 
@@ -213,16 +213,8 @@ def _view_panel(doc: Doc, ctx: _RunContext, view: dict, index: int) -> None:
     doc.heading(f"View {name}", level=3)
     obs = ctx.load_image(view.get("observed"), doc, "observed")
     rec = ctx.load_image(view.get("reconstruction"), doc, "reconstruction")
-    items, exposure = [], images.auto_exposure(obs) if obs is not None else None
-    for img, label in ((obs, "observed"), (rec, "reconstruction")):
-        if img is not None:
-            path, src = ctx.out(f"{stem}_{label}.png")
-            images.write_png(path, images.tonemap(img, exposure=exposure))
-            items.append((src, label, "pixels"))
+    items = image_pair(ctx.out, stem, obs, rec, ("observed", "reconstruction"), "reconstruction − observed")
     if obs is not None and rec is not None and obs.shape == rec.shape:
-        path, src = ctx.out(f"{stem}_difference.png")
-        plot_difference(path, (rec - obs).mean(axis=-1), title="reconstruction − observed")
-        items.append((src, "signed difference (mean over channels)"))
         ctx.metrics.append((name, images.image_metrics(obs, rec)))
     elif obs is not None and rec is not None:
         doc.para(f"shapes differ: observed {obs.shape}, reconstruction {rec.shape}", note=True)
