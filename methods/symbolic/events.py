@@ -63,6 +63,14 @@ class EventBuffer:
         for c, v in enumerate(self.values):
             dr.scatter(v, value[c], at, active)
 
+    def nonempty(self):
+        """Slots that hold a contribution: a key, and a non-zero value in some channel (the values
+        of a slot without a key are never written, so they are read only behind the key test)."""
+        nonzero = self.values[0] != 0
+        for v in self.values[1:]:
+            nonzero |= v != 0
+        return (self.mono != EMPTY) & nonzero
+
     def compact(self, n: int, spp: int, split: int, *, samples: bool = False) -> tuple:
         """The non-empty, non-zero events, in lane order, on the host.
 
@@ -73,10 +81,7 @@ class EventBuffer:
         first block, 0 .. spp - split - 1 in the second).
         """
         dr.eval(self.mono, self.values)                # the whole tile's paths: one kernel
-        nonzero = self.values[0] != 0
-        for v in self.values[1:]:
-            nonzero |= v != 0
-        keep = (self.mono != EMPTY) & nonzero
+        keep = self.nonempty()
         at = dr.compress(keep)                         # order-preserving: rows stay sorted
         if dr.width(at) == 0:                          # no light reached the tile: Dr.Jit cannot
             empty = np.zeros(0, np.int32)              # divide an empty array by a literal

@@ -65,7 +65,7 @@ def pixel_sums(events, *, n: int, spp: int, split: int, quarters: bool, span: in
     if span > TABLE_KEYS:
         return None
     dr.eval(events.mono, events.values)
-    keep = _nonempty(events)
+    keep = events.nonempty()
     codes, table = _key_table(events.mono, keep, span, columns)
     halves = split < spp
     blocks = (4 if quarters else 2) if halves else 1
@@ -73,15 +73,6 @@ def pixel_sums(events, *, n: int, spp: int, split: int, quarters: bool, span: in
         return None
     sums = _summed(events, keep, table, n=n, spp=spp, split=split, n_cols=len(codes), blocks=blocks)
     return codes, _matrices(sums, n, len(codes), spp, split, blocks)
-
-
-def _nonempty(events):
-    """Slots that hold a contribution (a key and a non-zero value in some channel)."""
-    from methods.symbolic.events import EMPTY
-    nonzero = events.values[0] != 0
-    for v in events.values[1:]:
-        nonzero |= v != 0
-    return (events.mono != EMPTY) & nonzero
 
 
 def _key_table(mono, keep, span: int, columns) -> tuple[np.ndarray, object]:
