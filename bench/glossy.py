@@ -9,7 +9,7 @@ segments -- window and wall get ``{diffuse, specular}``, ``{diffuse, glossy(α_t
 specular]`` -- each a variant scene folder written into a temporary directory: the bundled
 folder copied, ``scene.yaml``'s ``kernels`` rewritten per segment, references kept for the
 kernels of the truth and 0 for the others (so the same ``images/`` are fitted every time).
-Then an α sweep of the two glossy models: the window's α in :data:`WINDOW_ALPHAS` (walls at
+Then an α sweep of the two glossy models: the window's α in ``sizes.glossy_alphas`` (walls at
 their true α), one pass each (``method.refine=0``).
 
 Per fit: the parameter count P (weights per channel: k = 3P), the worst and median |error| of
@@ -58,7 +58,6 @@ from framework.scene.write import write_scene_yaml
 from scenes import urban_canyon_glossy as ucg
 
 SCENE = "urban_canyon_glossy"
-WINDOW_ALPHAS = (0.03, 0.05, 0.1, 0.2, 0.3, 0.5)
 GLOSSY_SEGMENTS = {"window": ucg.WINDOW_ALPHA, "wall": ucg.WALL_ALPHA}   # segment -> true α
 #: (label, kernels of a glossy segment at roughness α)
 MODELS = (("{diffuse, specular}", lambda a: ["diffuse", "specular"]),
@@ -219,7 +218,7 @@ def run(sizes, work: Path, log=print) -> dict:
                            image, [], log) for m, (label, _) in enumerate(MODELS)]
         sweep = [run_case(sizes, variants / "sweep", work / "runs" / "sweep", label, m, a, image, ["method.refine=0"],
                           log)
-                 for m, (label, _) in enumerate(MODELS) if m > 0 for a in WINDOW_ALPHAS]
+                 for m, (label, _) in enumerate(MODELS) if m > 0 for a in sizes.glossy_alphas]
     out = {"models": models, "sweep": sweep, "image": image or ucg.IMAGE, "spp": sizes.glossy_spp,
            "validation_spp": validation_spp(sizes),
            "extra": list(sizes.extra), "wall_s": time.perf_counter() - t0}

@@ -35,7 +35,7 @@ RUNS = [("lambertian_prior", ["method=lambertian_prior", "method.tail_bounces=0"
 def run(sizes, root: Path, log=print) -> list[dict]:
     """The mono runs (row dicts as :func:`bench.compare.run_one`), every view at the scene's own
     200x200 (the paper's size; the comparison section's all-views runs shrink theirs)."""
-    sizes = dataclasses.replace(sizes, cmp_all_image=None)
+    sizes = dataclasses.replace(sizes, cmp_single_image=None, cmp_all_image=None)
     rows = []
     for n_views in (1, 0):
         warm_observations(sizes, root, "urban_canyon_mono", n_views)

@@ -34,18 +34,23 @@ class Sizes:
     cmp_budget_all : int
         ``budget.renders`` of the iterative and differentiable runs on all views.
     cmp_budget_all_differentiable : int
-        ``budget.renders`` of the differentiable runs on all views: measured, its worst error
-        still fell 11 % per tenth at 400 renders (the iterative ones were flat).
-    cmp_all_image : int or None
-        Image width of every run on all views (the cameras scaled, the observations rendered at
-        that size); None: the scene's own.
+        ``budget.renders`` of the differentiable runs on all views: its curve levels off later
+        than the iterative ones' (measured on all views at 100 pixels wide: its worst error still
+        fell 11 % per tenth at 400 renders, the iterative ones were flat).
+    cmp_single_image, cmp_all_image : int or None
+        Image width of every run on the single view / on all views (the cameras scaled, the
+        observations rendered at that size); None: the scene's own.
     all_views : int
         Views used as "all views" (0: every view of the scene).
     mat_buildings : tuple of int
         Buildings per side of the ``street_block`` runs (section 5); ``mem_spp`` and
-        ``mem_observe_spp`` are their spp, all views.
+        ``mem_observe_spp`` are their spp, all views. 1, 2, 9, 21: 10 materials (the per-view
+        reference), 18 (the small street's targets), 70 (the 66-material targets), 148 (296
+        weights, the city block); 4, 8 and 16 were cut for the benchmark's hour (their rows lay
+        on the growth laws fitted over the others, 2026-12-03).
     mat_default_buildings : tuple of int
-        Buildings per side of the runs with the default method (``method=symbolic``) beside.
+        Buildings per side of the runs with the default method (``method=symbolic``) beside:
+        1, 2, 21 (9 and 16 cut for the hour; the 66-material targets then fall on K = 21).
     mat_image : int
         Their image size.
     mat_timeout_s : float
@@ -59,6 +64,17 @@ class Sizes:
         noisy in the pass (fireflies of next-event estimation through a sharp lobe); measured on
         its 100x100 views, the true model's window weights came out at 32 spp 0.00 / 1.00
         (std 0.15 / 0.20, truth 0.18 / 0.72), at 256 spp 0.22 / 0.66 (std 0.03 / 0.05).
+    field_image : int or None
+        Width of the "field" section's views: None, the bundled ``urban_canyon_field`` (200);
+        else the scene built at that size by its generator (same seed, its photographs' spp).
+    field_rows : tuple of str or None
+        Labels of :data:`bench.field.VARIANTS` the section runs (None: every one). Cut for the
+        hour: the default without the boundary exclusion, and the cubic resampling with the
+        pixel footprint (the cubic row with the default footprint shows the resampling's effect).
+    glossy_alphas : tuple of float
+        The window roughnesses of the glossy section's α sweep (two models, one pass each): the
+        truth 0.05, its neighbours 0.03 and 0.1, and 0.3 far off (0.2 and 0.5 were cut for the
+        benchmark's hour; their residuals lay between 0.1's and 0.3's and beyond 0.3's).
     defaults_extra, field_extra : tuple of str
         Overrides added to the runs of the "defaults" and "field" sections (the quick bench
         makes them small; the real one runs the shipped settings).
@@ -70,6 +86,9 @@ class Sizes:
         Timed repetitions of the load, the pass and the render (the least is kept).
     survey_image : int or None
         Width of the "survey" section's views (the bundled scene box-averaged; None: its own 200).
+    survey_turbidity_image : int or None
+        Width of the "survey" section's row (d) (a sky of unknown turbidity: its photographs
+        re-rendered, three skies fitted): None, ``survey_image``'s; cut to 100 for the hour.
     survey_photo_spp : int
         Samples per pixel of the photographs the "survey" section renders for its turbidity row
         (the bundled photographs have 1024; 256 keeps that render to a few minutes, and the
@@ -98,29 +117,39 @@ class Sizes:
     mem_observe_spp: int = 128
     cmp_spp: int = 32
     cmp_observe_spp: int = 256
-    cmp_budget: int = 600
-    cmp_budget_all: int = 400
-    cmp_budget_all_differentiable: int = 800
-    cmp_all_image: int | None = 100
+    cmp_budget: int = 300
+    cmp_budget_all: int = 200
+    cmp_budget_all_differentiable: int = 400
+    cmp_single_image: int | None = 100
+    cmp_all_image: int | None = 48
     all_views: int = 0
-    mat_buildings: tuple = (1, 2, 4, 8, 9, 16, 21)
-    mat_default_buildings: tuple = (1, 2, 9, 16, 21)
+    mat_buildings: tuple = (1, 2, 9, 21)
+    mat_default_buildings: tuple = (1, 2, 21)
     mat_image: int = 200
     mat_timeout_s: float = 1800.0
     extra: tuple = field(default_factory=tuple)
     mega_spp: int = 64
     mega_reps: int = 1
     glossy_spp: int = 256
+    glossy_alphas: tuple = (0.03, 0.05, 0.1, 0.3)
     defaults_extra: tuple = field(default_factory=tuple)
     field_extra: tuple = field(default_factory=tuple)
+    field_image: int | None = 100
+    field_rows: tuple | None = (
+        "naive (gains 1, every pixel, L2)", "+ per-view exposure", "+ masks and saturation",
+        "default (+ robust Cauchy, cluster std, bias correction, alignment)",
+        "default, each pixel its own box (footprint=pixel)", "default, photographs resampled by cubic convolution",
+        "default, pixel sandwich std (method.std=sandwich)", "default without the bias correction (method.bias=none)",
+        "default without the alignment (method.align=none)")
     geometry_triangles: tuple = (20_000, 200_000, 2_000_000)
     geometry_spp: int = 16
     geometry_reps: int = 5
     survey_image: int | None = None
+    survey_turbidity_image: int | None = 100
     survey_photo_spp: int = 256
     survey_extra: tuple = field(default_factory=tuple)
-    misfit_image: int | None = None
-    misfit_photo_spp: int = 16
+    misfit_image: int | None = 100
+    misfit_photo_spp: int = 128
     misfit_extra: tuple = field(default_factory=tuple)
     variant: str = "llvm"
 
@@ -129,12 +158,12 @@ DEFAULT = Sizes()
 QUICK = Sizes(name="quick", ratio_spps=(4,), ratio_reps=1, mem_views=(1, 2), mem_images=(32,),
               mem_dask_views=(2,), mem_dask_image=32,
               mem_spp=4, mem_observe_spp=8, cmp_spp=4, cmp_observe_spp=16, cmp_budget=20,
-              cmp_budget_all=14, cmp_budget_all_differentiable=14, cmp_all_image=40, all_views=2, mat_buildings=(1, 2), mat_default_buildings=(1,), mat_image=32, mat_timeout_s=300.0,
+              cmp_budget_all=14, cmp_budget_all_differentiable=14, cmp_single_image=40, cmp_all_image=40, all_views=2, mat_buildings=(1, 2), mat_default_buildings=(1,), mat_image=32, mat_timeout_s=300.0,
               extra=("method.solver.starts=1",),
-              mega_spp=2, glossy_spp=4, defaults_extra=("render.spp=4", "observe.spp=16", "method.refine=1"),
-              field_extra=("render.spp=4", "method.refine=0", "method.irls.iterations=2"),
+              mega_spp=2, glossy_spp=4, glossy_alphas=(0.05, 0.3), defaults_extra=("render.spp=4", "observe.spp=16", "method.refine=1"),
+              field_extra=("render.spp=4", "method.refine=0", "method.irls.iterations=2"), field_image=40,
               geometry_triangles=(2_000, 20_000), geometry_spp=4, geometry_reps=1,
-              survey_image=40, survey_photo_spp=4,
+              survey_image=40, survey_turbidity_image=None, survey_photo_spp=4,
               survey_extra=("render.spp=4", "method.refine=0", "render.tail_bounces=0"),
               misfit_image=40, misfit_photo_spp=8,
               misfit_extra=("render.spp=4", "method.refine=1", "render.tail_bounces=0", "method.irls.iterations=2"))
