@@ -51,7 +51,7 @@ import scipy.sparse as sp
 
 from framework.results import per_channel
 from methods.symbolic.basis import MonomialBasis, code_digits, encode_digits, merge_codes
-from methods.symbolic.fit import Fit, StageClock
+from methods.symbolic.fit import Fit, StageClock, with_std
 from methods.symbolic.fit_quality import material_fit
 from methods.symbolic.gram import weighted_system
 from methods.symbolic.options import ROBUST_LOSSES, SymbolicOptions
@@ -368,7 +368,7 @@ def field_views(result, problem, params, x0: np.ndarray, options: FieldOptions
 
 
 def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, solve, *,
-              start: dict | None = None) -> Fit:
+              start: dict | None = None, estimate_only: bool = False) -> Fit:
     """Fit ρ (and the gains) to the weighted pixels, reweighting them (IRLS) from the stored
     coefficients; the module docstring gives the model.
 
@@ -377,7 +377,9 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
     ``P`` rows, with ``exposure``, ``pixel_weights``, ``robust_weights``, ``irls_rounds``,
     ``irls_stopped``, the images and every round's iterates; ``start``: the robust weights a
     previous pass ended with (a refinement pass starts from them instead of a plain L2 round that
-    outliers drag).
+    outliers drag); ``estimate_only``: the rounds' estimate alone, without standard errors, fit
+    quality and excluded pixels' reasons (the bias correction's half refits). Each round's
+    standard errors are deferred (:attr:`Fit.deferred_std`): only the last round's are computed.
     """
     from functools import reduce
 
@@ -405,7 +407,8 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
             system = reduce(operator.iadd, (weighted_system(v.coeffs, v.y, v.weights) for v in views))
         basis = MonomialBasis(len(every), degree, system.codes)
         used = [v.weights for v in views]
-        fit = solve(system, basis, every, x, problem, groups=segment_groups(params),
+        # late binding: the deferred std reads the last round's ``used``, the weights of its solve
+        fit = solve(system, basis, every, x, problem, groups=segment_groups(params), defer_std=True,
                     views=lambda: ((v.coeffs, v.y, w) for v, w in zip(views, used)))
         clock.add(fit.stages_s)             # every round's solve, not only the last one's
         iterates += fit.iterates
@@ -420,6 +423,11 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
         with clock("robust_weights"):
             mu = np.stack([basis.evaluate(x[:, c]) for c in range(C)])
             _reweight(views, mu, system.codes, options)
+    if estimate_only:
+        return _field_outputs(fit, views, used, basis, system, gains, P, C, round_ + 1, stopped, iterates
+                              ).replace(stages_s=clock.seconds)
+    with clock("uncertainty"):
+        fit = with_std(fit)
     with clock("fit_quality"):        # how well the model explains each material (no ground truth)
         from framework.render.mitsuba_scene import segment_maps
         mu = np.stack([basis.evaluate(fit.evaluated_at[:, c]) for c in range(C)])

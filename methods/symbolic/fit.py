@@ -81,6 +81,11 @@ class Fit:
     spp_bias_actions : numpy.ndarray or None
         ``method.bias=richardson``: ``(P, C)`` what the correction did to each weight (one of
         :data:`~methods.symbolic.richardson.ACTIONS`).
+    deferred_std : callable or None
+        A solve asked for its estimate only (``defer_std=True``): ``std``, ``correlation`` and
+        ``sigma2`` are NaN / empty and ``deferred_std()`` gives the complete Fit (:func:`with_std`).
+        The field path's robust rounds and the bias correction's half refits need no standard
+        error but the last round's, whose pixel scores cost as much as the solve.
     """
 
     estimate: np.ndarray
@@ -110,9 +115,15 @@ class Fit:
     spp_bias: np.ndarray | None = None
     fit_quality: dict | None = None
     spp_bias_actions: np.ndarray | None = None
+    deferred_std: Callable[[], Fit] | None = field(default=None, repr=False)
 
     def replace(self, **changes) -> Fit:
         return dataclasses.replace(self, **changes)
+
+
+def with_std(fit: Fit) -> Fit:
+    """``fit`` with its standard errors: computed now where its solve deferred them."""
+    return fit if fit.deferred_std is None else fit.deferred_std().replace(deferred_std=None)
 
 
 def full(observable: np.ndarray, x: np.ndarray) -> np.ndarray:

@@ -24,7 +24,8 @@ from methods.symbolic.uncertainty import (correlation_extra, observable_paramete
                                           restrict_system, score_meat)
 
 
-def fit_joint(system, basis, params, x0: np.ndarray, problem, options: SymbolicOptions, *, views, groups) -> Fit:
+def fit_joint(system, basis, params, x0: np.ndarray, problem, options: SymbolicOptions, *, views, groups,
+              defer_std: bool = False) -> Fit:
     """Solve the joint cost on the observable parameters; NaN estimate and std for the others.
 
     Parameters
@@ -45,6 +46,9 @@ def fit_joint(system, basis, params, x0: np.ndarray, problem, options: SymbolicO
         the ``sandwich`` and ``cluster`` std (None: the ``residual`` std).
     groups : list of list of int
         The parameter indices sharing a Σρ <= 1 constraint.
+    defer_std : bool
+        Return the estimate with ``std`` NaN and the standard errors in ``Fit.deferred_std``
+        (:func:`~methods.symbolic.fit.with_std` computes them).
     """
     method = options.std if views is not None else "residual"
     P, C = len(params), problem.n_channels
@@ -69,23 +73,27 @@ def fit_joint(system, basis, params, x0: np.ndarray, problem, options: SymbolicO
                            algorithm=solver.algorithm, starts=solver.starts, max_eval=solver.max_eval,
                            xtol_rel=solver.xtol_rel, ftol_rel=solver.ftol_rel, precondition=solver.precondition,
                            seed=int(problem.seed), executor=_block_executor(problem.settings.executor))
-    t_unc = time.perf_counter()
-    release_freed_memory()       # the restriction's and the solve's temporaries
-    clusters, about = None, None
-    if method == "cluster":
-        rho = np.nan_to_num(full(observable, sol.estimate))
-        clusters, about = view_clusters(problem, views(), basis, rho)
-    meat = (score_meat(sub_basis, sol.estimate, views(), columns, basis.codes, clusters=clusters,
-                       poses=pose_terms(problem, views()))
-            if method in ("sandwich", "cluster") else None)
-    unc = parameter_uncertainty(sub_system, sub_basis, sol.estimate, meat=meat)
-    estimate, std = full(observable, sol.estimate), full(observable, unc.std)
-    return Fit(estimate=estimate, std=std, observable=observable, evaluated_at=np.nan_to_num(estimate),
-               solve=sol, iterates=[(at, full(observable, x)) for at, x in sol.iterates],
-               correlation=correlation_extra(params, observable, unc), sigma2=[float(v) for v in unc.sigma2],
-               std_method=method,
-               stages_s={"psd": t_psd, "solver": sol.solve_s, "uncertainty": time.perf_counter() - t_unc},
-               psd_skipped=sub_system.psd_skipped, clusters=about)
+    estimate = full(observable, sol.estimate)
+    point = Fit(estimate=estimate, std=np.full_like(estimate, np.nan), observable=observable,
+                evaluated_at=np.nan_to_num(estimate), solve=sol,
+                iterates=[(at, full(observable, x)) for at, x in sol.iterates],
+                correlation=correlation_extra(params, observable, None), sigma2=None, std_method=method,
+                stages_s={"psd": t_psd, "solver": sol.solve_s}, psd_skipped=sub_system.psd_skipped)
+
+    def with_uncertainty() -> Fit:
+        t_unc = time.perf_counter()
+        release_freed_memory()       # the restriction's and the solve's temporaries
+        clusters, about = None, None
+        if method == "cluster":
+            clusters, about = view_clusters(problem, views(), basis, np.nan_to_num(estimate))
+        meat = (score_meat(sub_basis, sol.estimate, views(), columns, basis.codes, clusters=clusters,
+                           poses=pose_terms(problem, views()))
+                if method in ("sandwich", "cluster") else None)
+        unc = parameter_uncertainty(sub_system, sub_basis, sol.estimate, meat=meat)
+        return point.replace(std=full(observable, unc.std), correlation=correlation_extra(params, observable, unc),
+                             sigma2=[float(v) for v in unc.sigma2], clusters=about,
+                             stages_s={**point.stages_s, "uncertainty": time.perf_counter() - t_unc})
+    return point.replace(deferred_std=with_uncertainty) if defer_std else with_uncertainty()
 
 
 def _block_executor(executor: dict):

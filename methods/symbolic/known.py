@@ -258,15 +258,16 @@ class _MappedView:
             yield start, self.substitution.block(block)
 
 
-def fit_with_known(solve, system, basis: MonomialBasis, params, x0: np.ndarray, problem, *, views, groups):
-    """``solve(system, basis, params, x0, problem, views=, groups=)`` (the joint or per-segment fit)
-    on the free parameters, the known weights substituted (module docstring); the
-    :class:`~methods.symbolic.fit.Fit` it returns over every parameter of ``params``. Without
-    known weights, ``solve`` itself."""
+def fit_with_known(solve, system, basis: MonomialBasis, params, x0: np.ndarray, problem, *, views, groups,
+                   defer_std: bool = False):
+    """``solve(system, basis, params, x0, problem, views=, groups=, defer_std=)`` (the joint or
+    per-segment fit) on the free parameters, the known weights substituted (module docstring); the
+    :class:`~methods.symbolic.fit.Fit` it returns over every parameter of ``params`` (a deferred
+    std expanded the same way when computed). Without known weights, ``solve`` itself."""
     from methods.symbolic.fit import Fit
     values = known_values(problem.scene, params)
     if values is None:
-        return solve(system, basis, params, x0, problem, views=views, groups=groups)
+        return solve(system, basis, params, x0, problem, views=views, groups=groups, defer_std=defer_std)
     sub = Substitution.build(basis.codes, basis.n_params, basis.max_degree, values,
                              room(problem.scene, params, values))
     known = np.isfinite(values[:, 0])
@@ -285,9 +286,13 @@ def fit_with_known(solve, system, basis: MonomialBasis, params, x0: np.ndarray, 
     free_groups = [[position[j] for j in g if j in position] for g in groups]
     mapped = None if views is None else (lambda: ((sub.view(v), y, *rest) for v, y, *rest in views()))
     fit = solve(reduced, sub.basis(), free_params, sub.reduce(x0), problem, views=mapped,
-                groups=[g for g in free_groups if g])
+                groups=[g for g in free_groups if g], defer_std=defer_std)
     observable = known.copy()
     observable[sub.free] = fit.observable
-    return fit.replace(estimate=sub.expand(fit.estimate), std=sub.expand(fit.std, known=0.0),
-                       observable=observable, evaluated_at=sub.expand(fit.evaluated_at),
-                       iterates=[(at, sub.expand(x)) for at, x in fit.iterates])
+
+    def expanded(fit):
+        return fit.replace(estimate=sub.expand(fit.estimate), std=sub.expand(fit.std, known=0.0),
+                           observable=observable, evaluated_at=sub.expand(fit.evaluated_at),
+                           iterates=[(at, sub.expand(x)) for at, x in fit.iterates])
+    out = expanded(fit)
+    return out if fit.deferred_std is None else out.replace(deferred_std=lambda: expanded(fit.deferred_std()))

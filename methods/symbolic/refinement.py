@@ -97,7 +97,8 @@ def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, ren
         # the field fit forms its own weighted systems: the half passes' summed ones are not built
         with clock("bias_refits"):
             fit = extrapolated(fit, lambda j: fit_pass(result.halved(j, problem.observed, system=not field.active),
-                                                       params, x0, problem, options, field, start=start),
+                                                       params, x0, problem, options, field, start=start,
+                                                       estimate_only=True),
                                segments=segment_groups(params))
         solve_s += time.perf_counter() - t_solve
     stages = clock.seconds
@@ -142,35 +143,41 @@ def render_pass(problem, params, x0: np.ndarray, options: SymbolicOptions, *, se
 
 
 def fit_pass(result, params, x0: np.ndarray, problem, options: SymbolicOptions, field: FieldOptions, *,
-             start: dict | None = None) -> Fit:
+             start: dict | None = None, estimate_only: bool = False) -> Fit:
     """The fit of one pass: on the pass's own system, or through the field path
     (:func:`~methods.symbolic.field.fit_field`); ``start``: the robust weights the previous pass
-    ended with."""
-    solve = lambda system, basis, every, x, pb, *, views, groups: solve_system(  # noqa: E731
-        system, basis, every, x, pb, options, views=views, groups=groups)
+    ended with; ``estimate_only``: no standard errors nor fit quality (the bias correction's half
+    refits use the estimate alone)."""
+    solve = lambda system, basis, every, x, pb, *, views, groups, defer_std=False: solve_system(  # noqa: E731
+        system, basis, every, x, pb, options, views=views, groups=groups, defer_std=defer_std)
     if field.active:
         result.system = None    # released: the field fit forms its own weighted systems
-        return fit_field(result, params, x0, problem, field, solve, start=start)
+        return fit_field(result, params, x0, problem, field, solve, start=start, estimate_only=estimate_only)
     basis = MonomialBasis(len(params), problem.settings.max_bounces, result.codes)
     views = lambda: ((result.coefficients(cam.name), problem.observed[cam.name], None)  # noqa: E731
                      for cam in problem.cameras)
     nnz = result.system.nnz
     # handed over, not held here: the solve releases it once restricted
-    fit = solve(result.take_system(), basis, params, x0, problem, views=views, groups=segment_groups(params))
+    fit = solve(result.take_system(), basis, params, x0, problem, views=views, groups=segment_groups(params),
+                defer_std=estimate_only)
     return fit.replace(n_monomials=basis.size, gram_nnz=nnz,
                        images=lambda: images_at(result, basis, fit.evaluated_at, problem.cameras))
 
 
 def solve_system(system, basis, params, x0: np.ndarray, problem, options: SymbolicOptions, *, views,
-                 groups) -> Fit:
+                 groups, defer_std: bool = False) -> Fit:
     """The fit of a summed system by the cost ``options.cost`` names, the known weights of the
-    scene substituted (:func:`~methods.symbolic.known.fit_with_known`)."""
-    def solve(system, basis, params, x0, problem, *, views, groups):
+    scene substituted (:func:`~methods.symbolic.known.fit_with_known`); ``defer_std``: the joint
+    cost's standard errors left to :func:`~methods.symbolic.fit.with_std` (the per-segment fit
+    computes them with its blocks)."""
+    def solve(system, basis, params, x0, problem, *, views, groups, defer_std):
         if options.cost == "per_segment":
             return fit_per_segment(system, basis, params, x0, problem, views=views, groups=groups,
                                    xtol=options.solver.xtol_rel, psd=options.psd)
-        return fit_joint(system, basis, params, x0, problem, options, views=views, groups=groups)
-    return fit_with_known(solve, system, basis, params, x0, problem, views=views, groups=groups)
+        return fit_joint(system, basis, params, x0, problem, options, views=views, groups=groups,
+                         defer_std=defer_std)
+    return fit_with_known(solve, system, basis, params, x0, problem, views=views, groups=groups,
+                          defer_std=defer_std)
 
 
 def carried(previous: Fit, fit: Fit) -> Fit:
