@@ -87,7 +87,8 @@ class SymbolicOptions(StartOptions):
         "squares of neighbouring pixels of one segment in one view, sized from the residuals' measured "
         "autocorrelation (results.json `std_clusters`), so that misfit shared by neighbouring pixels "
         "(resampled or compressed photographs, misregistration) counts once; see results.md; `auto`: "
-        "`cluster` for photographs (the field path, joint cost), `sandwich` otherwise",
+        "`cluster` for photographs (a scene's `images/`, any encoding; joint cost), `sandwich` for "
+        "observations the run renders itself",
         choice("auto", "sandwich", "residual", "cluster"))
     refine: int = option(
         "cap on further passes, each re-rendered at the previous estimate (one render each): the "
@@ -106,8 +107,8 @@ class SymbolicOptions(StartOptions):
         "`shift`: pitch and yaw (to first order a sub-pixel image shift), `rotation`: and roll. A "
         "correction above `align_max_px`, ill-conditioned or within its noise is not applied; its "
         "precision is that of the pass's prediction (about 0.03 px on a 64x64 view at 256 spp, 0.15 px "
-        "at 16 spp). results.json `alignment`. `auto`: `rotation` for photographs (the field path) "
-        "when `refine` >= 1, else `none` (on the bundled misfit scene, poses 0.5-1 px off, it took the "
+        "at 16 spp). results.json `alignment`. `auto`: `rotation` for photographs (a scene's "
+        "`images/`, any encoding) when `refine` >= 1, else `none` (on the bundled misfit scene, poses 0.5-1 px off, it took the "
         "RMS z from 1.90 to 0.86; on the field scene, whose poses are right, it turned two cameras' roll "
         "and the RMS z went from 1.20 to 2.30 at seed 0, 1.77 to 1.78 at seed 1: the price of aligning "
         "right cameras; BENCHMARKS.md sections 7 and 11)", choice("auto", "none", "shift", "rotation"))

@@ -55,7 +55,7 @@ def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, ren
     every solver evaluation is recorded in ``trace``.
     """
     field = FieldOptions.resolve(options, problem)
-    options = resolved(options, field, problem.settings.spp)
+    options = resolved(options, field, problem.settings.spp, photographs=problem.scene.images is not None)
     stopped = "single pass" if options.refine == 0 else f"cap of {options.refine} refinement pass(es)"
     render_s = solve_s = 0.0
     moves, fit = [], None
@@ -107,27 +107,30 @@ def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, ren
                   problem.cameras, alignment.report(problem.cameras) if alignment is not None else None)
 
 
-def resolved(options: SymbolicOptions, field: FieldOptions, spp: int) -> SymbolicOptions:
-    """``options`` with ``bias``, ``std`` and ``align`` ``auto`` resolved for a run whose field
-    path is ``field`` at ``spp`` samples per pixel: on the field path (photographs: pixel weights,
-    per-view gains, robust rounds; :attr:`FieldOptions.active`) ``bias`` ``richardson`` (when
-    ``spp`` is a multiple of 4 and ``gram`` is ``cross``), ``std`` ``cluster`` (with the joint
-    cost) and ``align`` ``rotation`` (with ``refine`` >= 1); else ``none``, ``sandwich`` and
-    ``none``, whose results on rendered linear radiance they are. A surveyed camera's pose is off
-    by a fraction of a pixel, a rendered scene's is exact.
+def resolved(options: SymbolicOptions, field: FieldOptions, spp: int, *, photographs: bool) -> SymbolicOptions:
+    """``options`` with ``bias``, ``std`` and ``align`` ``auto`` resolved for a run at ``spp``
+    samples per pixel whose field path is ``field`` and whose observations are ``photographs``
+    (the scene's ``images/``, any encoding) or rendered by the run itself.
+
+    Photographs get ``std`` ``cluster`` (with the joint cost) and ``align`` ``rotation`` (with
+    ``refine`` >= 1): a surveyed camera's pose is off by a fraction of a pixel and photographs'
+    residuals are spatially correlated (resampling, compression, texture, misregistration),
+    whatever their file format; a rendered scene's poses are exact and its residuals independent,
+    so it keeps ``sandwich`` and ``none``. ``bias`` is ``richardson`` on the field path
+    (:attr:`FieldOptions.active`: pixel weights, per-view gains, robust rounds, unknown light or
+    lens; when ``spp`` is a multiple of 4 and ``gram`` is ``cross``), else ``none``.
     Why (measured, BENCHMARKS.md sections 7 and 11; :mod:`methods.symbolic.richardson`): the field
     path's solve is non-linear in the pass's noisy coefficients (gains, robust weights and their
     scale) and its finite-spp bias was 10-20 std on the field scene, while on the small rendered
-    scenes of the tests the correction's own noise outweighs the bias it removes; photographs'
-    residuals are spatially correlated (resampling, compression, texture), rendered ones are not."""
-    field_path = field.active
+    scenes of the tests the correction's own noise outweighs the bias it removes; the plain L2
+    solve of linear photographs is as near linear as a rendered scene's."""
     bias, std, align = options.bias, options.std, options.align
     if align == "auto":
-        align = "rotation" if field_path and options.refine >= 1 else "none"
+        align = "rotation" if photographs and options.refine >= 1 else "none"
     if bias == "auto":
-        bias = "richardson" if field_path and spp % 4 == 0 and options.gram == "cross" else "none"
+        bias = "richardson" if field.active and spp % 4 == 0 and options.gram == "cross" else "none"
     if std == "auto":
-        std = "cluster" if field_path and options.cost == "joint" else "sandwich"
+        std = "cluster" if photographs and options.cost == "joint" else "sandwich"
     return dataclasses.replace(options, bias=bias, std=std, align=align)
 
 

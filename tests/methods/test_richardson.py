@@ -185,7 +185,7 @@ class _Field:
 def test_auto_resolves_on_the_field_path(active, spp, overrides, bias, std):
     from methods.symbolic.refinement import resolved
     options = SymbolicOptions(**{**_shipped(), **overrides})
-    out = resolved(options, _Field(active), spp)
+    out = resolved(options, _Field(active), spp, photographs=active)
     assert (out.bias, out.std) == (bias, std)
 
 
@@ -199,4 +199,16 @@ def test_auto_resolves_on_the_field_path(active, spp, overrides, bias, std):
 def test_auto_align_resolves_on_the_field_path(active, overrides, align):
     from methods.symbolic.refinement import resolved
     options = SymbolicOptions(**{**_shipped(), **overrides})
-    assert resolved(options, _Field(active), 64).align == align
+    assert resolved(options, _Field(active), 64, photographs=active).align == align
+
+
+def test_linear_photographs_get_the_cluster_std_and_alignment_without_the_field_path():
+    """Photographs decoded as linear radiance (EXR) with no pixel weights, gains or robust rounds:
+    aligned and cluster std as any photographs, but no bias correction (their L2 solve is as near
+    linear as a rendered scene's); a rendered scene keeps exact poses and the pixel sandwich."""
+    from methods.symbolic.refinement import resolved
+    options = SymbolicOptions(**_shipped())
+    out = resolved(options, _Field(False), 64, photographs=True)
+    assert (out.bias, out.std, out.align) == ("none", "cluster", "rotation")
+    out = resolved(options, _Field(False), 64, photographs=False)
+    assert (out.bias, out.std, out.align) == ("none", "sandwich", "none")
