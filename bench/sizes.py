@@ -148,8 +148,8 @@ class Sizes:
     survey_turbidity_image: int | None = 100
     survey_photo_spp: int = 256
     survey_extra: tuple = field(default_factory=tuple)
-    misfit_image: int | None = 100
-    misfit_photo_spp: int = 128
+    misfit_image: int | None = None
+    misfit_photo_spp: int = 16
     misfit_extra: tuple = field(default_factory=tuple)
     variant: str = "llvm"
 
