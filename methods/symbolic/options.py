@@ -164,7 +164,7 @@ class SymbolicOptions(StartOptions):
         "`spp_bias`. `none`: the estimate as solved. `auto`: `richardson` for photographs (the field "
         "path) when spp is a multiple of 4, else `none` (on small rendered scenes the correction's own "
         "noise outweighs the bias; on the survey scene it doubled the worst errors, BENCHMARKS.md section "
-        "10: see methods/symbolic/richardson.py)", choice("auto", "none", "richardson"))
+        "10: see methods/symbolic/loop/richardson.py)", choice("auto", "none", "richardson"))
     irls: IrlsOptions = option("the robust rounds")
     memory_mb: float = option(
         "memory for the event buffers of one tile of the pass (sets the tile size). With a cache, each "

@@ -1,0 +1,1 @@
+"""Stage ``survey`` of the symbolic method (see methods/symbolic/__init__.py)."""

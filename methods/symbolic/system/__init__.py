@@ -1,0 +1,1 @@
+"""Stage ``system`` of the symbolic method (see methods/symbolic/__init__.py)."""
