@@ -8,7 +8,8 @@ import pytest
 import scipy.sparse as sp
 from scipy.ndimage import uniform_filter
 
-from methods.symbolic.system.basis import MonomialBasis, all_codes
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.trace.monomial_codes import all_codes
 from methods.symbolic.misfit.clusters import (CORRELATION_FLOOR, cluster_ids, correlation_length, cr1_factor,
                                        side_for)
 from methods.symbolic.system.coefficients import ViewCoefficients

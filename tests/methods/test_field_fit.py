@@ -64,7 +64,8 @@ def test_with_gain_multiplies_every_monomial_by_the_gain():
     """A view's polynomial at (ρ, h) equals GAIN_MAX·h times its polynomial at ρ (hand-built
     coefficients over D = 2, N_max = 2: monomials 1, ρ0, ρ1, ρ0², ρ0ρ1)."""
     import scipy.sparse as sp
-    from methods.symbolic.system.basis import MonomialBasis, multiset_codes
+    from methods.symbolic.system.basis import MonomialBasis
+    from methods.symbolic.trace.monomial_codes import multiset_codes
     D, N = 2, 2
     keys = np.array([0, 1, 2, 1 + 3 * 1, 1 + 3 * 2])            # ordered keys -> multiset codes
     codes = np.unique(multiset_codes(keys, D, N))

@@ -10,7 +10,8 @@ import scipy.sparse as sp
 from factory import compose_config, edit_scene_yaml, make_tiny_scene, quad, run_method, tiny_problem
 from framework.errors import ConfigError
 from framework.scene.model import Photometry
-from methods.symbolic.system.basis import MonomialBasis, all_codes
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.trace.monomial_codes import all_codes
 from methods.symbolic.system.coefficients import ViewCoefficients
 from methods.symbolic.system.gram import GramSystem
 from methods.symbolic.survey.known import Substitution, known_guess

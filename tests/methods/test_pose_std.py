@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from methods.symbolic.system.basis import MonomialBasis, all_codes
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.trace.monomial_codes import all_codes
 from methods.symbolic.system.coefficients import ViewCoefficients
 from methods.symbolic.system.gram import weighted_system
 from methods.symbolic.uncertainty.standard_errors import parameter_uncertainty, score_meat

@@ -6,7 +6,8 @@ import pytest
 
 from factory import run_street_cli
 from framework.errors import ConfigError
-from methods.symbolic.system.basis import MonomialBasis, check_key_range
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.trace.monomial_codes import check_key_range
 import scipy.sparse as sp
 
 from methods.symbolic.system.gram import GramSystem, principal, sandwich, symmetric_dot

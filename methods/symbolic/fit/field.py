@@ -50,7 +50,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from framework.results import per_channel
-from methods.symbolic.system.basis import MonomialBasis, code_digits, encode_digits, merge_codes
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.trace.monomial_codes import code_digits, encode_digits, merge_codes
 from methods.symbolic.fit.fit import Fit, StageClock
 from methods.symbolic.fit.fit_quality import material_fit
 from methods.symbolic.system.gram import weighted_system

@@ -6,7 +6,7 @@ The model
     left emitter ``e`` as scene.yaml declares it (its nominal intensity) and ``s_e`` its scale per
     channel: 1 for a known emitter, an unknown for ``scale: unknown``. The polynomial pass keeps
     the emitter of every contribution (the integrator's path keys carry its group:
-    :func:`~methods.symbolic.system.basis.emitter_columns`), so each pixel stays a polynomial, over
+    :func:`~methods.symbolic.trace.monomial_codes.emitter_columns`), so each pixel stays a polynomial, over
     ``(ρ, s)``, of degree ``N_max + 1`` and of degree 1 in each scale: the scales are estimated
     jointly with ρ from the same pass, and their std comes from the same sandwich.
 
@@ -42,7 +42,8 @@ import scipy.sparse as sp
 
 from framework.errors import ConfigError
 from framework.render.mitsuba_scene import environments
-from methods.symbolic.system.basis import MonomialBasis, code_digits
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.trace.monomial_codes import code_digits
 
 #: ``s = SCALE_MAX · h``, ``h`` in the solver's box [0, 1] (module docstring)
 SCALE_MAX = 4.0

@@ -50,7 +50,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from methods.symbolic.system.basis import MonomialBasis, code_digits, encode_digits, merge_codes
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.trace.monomial_codes import code_digits, encode_digits, merge_codes
 from methods.symbolic.system.coefficients import ViewCoefficients
 from methods.symbolic.system.gram import GramSystem, sandwich
 

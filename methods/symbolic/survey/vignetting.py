@@ -54,7 +54,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from framework.scene.lens import falloff, pixel_radius
-from methods.symbolic.system.basis import code_digits, encode_digits
+from methods.symbolic.trace.monomial_codes import code_digits, encode_digits
 
 #: ``segment_name`` of a camera's profile parameters: this prefix, then the camera's key
 VIGNETTING_PREFIX = "vignetting:"

@@ -27,7 +27,7 @@ from framework.memory import release_freed_memory
 from framework.observe import inversion_seed
 from framework.render.checks import MiB, check_memory
 from framework.render.mitsuba_scene import MitsubaScene
-from methods.symbolic.system.basis import check_key_range
+from methods.symbolic.trace.monomial_codes import check_key_range
 from methods.symbolic.system.coefficients import PassResult, TiledCoefficients, ViewCoefficients
 from methods.symbolic.trace.events import event_slots
 from methods.symbolic.system.gram import GramSystem, weighted_system

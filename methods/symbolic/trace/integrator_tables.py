@@ -12,7 +12,7 @@ import numpy as np
 
 from framework import kernels as kernel_registry
 from framework.errors import ConfigError
-from methods.symbolic.system.basis import check_key_range
+from methods.symbolic.trace.monomial_codes import check_key_range
 
 
 def selection_probabilities(guesses: np.ndarray, segment_kernels, prob_floor: float) -> list[np.ndarray]:
@@ -96,7 +96,7 @@ class KernelTables:
         emitter_groups : list of (mi.Emitter, int)
             The emitters of unknown scale, each with its group ``g >= 1`` (the ``g``-th unknown
             scale; emitters not listed are group 0, known). Their contributions are kept apart:
-            the path key carries the group (:func:`~methods.symbolic.system.basis.emitter_columns`).
+            the path key carries the group (:func:`~methods.symbolic.trace.monomial_codes.emitter_columns`).
         environment : mi.Emitter, optional
             The scene's environment when it is the sum of several (``environment_parts``).
         environment_parts : list of (mi.Emitter, int)

@@ -8,7 +8,7 @@ was 95 % of the pass; here the device does it, in three steps and one small host
 
 1. the ordered path keys that occur are marked in a table over the key range and compacted: the
    host receives the distinct keys (a few hundred), maps them to monomial columns
-   (:func:`~methods.symbolic.system.basis.monomial_columns`, or ``emitter_columns`` with unknown emitter
+   (:func:`~methods.symbolic.trace.monomial_codes.monomial_columns`, or ``emitter_columns`` with unknown emitter
    scales) and sends back the key -> column table;
 2. each non-empty event gets its cell ``(block · n + pixel) · N_e,tile + column`` (the blocks are
    the sample halves ``A``, ``B``; with ``quarters`` the first halves ``A₁``, ``B₁`` are their
@@ -21,7 +21,7 @@ was 95 % of the pass; here the device does it, in three steps and one small host
 
 Memory on the device is that of the non-empty events (a fraction of the event buffer the tile
 size is chosen for, ``method.memory_mb``). Key ranges above
-:data:`~methods.symbolic.system.basis.TABLE_KEYS` (hundreds of parameters) have no key table:
+:data:`~methods.symbolic.trace.monomial_codes.TABLE_KEYS` (hundreds of parameters) have no key table:
 :func:`pixel_sums` returns None and the caller sums on the host
 (:func:`~methods.symbolic.trace.events.tile_matrices`). Sums are float64 prefix-sum differences on the
 device (the host path sums the float32 values in float64): the two agree to float32 rounding
@@ -34,7 +34,7 @@ import mitsuba as mi
 import numpy as np
 import scipy.sparse as sp
 
-from methods.symbolic.system.basis import TABLE_KEYS
+from methods.symbolic.trace.monomial_codes import TABLE_KEYS
 
 
 def pixel_sums(events, *, n: int, spp: int, split: int, quarters: bool, span: int, columns) -> tuple | None:
