@@ -17,7 +17,8 @@ from framework.errors import ConfigError
 from framework.options import build
 from framework.registry import Method, MethodResult, register
 from methods._common import Trace, initial_guess
-from methods.symbolic.survey.illumination import check_gauge, nominal, pass_basis, unknown_emitters
+from methods.symbolic.survey.illumination import check_gauge, nominal, pass_basis
+from methods.symbolic.system.emitter_groups import unknown_emitters
 from methods.symbolic.fit.field import FieldOptions
 from methods.symbolic.fit.fit import images_at
 from methods.symbolic.survey.known import known_guess, warn_unseen

@@ -59,7 +59,8 @@ from methods.symbolic.options import ROBUST_LOSSES, SymbolicOptions
 from methods.symbolic.misfit.robust_scale import LEFT_OUT, cauchy_weight, pixel_variance, robust_scale
 from methods.symbolic.system.coefficients import TiledCoefficients, ViewCoefficients, predicted, predicted_with_variance
 from methods.symbolic.misfit.consistency import MIN_OTHERS, ViewPairs
-from methods.symbolic.survey.illumination import Illumination, unknown_emitters
+from methods.symbolic.survey.illumination import Illumination
+from methods.symbolic.system.emitter_groups import unknown_emitters
 from methods.symbolic.survey.vignetting import Vignetting
 
 #: ``segment_name`` of a view's gain parameter: this prefix, then the view's name

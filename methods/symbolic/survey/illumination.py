@@ -41,8 +41,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from framework.errors import ConfigError
-from framework.render.mitsuba_scene import environments
 from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.system.emitter_groups import unknown_emitters
 from methods.symbolic.trace.monomial_codes import code_digits
 
 #: ``s = SCALE_MAX · h``, ``h`` in the solver's box [0, 1] (module docstring)
@@ -50,20 +50,6 @@ SCALE_MAX = 4.0
 #: ``segment_name`` of a scale parameter: this prefix, then the emitter's scene.yaml index (``/sun``,
 #: ``/sky`` for the parts of a sunsky)
 ILLUMINATION_PREFIX = "illumination:"
-
-
-def unknown_emitters(scene) -> list[int]:
-    """Indices into ``scene.emitters`` of the emitters of unknown scale, in order: the ``g``-th of
-    them is group ``g + 1`` of the polynomial pass."""
-    return [j for j, e in enumerate(scene.emitters) if e.scale_unknown]
-
-
-def split_environments(scene) -> list[int]:
-    """Indices into ``scene.emitters`` of the environments the polynomial pass splits: Mitsuba
-    renders their sum, and with more than one, one of them of unknown scale, each part's light is
-    kept apart (:meth:`~methods.symbolic.trace.integrator.PolynomialPathMixin._store_site`); else none."""
-    env = environments(scene)
-    return env if len(env) > 1 and any(scene.emitters[j].scale_unknown for j in env) else []
 
 
 def check_gauge(scene) -> None:

@@ -15,7 +15,7 @@ import scipy.sparse as sp
 from framework.cache import Cache
 from methods.symbolic.system.coefficients import TiledCoefficients, ViewCoefficients
 from methods.symbolic.system.gram import GramSystem, weighted_system
-from methods.symbolic.survey.illumination import unknown_emitters
+from methods.symbolic.system.emitter_groups import unknown_emitters
 
 
 def empty_system(C: int) -> GramSystem:

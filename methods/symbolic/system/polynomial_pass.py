@@ -31,7 +31,7 @@ from methods.symbolic.trace.monomial_codes import check_key_range
 from methods.symbolic.system.coefficients import PassResult, TiledCoefficients, ViewCoefficients
 from methods.symbolic.trace.events import event_slots
 from methods.symbolic.system.gram import GramSystem, weighted_system
-from methods.symbolic.survey.illumination import split_environments, unknown_emitters
+from methods.symbolic.system.emitter_groups import split_environments, unknown_emitters
 from methods.symbolic.trace.integrator import integrator_class
 from methods.symbolic.system.pass_cache import (TileWriter, cached_view, camera_key, empty_system, footprint_kernel,
                                          observed_pixels, store_tile, view_key)
