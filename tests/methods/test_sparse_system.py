@@ -11,7 +11,8 @@ from methods.symbolic.trace.monomial_codes import check_key_range
 import scipy.sparse as sp
 
 from methods.symbolic.system.gram import GramSystem, principal, sandwich, symmetric_dot
-from methods.symbolic.fit.solve import ChannelCost, check_solve_memory, solve_polynomial
+from methods.symbolic.fit.solve import check_solve_memory, solve_polynomial
+from methods.symbolic.system.cost import ChannelCost
 
 
 def _exponents(D: int, N: int) -> list[tuple[int, ...]]:

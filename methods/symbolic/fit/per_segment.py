@@ -52,7 +52,8 @@ from methods.symbolic.fit.fit import Fit
 from methods.symbolic.fit.field import GAIN_PREFIX
 from methods.symbolic.survey.vignetting import VIGNETTING_PREFIX, lens_key
 from methods.symbolic.system.gram import owned_systems, summed
-from methods.symbolic.fit.solve import ChannelCost, SolveResult
+from methods.symbolic.fit.solve import SolveResult
+from methods.symbolic.system.cost import ChannelCost
 from methods.symbolic.uncertainty.standard_errors import (correlation_extra, estimating_uncertainty, observable_parameters,
                                           score_meat)
 

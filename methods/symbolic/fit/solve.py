@@ -1,9 +1,9 @@
 """Minimisation of the polynomial cost (paper eq. 6 with p = 2) over the kernel weights ρ.
 
 Per channel ``c`` the cost is ``ε²_c(ρ) = μ(ρ)ᵀ G_c μ(ρ) - 2 b_cᵀ μ(ρ) + yy_c`` (see
-:mod:`methods.symbolic.system.gram`), with exact gradient ``2 J(ρ)ᵀ (G_c μ - b_c)`` from
-:meth:`MonomialBasis.jacobian`. Constraints: ``0 <= ρ_j <= 1`` and, per segment, energy
-conservation ``Σ_{j in segment} ρ_j <= 1``. The paper used a conjugate-gradient method (GSL,
+:mod:`methods.symbolic.system.gram`), with exact gradient ``2 J(ρ)ᵀ (G_c μ - b_c)`` and Hessian
+(:class:`~methods.symbolic.system.cost.ChannelCost`). Constraints: ``0 <= ρ_j <= 1`` and, per
+segment, energy conservation ``Σ_{j in segment} ρ_j <= 1``. The paper used a conjugate-gradient method (GSL,
 section 4.4); here SQP on the exact Hessian (default; :func:`framework.optim.minimize_sqp`, each step an
 exact QP under the constraints) or one of nlopt's constrained algorithms, the latter in coordinates
 where the exact Hessian is the identity: the cost of a street spans orders of magnitude of
@@ -23,8 +23,8 @@ from framework.errors import ConfigError
 from framework.optim import check_algorithm, minimize, minimize_sqp, project_feasible
 from framework.render.checks import check_memory
 from methods.symbolic.system.basis import MonomialBasis
-from methods.symbolic.system.gram import GramSystem, principal, sandwich, symmetric_dot
-
+from methods.symbolic.system.cost import ChannelCost
+from methods.symbolic.system.gram import GramSystem
 
 
 @dataclass
@@ -66,77 +66,6 @@ class SolveResult:
     solve_s: float = 0.0
     iterates: list = field(default_factory=list)
     blocks: list = field(default_factory=list)
-
-
-class ChannelCost:
-    """``ε²_c(x)`` and its exact gradient ``2 Jᵀ(G_c μ - b_c)`` for one channel.
-
-    Only the monomials some pixel depends on (:meth:`GramSystem.used_monomials`) enter the
-    products, and ``G_c`` is sparse (its upper triangle stored): an evaluation costs O(nnz(G_c)).
-    """
-
-    def __init__(self, system: GramSystem, basis: MonomialBasis, c: int, used: np.ndarray | None = None):
-        self.basis = basis
-        self.used = system.used_monomials() if used is None else np.asarray(used)
-        self.G = principal(system.G[c], self.used)
-        self.diagonal = self.G.diagonal()
-        self.b = system.b[c][self.used]
-        self.yy = float(system.yy[c])
-        self._last = None          # (x, r, μ) of the last residual: the Hessian follows the gradient
-
-    def _residual(self, x: np.ndarray) -> np.ndarray:
-        """``(size,)`` residual ``G_c μ - b_c`` on the used monomials, 0 elsewhere, and ``μ_used``."""
-        if self._last is not None and np.array_equal(self._last[0], x):
-            return self._last[1], self._last[2]
-        m = self.basis.evaluate(x)[self.used]
-        r = np.zeros(self.basis.size)
-        r[self.used] = symmetric_dot(self.G, m, self.diagonal) - self.b
-        self._last = (np.array(x, dtype=float, copy=True), r, m)
-        return r, m
-
-    def __call__(self, x: np.ndarray) -> tuple[float, np.ndarray]:
-        r, m = self._residual(x)
-        f = float(m @ (r[self.used] + self.b) - 2.0 * self.b @ m + self.yy)
-        return f, 2.0 * self.basis.jacobian_t_dot(x, r)
-
-    def gauss_newton(self, x: np.ndarray) -> np.ndarray:
-        """``(D, D)`` Gauss-Newton part ``2 Jᵀ G_c J`` of the Hessian (PSD when ``G_c`` is), with
-        the sparse Jacobian, from G's triangle (:func:`~methods.symbolic.system.gram.sandwich`)."""
-        J = self.basis.jacobian_sparse(x)[self.used]
-        return 2.0 * sandwich(self.G, J, self.diagonal).toarray()
-
-    def _residual_curvature(self, x: np.ndarray) -> np.ndarray:
-        """``(D, D)`` second-order part ``2 Σ_m (G_c μ - b_c)_m ∇²μ_m`` of the Hessian
-        (:meth:`MonomialBasis.hessian_dot`)."""
-        return 2.0 * self.basis.hessian_dot(x, self._residual(x)[0])
-
-    def hessian(self, x: np.ndarray) -> np.ndarray:
-        """``(D, D)`` exact Hessian ``2 Jᵀ G_c J + 2 Σ_m (G_c μ - b_c)_m ∇²μ_m``."""
-        return self.gauss_newton(x) + self._residual_curvature(x)
-
-    def metric(self, x: np.ndarray) -> np.ndarray:
-        """Curvature for :func:`framework.optim.minimize`'s ``metric``: the exact Hessian at ``x``
-        when it is positive definite, else its Gauss-Newton part."""
-        gn = self.gauss_newton(x)
-        H = gn + self._residual_curvature(x)
-        return H if np.linalg.eigvalsh(H)[0] > 0.0 else gn
-
-
-def channel_cost_grad(system: GramSystem, basis: MonomialBasis, c: int, x: np.ndarray):
-    """Cost ``ε²_c(x)`` and its exact gradient (one-off :class:`ChannelCost`)."""
-    return ChannelCost(system, basis, c)(x)
-
-
-def hessian(system: GramSystem, basis: MonomialBasis, rho: np.ndarray) -> np.ndarray:
-    """Exact Hessian of the per-channel cost, ``(C, D, D)`` (:meth:`ChannelCost.hessian`).
-
-    ``rho``: ``(D, C)``, or ``(D,)`` for every channel.
-    """
-    rho = np.asarray(rho, dtype=float).reshape(basis.n_params, -1)
-    C = system.n_channels
-    rho = np.broadcast_to(rho, (basis.n_params, C))
-    used = system.used_monomials()
-    return np.stack([ChannelCost(system, basis, c, used).hessian(rho[:, c]) for c in range(C)])
 
 
 def check_solve_memory(system: GramSystem, basis: MonomialBasis) -> None:
@@ -203,8 +132,8 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
         ``(D, C)`` (or ``(D,)``) initial guess; projected onto the feasible set.
     algorithm : str
         ``SQP`` (default: :func:`framework.optim.minimize_sqp` with the exact Hessian,
-        :meth:`ChannelCost.metric`), or an nlopt algorithm name that accepts inequality
-        constraints when a segment has several parameters (``LD_SLSQP``, ``LD_CCSAQ``,
+        :meth:`~methods.symbolic.system.cost.ChannelCost.metric`), or an nlopt algorithm name that
+        accepts inequality constraints when a segment has several parameters (``LD_SLSQP``, ``LD_CCSAQ``,
         ``LD_MMA``...; not ``LD_LBFGS``).
     starts : int or "auto"
         Number of starts per channel and block (>= 1): ``x0``, then seeded random feasible
@@ -217,8 +146,8 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
         nlopt's relative tolerances on the (preconditioned) coordinates and on the cost.
     precondition : bool
         Run nlopt in coordinates where the cost's Hessian is about the identity
-        (:func:`framework.optim.minimize`'s ``metric``, from :meth:`ChannelCost.metric`): at
-        ``x0`` for the first start, at its minimum for the others. SLSQP then needs
+        (:func:`framework.optim.minimize`'s ``metric``, from
+        :meth:`~methods.symbolic.system.cost.ChannelCost.metric`): at ``x0`` for the first start, at its minimum for the others. SLSQP then needs
         about 10-30 evaluations per start instead of 50-70 (the Hessian of a street's cost
         spans orders of magnitude, which BFGS otherwise learns one evaluation at a time).
     seed : int

@@ -2,7 +2,7 @@
 
 Per channel the cost is the explicit polynomial ``ε²_c(ρ) = μᵀG_cμ - 2b_cᵀμ + yy_c``
 (:mod:`methods.symbolic.system.gram`), so its exact Hessian at the estimate is available without any
-rendering (:func:`methods.symbolic.fit.solve.hessian`).
+rendering (:func:`methods.symbolic.system.cost.hessian`).
 
 Observability
     Parameter ``ρ_j`` is *unobservable* when no pixel's polynomial depends on it: every monomial
@@ -73,7 +73,7 @@ from framework.threads import run_threads
 from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.misfit.clusters import cr1_factor
 from methods.symbolic.system.gram import GramSystem, principal, row_blocks
-from methods.symbolic.fit.solve import hessian
+from methods.symbolic.system.cost import hessian
 
 #: relative tolerance of the observability test on diag(G)
 OBSERVABLE_RTOL = 1e-12
