@@ -24,7 +24,7 @@ from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.fit.field import FieldOptions, fit_field
 from methods.symbolic.fit.fit import Fit, StageClock, images_at
 from methods.symbolic.fit.joint import fit_joint
-from methods.symbolic.survey.known import fit_with_known
+from methods.symbolic.fit.with_known import fit_with_known
 from methods.symbolic.options import SymbolicOptions
 from methods.symbolic.fit.per_segment import fit_per_segment
 from methods.symbolic.system.polynomial_pass import polynomial_pass
@@ -164,7 +164,7 @@ def fit_pass(result, params, x0: np.ndarray, problem, options: SymbolicOptions, 
 def solve_system(system, basis, params, x0: np.ndarray, problem, options: SymbolicOptions, *, views,
                  groups) -> Fit:
     """The fit of a summed system by the cost ``options.cost`` names, the known weights of the
-    scene substituted (:func:`~methods.symbolic.survey.known.fit_with_known`)."""
+    scene substituted (:func:`~methods.symbolic.fit.with_known.fit_with_known`)."""
     def solve(system, basis, params, x0, problem, *, views, groups):
         if options.cost == "per_segment":
             return fit_per_segment(system, basis, params, x0, problem, views=views, groups=groups,

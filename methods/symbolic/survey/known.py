@@ -18,7 +18,8 @@ Substitution
     stays unbiased). The fit then runs on the free parameters only, with the per-pixel coefficients
     of the sandwich std mapped the same way (:meth:`Substitution.view`). The joint fit, the
     per-segment fit and the field path (which rebuilds its systems from the coefficients, gains
-    included) all reach the solve through :func:`fit_with_known`.
+    included) all reach the solve through
+    :func:`~methods.symbolic.fit.with_known.fit_with_known`.
 
 Energy conservation
     A free kernel of a segment that also has known ones may use only what the known ones leave,
@@ -43,7 +44,6 @@ Reported
 """
 from __future__ import annotations
 
-import dataclasses
 import logging
 from dataclasses import dataclass
 
@@ -257,38 +257,3 @@ class _MappedView:
     def blocks(self):
         for start, block in self.coeffs.blocks():
             yield start, self.substitution.block(block)
-
-
-def fit_with_known(solve, system, basis: MonomialBasis, params, x0: np.ndarray, problem, *, views, groups):
-    """``solve(system, basis, params, x0, problem, views=, groups=)`` (the joint or per-segment fit)
-    on the free parameters, the known weights substituted (module docstring); the
-    :class:`~methods.symbolic.fit.fit.Fit` it returns over every parameter of ``params``. Without
-    known weights, ``solve`` itself."""
-    from methods.symbolic.fit.fit import Fit
-    values = known_values(problem.scene, params)
-    if values is None:
-        return solve(system, basis, params, x0, problem, views=views, groups=groups)
-    sub = Substitution.build(basis.codes, basis.n_params, basis.max_degree, values,
-                             room(problem.scene, params, values))
-    known = np.isfinite(values[:, 0])
-    P, C = values.shape
-    if sub.n_free == 0:              # every weight known: nothing to solve
-        return Fit(estimate=values.copy(), std=np.zeros((P, C)), observable=np.ones(P, bool),
-                   evaluated_at=values.copy(), solve=None, iterates=[], correlation={
-                       "labels": [], "matrix": [], "averaged_over_channels": True},
-                   sigma2=None, std_method="known", stages_s={})
-    if not np.array_equal(system.codes, basis.codes):
-        system = system.reindexed(basis.codes)
-    reduced = sub.system(system)
-    del system
-    position = {int(j): i for i, j in enumerate(sub.free)}
-    free_params = [dataclasses.replace(params[j], index=i) for i, j in enumerate(sub.free)]
-    free_groups = [[position[j] for j in g if j in position] for g in groups]
-    mapped = None if views is None else (lambda: ((sub.view(v), y, *rest) for v, y, *rest in views()))
-    fit = solve(reduced, sub.basis(), free_params, sub.reduce(x0), problem, views=mapped,
-                groups=[g for g in free_groups if g])
-    observable = known.copy()
-    observable[sub.free] = fit.observable
-    return fit.replace(estimate=sub.expand(fit.estimate), std=sub.expand(fit.std, known=0.0),
-                       observable=observable, evaluated_at=sub.expand(fit.evaluated_at),
-                       iterates=[(at, sub.expand(x)) for at, x in fit.iterates])
