@@ -13,7 +13,7 @@ from methods.symbolic.trace.monomial_codes import all_codes
 from methods.symbolic.misfit.clusters import (CORRELATION_FLOOR, cluster_ids, correlation_length, cr1_factor,
                                        side_for)
 from methods.symbolic.system.coefficients import ViewCoefficients
-from methods.symbolic.system.gram import weighted_system
+from methods.symbolic.system.view_systems import weighted_system
 from methods.symbolic.uncertainty.standard_errors import parameter_uncertainty, score_meat
 
 SIZE, TRUTH, SIGMA = 64, 0.4, 0.02

@@ -11,7 +11,7 @@ from factory import run_symbolic, small_copy, tiny_problem
 from framework.errors import ConfigError
 from framework.scene.model import Parameter, Photometry
 from methods.symbolic.system.basis import MonomialBasis
-from methods.symbolic.system.gram import owned_systems, weighted_system
+from methods.symbolic.system.view_systems import owned_systems, weighted_system
 from methods.symbolic.fit.per_segment import estimating_jacobian, ownership, parameter_blocks, solve_blocks
 from methods.symbolic.system.coefficients import ViewCoefficients
 from methods.symbolic.system.cost import ChannelCost, hessian

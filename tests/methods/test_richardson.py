@@ -9,7 +9,7 @@ from framework.errors import ConfigError
 from framework.registry import get_method
 from methods.symbolic.system.coefficients import PassResult, TiledCoefficients, ViewCoefficients
 from methods.symbolic.fit.fit import Fit
-from methods.symbolic.system.gram import weighted_system
+from methods.symbolic.system.view_systems import weighted_system
 from methods.symbolic.options import SymbolicOptions
 from methods.symbolic.system.pass_cache import _pack, _unpack
 from methods.symbolic.loop.richardson import extrapolated

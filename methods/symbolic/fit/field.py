@@ -54,7 +54,7 @@ from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.trace.monomial_codes import code_digits, encode_digits, merge_codes
 from methods.symbolic.fit.fit import Fit, StageClock
 from methods.symbolic.fit.fit_quality import material_fit
-from methods.symbolic.system.gram import weighted_system
+from methods.symbolic.system.view_systems import weighted_system
 from methods.symbolic.options import ROBUST_LOSSES, SymbolicOptions
 from methods.symbolic.misfit.robust_scale import LEFT_OUT, cauchy_weight, pixel_variance, robust_scale
 from methods.symbolic.system.coefficients import TiledCoefficients, ViewCoefficients, predicted, predicted_with_variance

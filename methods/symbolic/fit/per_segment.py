@@ -51,7 +51,7 @@ from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.fit.fit import Fit
 from methods.symbolic.fit.field import GAIN_PREFIX
 from methods.symbolic.survey.vignetting import VIGNETTING_PREFIX, lens_key
-from methods.symbolic.system.gram import owned_systems, summed
+from methods.symbolic.system.view_systems import owned_systems, summed
 from methods.symbolic.fit.solve import SolveResult
 from methods.symbolic.system.cost import ChannelCost
 from methods.symbolic.uncertainty.standard_errors import (correlation_extra, estimating_uncertainty, observable_parameters,
@@ -93,7 +93,7 @@ def parameter_blocks(params, groups: list[list[int]]) -> list[list[int]]:
 
 def block_systems(views, owned: list[sp.csr_matrix], blocks: list[list[int]]) -> list:
     """Per block the Gram system of its pixels over every view (None where it owns none); a
-    view's blocks from one pass over its coefficients (:func:`~methods.symbolic.system.gram.owned_systems`)."""
+    view's blocks from one pass over its coefficients (:func:`~methods.symbolic.system.view_systems.owned_systems`)."""
     systems: list = [None] * len(blocks)
     for (coeffs, y, *weights), own in zip(views, owned):
         mask = own[:, [b[0] for b in blocks]].toarray() > 0      # a block's kernels own the same pixels

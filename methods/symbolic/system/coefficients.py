@@ -12,7 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from methods.symbolic.system.gram import GramSystem, summed, weighted_system
+from methods.symbolic.system.gram import GramSystem
+from methods.symbolic.system.view_systems import summed, weighted_system
 
 
 @dataclass
@@ -68,7 +69,7 @@ class TiledCoefficients:
     cache): iterating :meth:`blocks` then holds one block at a time, so a megapixel view's
     coefficients never need to fit in memory at once.
 
-    Consumers (:func:`predicted`, :func:`~methods.symbolic.system.gram.weighted_system`,
+    Consumers (:func:`predicted`, :func:`~methods.symbolic.system.view_systems.weighted_system`,
     :func:`~methods.symbolic.uncertainty.standard_errors.score_meat`) iterate :meth:`blocks` of either class.
     """
 
@@ -132,7 +133,7 @@ class PassResult:
     def halved(self, j: int, observed: dict, *, system: bool = True) -> PassResult:
         """The pass with half the samples (``j`` 0: the quarters of each pixel's first half,
         1: of its second; :meth:`ViewCoefficients.halved`), its Gram system summed from them
-        as a cached view's is (:func:`~methods.symbolic.system.gram.weighted_system`); ``observed``:
+        as a cached view's is (:func:`~methods.symbolic.system.view_systems.weighted_system`); ``observed``:
         view -> observed image. ``system`` False: no system (a fit that forms its own weighted
         systems, the field path, would only release it); its ``codes`` are this pass's, which
         the halves' summed system would have (each block keeps its codes)."""

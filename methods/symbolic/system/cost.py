@@ -13,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from methods.symbolic.system.basis import MonomialBasis
-from methods.symbolic.system.gram import GramSystem, principal, sandwich, symmetric_dot
+from methods.symbolic.system.gram import GramSystem
+from methods.symbolic.system.upper_triangle import principal, sandwich, symmetric_dot
 
 
 class ChannelCost:
@@ -49,7 +50,7 @@ class ChannelCost:
 
     def gauss_newton(self, x: np.ndarray) -> np.ndarray:
         """``(D, D)`` Gauss-Newton part ``2 Jᵀ G_c J`` of the Hessian (PSD when ``G_c`` is), with
-        the sparse Jacobian, from G's triangle (:func:`~methods.symbolic.system.gram.sandwich`)."""
+        the sparse Jacobian, from G's triangle (:func:`~methods.symbolic.system.upper_triangle.sandwich`)."""
         J = self.basis.jacobian_sparse(x)[self.used]
         return 2.0 * sandwich(self.G, J, self.diagonal).toarray()
 

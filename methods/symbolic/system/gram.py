@@ -9,11 +9,11 @@ so the pixels are summed once; the solver never touches them again and memory do
 on the pixel count. G lives over the monomials that occur only, as one sparse matrix per channel,
 and only its upper triangle (diagonal included) is stored: G is symmetric, and the triangle holds
 half the entries (a 228-weight street: 13.6M instead of 27.1M a channel) and makes the
-Gauss-Newton product ``Jᵀ G J`` about 3x faster (:func:`symmetric_dot`, :func:`sandwich`).
+Gauss-Newton product ``Jᵀ G J`` about 3x faster (:mod:`methods.symbolic.system.upper_triangle`).
+A view's system is formed from its coefficients by :mod:`methods.symbolic.system.view_systems`.
 """
 from __future__ import annotations
 
-import dataclasses
 import logging
 from dataclasses import dataclass
 
@@ -21,7 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from framework.threads import run_threads
+from methods.symbolic.system.upper_triangle import principal, spread, triangle, upper
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +41,8 @@ class GramSystem:
         One ``(N, N)`` float64 matrix per channel, the **upper triangle** (diagonal included) of
         the symmetric ``Σ_i γ_i γ_iᵀ`` (``N = len(codes)``, the monomials that occur: most pairs
         never share a pixel, so G is sparse). Given full (symmetric) to the constructor, it is
-        cut to its triangle; :meth:`matrix` gives the whole matrix back, :func:`symmetric_dot` its product.
+        cut to its triangle; :meth:`matrix` gives the whole matrix back,
+        :func:`~methods.symbolic.system.upper_triangle.symmetric_dot` its product.
     b : numpy.ndarray
         ``(C, N)`` float64, ``Σ_i y_i γ_i``.
     yy : numpy.ndarray
@@ -189,7 +190,7 @@ class GramSystem:
             return GramSystem(list(self.G), self.b.copy(), self.yy.copy(), self.n_pixels, codes)
         pos = np.searchsorted(codes, self.codes)
         N = len(codes)
-        G = [_spread(g, pos, N) for g in self.G]
+        G = [spread(g, pos, N) for g in self.G]
         b = np.zeros((self.n_channels, N))
         b[:, pos] = self.b
         return GramSystem(G, b, self.yy.copy(), self.n_pixels, codes)
@@ -216,9 +217,9 @@ class GramSystem:
         mine = None if same else np.searchsorted(codes, self.codes)
         theirs = None if same else np.searchsorted(codes, other.codes)
         for c in range(self.n_channels):
-            a = self.G[c] if same else _spread(self.G[c], mine, N)
+            a = self.G[c] if same else spread(self.G[c], mine, N)
             self.G[c] = None                      # release before the sum is built
-            self.G[c] = (a + (other.G[c] if same else _spread(other.G[c], theirs, N))).tocsr()
+            self.G[c] = (a + (other.G[c] if same else spread(other.G[c], theirs, N))).tocsr()
             del a
         if same:
             self.b = self.b + other.b
@@ -248,200 +249,6 @@ class GramSystem:
         mu = np.asarray(mu, dtype=np.float64).reshape(self.n_channels, self.n_monomials)
         quad = np.array([2.0 * (m @ (g @ m)) - g.diagonal() @ (m * m) for g, m in zip(self.G, mu)])
         return quad - 2 * np.einsum("ci,ci->c", self.b, mu) + self.yy
-
-
-def weighted_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSystem:
-    """The Gram system of one view from its coefficients, pixel ``p`` weighted by ``w_p``.
-
-    With the two half-sample estimates ``a`` and ``b``, the cross Gram ½(AᵀWB + BᵀWA)
-    (:meth:`GramSystem.accumulate_sparse`, rows scaled by √w); without ``b``, ΓᵀWΓ. With
-    ``weights`` None this is the pass's own system
-    (:func:`~methods.symbolic.system.polynomial_pass.polynomial_pass` builds it so). One row block of
-    the coefficients at a time (:func:`row_blocks`: a tiled view's are loaded one by one).
-
-    Parameters
-    ----------
-    coeffs : ViewCoefficients or TiledCoefficients
-    y : numpy.ndarray
-        ``(n, C)`` observed pixels.
-    weights : numpy.ndarray or None
-        ``(n,)`` weights >= 0 (None: all 1).
-    """
-    total = None
-    for block, y_rows, w_rows in row_blocks(coeffs, y, weights):
-        total = summed(total, _block_system(block, y_rows, w_rows))
-    return total
-
-
-def summed(total: GramSystem | None, part: GramSystem) -> GramSystem:
-    """``total += part`` in place (:meth:`GramSystem.__iadd__`), or ``part`` when ``total`` is None."""
-    if total is None:
-        return part
-    total += part
-    return total
-
-
-def owned_systems(coeffs, y: np.ndarray, weights: np.ndarray | None, owned: np.ndarray) -> list[GramSystem]:
-    """One Gram system per column of ``owned``: :func:`weighted_system` of the pixels that
-    column owns, every system from the same single pass over the view's row blocks.
-
-    Parameters
-    ----------
-    coeffs, y, weights
-        As for :func:`weighted_system`.
-    owned : numpy.ndarray
-        ``(n, K)`` bool: pixel ``p`` enters system ``k`` when ``owned[p, k]``.
-
-    Returns
-    -------
-    list
-        ``K`` GramSystem, None where no pixel is owned.
-    """
-    owned = np.asarray(owned, bool).reshape(coeffs.n_rows, -1)
-    systems: list = [None] * owned.shape[1]
-    start = 0
-    for block, y_rows, w_rows in row_blocks(coeffs, y, weights):
-        rows = owned[start:start + block.n_rows]
-        start += block.n_rows
-        for k in np.flatnonzero(rows.any(axis=0)):
-            idx = np.flatnonzero(rows[:, k])          # the owned rows only: K systems cost one
-            rows_k = dataclasses.replace(block, a=[m[idx] for m in block.a],
-                                         b=None if block.b is None else [m[idx] for m in block.b])
-            systems[k] = summed(systems[k], _block_system(rows_k, y_rows[idx], None if w_rows is None else w_rows[idx]))
-    return systems
-
-
-def row_blocks(coeffs, y: np.ndarray, weights: np.ndarray | None = None):
-    """``(block, y rows, weight rows or None)`` of each row block of a view's coefficients
-    (their ``blocks()``; a tiled view's blocks are loaded one at a time), with the block's rows
-    of the ``(n, C)`` observed pixels ``y`` and of the ``(n,)`` pixel ``weights``."""
-    y = np.asarray(y, dtype=np.float64).reshape(coeffs.n_rows, -1)
-    w = None if weights is None else np.asarray(weights, dtype=np.float64).reshape(coeffs.n_rows)
-    for start, block in coeffs.blocks():
-        rows = slice(start, start + block.n_rows)
-        yield block, y[rows], None if w is None else w[rows]
-
-
-def _block_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSystem:
-    """:func:`weighted_system` of one block (a :class:`ViewCoefficients`)."""
-    C = len(coeffs.a)
-    root = None if weights is None else sp.diags(np.sqrt(weights))
-    scaled = lambda m: m if root is None else (root @ m).tocsr()
-    y = y if weights is None else y * np.sqrt(weights)[:, None]
-    A = [scaled(m) for m in coeffs.a]
-    B = None if coeffs.b is None else [scaled(m) for m in coeffs.b]
-    return GramSystem.zeros(coeffs.codes, C).accumulate_sparse(A, y, B)
-
-
-def principal(g: sp.spmatrix, idx: np.ndarray) -> sp.csr_matrix:
-    """``g[idx][:, idx]`` for an increasing ``idx`` (so the triangle of G stays a triangle), ``g``
-    itself when ``idx`` is every row. The rows are taken by scipy, the columns by a lookup of each
-    kept entry (scipy's column fancy-indexing of CSR is several times slower and holds more
-    temporaries)."""
-    g, idx = g.tocsr(), np.asarray(idx, dtype=np.int64)
-    if len(idx) == g.shape[0] and np.array_equal(idx, np.arange(g.shape[0])):
-        return g
-    if np.any(np.diff(idx) <= 0):
-        raise ValueError("principal: idx must be strictly increasing")
-    new = np.full(g.shape[1], -1, dtype=np.int64)
-    new[idx] = np.arange(len(idx))
-    rows = g[idx]
-    col = new[rows.indices]
-    keep = col >= 0
-    row = np.repeat(np.arange(len(idx)), np.diff(rows.indptr))[keep]
-    indptr = np.concatenate([[0], np.cumsum(np.bincount(row, minlength=len(idx)))])
-    index = np.int32 if max(len(idx), int(keep.sum())) < 2**31 else np.int64
-    return sp.csr_matrix((rows.data[keep], col[keep].astype(index), indptr.astype(index)),
-                         shape=(len(idx), len(idx)))
-
-
-def upper(g) -> sp.csr_matrix:
-    """The upper triangle (diagonal included) of a symmetric ``g`` as float64 CSR: ``g`` itself
-    when it has no entry below the diagonal (checked on each row's first column, O(rows))."""
-    g = sp.csr_matrix(g, dtype=np.float64)
-    g.sum_duplicates()                                   # sorted column indices, no duplicates
-    filled = np.flatnonzero(np.diff(g.indptr) > 0)
-    if np.all(g.indices[g.indptr[filled]] >= filled):
-        return g
-    return triangle(g)
-
-
-def triangle(g) -> sp.csr_matrix:
-    """The upper triangle (diagonal included) of ``g`` as CSR, built by filtering its entries."""
-    g = g.tocsr()
-    n = g.shape[0]
-    row = np.repeat(np.arange(n, dtype=np.int64), np.diff(g.indptr))
-    keep = g.indices >= row
-    indptr = np.concatenate([[0], np.cumsum(np.bincount(row[keep], minlength=n))])
-    return sp.csr_matrix((g.data[keep], g.indices[keep], indptr), shape=g.shape)
-
-
-def symmetric_dot(u: sp.csr_matrix, x: np.ndarray, diagonal: np.ndarray | None = None) -> np.ndarray:
-    """``G x`` for the symmetric ``G`` whose upper triangle is ``u``: ``U x + Uᵀ x - diag(U) x``
-    (``x``: ``(N,)`` or ``(N, k)``; ``diagonal``: ``u.diagonal()`` when the caller keeps it).
-    The two products run on two threads (scipy's sparse kernels release the GIL)."""
-    d = u.diagonal() if diagonal is None else diagonal
-    ux, utx = run_threads([lambda: u @ x, lambda: u.T @ x])
-    return ux + utx - (d * x if np.ndim(x) == 1 else d[:, None] * x)
-
-
-def sandwich(u: sp.csr_matrix, J: sp.spmatrix, diagonal: np.ndarray | None = None) -> sp.csr_matrix:
-    """Sparse ``Jᵀ G J`` for the symmetric ``G`` whose upper triangle is ``u``:
-    ``S + Sᵀ - Jᵀ diag(U) J`` with ``S = Jᵀ U J`` (the Gauss-Newton matrix, and a change of
-    monomials' ``Mᵀ G M``).
-
-    ``S`` is summed over :data:`PRODUCT_PARTS` row ranges of ``u`` (``J_kᵀ (U_k J)``, views of
-    ``u``'s arrays), computed on up to that many threads: the sum's order does not depend on the
-    thread count, and each range's ``U_k J`` temporary is a fraction of the whole. Measured on
-    a 296-weight street's first pass (310,822 monomials, 15.5M stored entries a channel, 2
-    cores): 1.10 s on one thread, 0.59 s on two. Storing the triangle only made it about 3x
-    faster than ``Jᵀ (G J)`` with both triangles stored (1.59 s → 0.51 s at 228 weights).
-    """
-    u, J = u.tocsr(), J.tocsr()
-
-    def part(lo: int, hi: int):
-        return J[lo:hi].T @ (_rows(u, lo, hi) @ J)
-
-    parts = run_threads([lambda lo=lo, hi=hi: part(lo, hi) for lo, hi in _row_ranges(u.indptr, PRODUCT_PARTS)])
-    S = parts[0]
-    for p in parts[1:]:
-        S = S + p
-    return (S + S.T - J.T @ sp.diags(u.diagonal() if diagonal is None else diagonal) @ J).tocsr()
-
-
-#: row ranges of G's triangle a sparse product is split into (:func:`sandwich`): a fixed number,
-#: so its result does not depend on the thread count of the machine it runs on
-PRODUCT_PARTS = 4
-
-
-def _row_ranges(indptr: np.ndarray, parts: int) -> list[tuple[int, int]]:
-    """``parts`` contiguous ``(lo, hi)`` row ranges of a CSR matrix with about equal non-zeros
-    (empty ranges left out)."""
-    n = len(indptr) - 1
-    cuts = np.searchsorted(indptr, np.linspace(0, indptr[-1], parts + 1)[1:-1], side="right") - 1
-    edges = np.unique(np.concatenate([[0], np.clip(cuts, 0, n), [n]]))
-    return [(int(lo), int(hi)) for lo, hi in zip(edges[:-1], edges[1:])]
-
-
-def _rows(u: sp.csr_matrix, lo: int, hi: int) -> sp.csr_matrix:
-    """Rows ``lo:hi`` of ``u`` sharing its values and column indices (scipy's slicing copies them)."""
-    a, b = u.indptr[lo], u.indptr[hi]
-    return sp.csr_matrix((u.data[a:b], u.indices[a:b], u.indptr[lo:hi + 1] - a), shape=(hi - lo, u.shape[1]),
-                         copy=False)
-
-
-def _spread(g: sp.csr_matrix, pos: np.ndarray, n: int) -> sp.csr_matrix:
-    """``g`` with row and column ``i`` moved to ``pos[i]`` (increasing) in an ``(n, n)`` matrix.
-
-    Built in CSR directly, sharing ``g``'s values: an increasing ``pos`` keeps every row's
-    columns in order, so only the row pointers and column indices are new (a COO round trip
-    holds 3-4 copies of a 200 MB matrix at once)."""
-    g = g.tocsr()
-    counts = np.zeros(n + 1, dtype=np.int64)
-    counts[np.asarray(pos) + 1] = np.diff(g.indptr)
-    index = np.int32 if max(n, g.nnz) < 2**31 else np.int64
-    return sp.csr_matrix((g.data, np.asarray(pos, index)[g.indices], np.cumsum(counts).astype(index)),
-                         shape=(n, n), copy=False)
 
 
 def _psd_components(g: sp.csr_matrix, limit: int) -> tuple[sp.csr_matrix, list[int]]:

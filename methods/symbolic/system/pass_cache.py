@@ -3,7 +3,7 @@
 Render once, solve many: the coefficients of each view are cached on disk, keyed by everything
 that affects them (scene content, view, spp, seed, N_max, parameters, guesses, selection floor,
 variant, observed pixels); a cached view's Gram system is rebuilt from them by the same function
-as a rendered one's (:func:`~methods.symbolic.system.gram.weighted_system`), so a cached run gives the
+as a rendered one's (:func:`~methods.symbolic.system.view_systems.weighted_system`), so a cached run gives the
 same bits as the run that rendered. Tiles are written as they are rendered (by the worker, in a
 background thread: :class:`TileWriter`) and read back one at a time (:class:`TileLoader`).
 """
@@ -14,7 +14,8 @@ import scipy.sparse as sp
 
 from framework.cache import Cache
 from methods.symbolic.system.coefficients import TiledCoefficients, ViewCoefficients
-from methods.symbolic.system.gram import GramSystem, weighted_system
+from methods.symbolic.system.gram import GramSystem
+from methods.symbolic.system.view_systems import weighted_system
 from methods.symbolic.system.emitter_groups import unknown_emitters
 
 
@@ -137,7 +138,7 @@ def _digest(a: np.ndarray) -> str:
 
 def _pack(coeffs: ViewCoefficients) -> dict[str, np.ndarray]:
     """The cache entry of a tile: its coefficients (its Gram system is rebuilt from them and the
-    observed pixels, :func:`~methods.symbolic.system.gram.weighted_system`: a third of the bytes)."""
+    observed pixels, :func:`~methods.symbolic.system.view_systems.weighted_system`: a third of the bytes)."""
     out = {"codes": coeffs.codes, "split": np.array(coeffs.split)}
     for prefix, mats in (("a", coeffs.a), ("b", coeffs.b or []), ("qa", coeffs.a1 or []), ("qb", coeffs.b1 or [])):
         for c, m in enumerate(mats):

@@ -6,7 +6,7 @@ monomials that occur (2-6 % non-zero), as the two independent estimates from the
 its samples: their cross product is the unbiased Gram matrix, their mean the coefficients, their
 difference the per-pixel Monte Carlo noise the sandwich standard errors need
 (:class:`ViewCoefficients`). From them each view's Gram system (G, b, yy)
-of the cost (paper eq. 6, p = 2) is formed (:func:`~methods.symbolic.system.gram.weighted_system`) and
+of the cost (paper eq. 6, p = 2) is formed (:func:`~methods.symbolic.system.view_systems.weighted_system`) and
 added to the sum over views, which is consumed as it goes: memory holds the sum, one view, and
 its sparse coefficients, never pixels × monomials densely.
 
@@ -30,7 +30,8 @@ from framework.render.mitsuba_scene import MitsubaScene
 from methods.symbolic.trace.monomial_codes import check_key_range
 from methods.symbolic.system.coefficients import PassResult, TiledCoefficients, ViewCoefficients
 from methods.symbolic.trace.events import event_slots
-from methods.symbolic.system.gram import GramSystem, weighted_system
+from methods.symbolic.system.gram import GramSystem
+from methods.symbolic.system.view_systems import weighted_system
 from methods.symbolic.system.emitter_groups import split_environments, unknown_emitters
 from methods.symbolic.trace.integrator import integrator_class
 from methods.symbolic.system.pass_cache import (TileWriter, cached_view, camera_key, empty_system, footprint_kernel,
@@ -284,7 +285,7 @@ def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True, store=
 
     ``cross``: the samples of each pixel are split into two independent halves
     (:meth:`PolynomialPathIntegrator.coefficients_halves`, one render) whose cross product makes
-    G free of Monte Carlo noise (:func:`~methods.symbolic.system.gram.weighted_system`); both halves
+    G free of Monte Carlo noise (:func:`~methods.symbolic.system.view_systems.weighted_system`); both halves
     are kept (:class:`ViewCoefficients`). ``store(k, block)``: called with each tile's
     :class:`ViewCoefficients`, which is then not kept: the result holds what it returns (a
     :class:`TileLoader`) instead. ``footprint``: the view's photographs were resampled with it

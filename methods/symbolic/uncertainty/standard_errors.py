@@ -72,7 +72,9 @@ import scipy.sparse as sp
 from framework.threads import run_threads
 from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.misfit.clusters import cr1_factor
-from methods.symbolic.system.gram import GramSystem, principal, row_blocks
+from methods.symbolic.system.gram import GramSystem
+from methods.symbolic.system.upper_triangle import principal
+from methods.symbolic.system.view_systems import row_blocks
 from methods.symbolic.system.cost import hessian
 
 #: relative tolerance of the observability test on diag(G)
