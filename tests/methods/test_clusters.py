@@ -14,7 +14,8 @@ from methods.symbolic.misfit.clusters import (CORRELATION_FLOOR, cluster_ids, co
                                        side_for)
 from methods.symbolic.system.coefficients import ViewCoefficients
 from methods.symbolic.system.view_systems import weighted_system
-from methods.symbolic.uncertainty.standard_errors import parameter_uncertainty, score_meat
+from methods.symbolic.uncertainty.standard_errors import parameter_uncertainty
+from methods.symbolic.uncertainty.sandwich_meat import score_meat
 
 SIZE, TRUTH, SIGMA = 64, 0.4, 0.02
 

@@ -10,7 +10,7 @@ from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.system.coefficients import TiledCoefficients, predicted
 from methods.symbolic.system.pass_cache import TileLoader
 from methods.symbolic.system.polynomial_pass import polynomial_pass, render_view_task, tile_pixels_for, view_task
-from methods.symbolic.uncertainty.standard_errors import score_meat
+from methods.symbolic.uncertainty.sandwich_meat import score_meat
 
 #: 16 spp, N_max 3, 2 tail bounces, RGB: 4.5 KiB of event buffers a pixel, so 0.3 MiB gives tiles
 #: of 68 pixels (4 tiles on the 16 x 16 views)
@@ -153,7 +153,7 @@ def test_the_meat_scored_in_row_chunks_equals_the_whole_blocks(problem, monkeypa
     temporaries bounded whatever the tile): with chunks of a few pixels the meat, pixel or
     cluster sums, equals the one scored block by block to 1e-12 (relative; only the order of the
     sums differs)."""
-    import methods.symbolic.uncertainty.standard_errors as U
+    import methods.symbolic.uncertainty.sandwich_meat as U
     passed = _pass(problem, Cache(None))
     basis = MonomialBasis(len(problem.parameters), 3, passed.codes)
     rho = np.random.default_rng(1).uniform(0.1, 0.4, (len(problem.parameters), 3))

@@ -16,7 +16,8 @@ from factory import make_problem, make_tiny_scene, quad, run_symbolic, view_syst
 
 from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.system.gram import GramSystem
-from methods.symbolic.uncertainty.standard_errors import observable_parameters, parameter_uncertainty, restrict_system
+from methods.symbolic.uncertainty.standard_errors import parameter_uncertainty
+from methods.symbolic.uncertainty.observability import observable_parameters, restrict_system
 
 
 def make_pit_scene(root: Path) -> Path:

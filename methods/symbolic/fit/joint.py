@@ -20,8 +20,9 @@ from methods.symbolic.misfit.clusters import view_clusters
 from methods.symbolic.fit.fit import Fit, full
 from methods.symbolic.options import SymbolicOptions
 from methods.symbolic.fit.solve import check_solve_memory, solve_polynomial
-from methods.symbolic.uncertainty.standard_errors import (correlation_extra, observable_parameters, parameter_uncertainty,
-                                          restrict_system, score_meat)
+from methods.symbolic.uncertainty.standard_errors import correlation_extra, parameter_uncertainty
+from methods.symbolic.uncertainty.sandwich_meat import score_meat
+from methods.symbolic.uncertainty.observability import observable_parameters, restrict_system
 
 
 def fit_joint(system, basis, params, x0: np.ndarray, problem, options: SymbolicOptions, *, views, groups) -> Fit:

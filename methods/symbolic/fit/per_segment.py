@@ -33,7 +33,7 @@ Standard errors
     The sandwich of estimating equations, ``Cov_c = J_c⁻¹ M_c J_c⁻ᵀ``: row block ``m`` of
     ``J_c = ∂U/∂ρ`` is block ``m``'s rows of the Hessian of ``ε²_m`` (``J`` is not symmetric),
     and ``M_c`` the covariance of ``U`` from each pixel's score restricted to the parameters
-    owning the pixel (:func:`~methods.symbolic.uncertainty.standard_errors.score_meat` with ``owned``; image and
+    owning the pixel (:func:`~methods.symbolic.uncertainty.sandwich_meat.score_meat` with ``owned``; image and
     Monte Carlo noise, and the registered cameras' pose, as for the joint fit).
 """
 from __future__ import annotations
@@ -54,8 +54,9 @@ from methods.symbolic.survey.vignetting import VIGNETTING_PREFIX, lens_key
 from methods.symbolic.system.view_systems import owned_systems, summed
 from methods.symbolic.fit.solve import SolveResult
 from methods.symbolic.system.cost import ChannelCost
-from methods.symbolic.uncertainty.standard_errors import (correlation_extra, estimating_uncertainty, observable_parameters,
-                                          score_meat)
+from methods.symbolic.uncertainty.standard_errors import correlation_extra, estimating_uncertainty
+from methods.symbolic.uncertainty.sandwich_meat import score_meat
+from methods.symbolic.uncertainty.observability import observable_parameters
 
 log = logging.getLogger(__name__)
 

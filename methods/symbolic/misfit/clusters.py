@@ -1,6 +1,6 @@
 """Clusters of neighbouring pixels for the cluster-robust sandwich (``method.std=cluster``).
 
-The pixel sandwich (:func:`~methods.symbolic.uncertainty.standard_errors.score_meat`) treats every pixel's score
+The pixel sandwich (:func:`~methods.symbolic.uncertainty.sandwich_meat.score_meat`) treats every pixel's score
 as independent. Photographs break that: bilinear resampling of a distorted camera, JPEG's 8x8
 blocks, a misregistered edge or texture the model lacks make neighbouring residuals one error,
 and the pixel sandwich then understates the variance by about the number of pixels one error

@@ -39,7 +39,7 @@ The camera the next pass renders is then known to the registration's precision o
 view's covariance (:attr:`Registration.cov_px`, whether the correction was applied or was within
 its noise) goes to the fit as ``Problem.pose_covariance``, and the std propagates it (the delta
 method: a pose error ``δ`` moves pixel ``p``'s residual by ``G_p δ``, :func:`pose_sensitivity`;
-:func:`~methods.symbolic.uncertainty.standard_errors.score_meat` adds ``T Σ Tᵀ`` to the sandwich's meat). Measured
+:func:`~methods.symbolic.uncertainty.sandwich_meat.score_meat` adds ``T Σ Tᵀ`` to the sandwich's meat). Measured
 on the bundled field and misfit scenes (registrations within 0.006-0.03 px): it adds at most 6 %
 to the meat's diagonal, and the RMS of error/std moved by less than 0.002; the pose's error is
 not what is left of their misfit.
@@ -220,7 +220,7 @@ def pose_sensitivity(observed: np.ndarray, camera: Camera, *, roll: bool = True)
     """``(H·W, C, k)``: how far each pixel's residual moves per pixel of motion of ``camera``'s
     pitch, yaw (and roll), ``∇y · ∂q/∂ω`` at ω = 0 with the observation's gradient (as in
     :func:`register`), row-major as the pixels. With a registration's covariance it gives the
-    pose's share of the estimate's std (:func:`~methods.symbolic.uncertainty.standard_errors.score_meat`)."""
+    pose's share of the estimate's std (:func:`~methods.symbolic.uncertainty.sandwich_meat.score_meat`)."""
     y = _as_hwc(observed)
     H, W = camera.height, camera.width
     grad = np.stack(np.gradient(y, axis=(1, 0)), axis=-1).reshape(H * W, y.shape[2], 2)
@@ -310,7 +310,7 @@ def _motion_std(A: np.ndarray, b: np.ndarray, scores: np.ndarray) -> float:
 
 def pose_terms(problem, views):
     """Per view of ``views`` (``(coefficients, y, ...)`` in the order of ``problem.cameras``) None
-    or ``(G, Σ)`` for :func:`~methods.symbolic.uncertainty.standard_errors.score_meat`, made as each view is
+    or ``(G, Σ)`` for :func:`~methods.symbolic.uncertainty.sandwich_meat.score_meat`, made as each view is
     reached (a megapixel view's ``G`` is 72 MB): the registered cameras' covariance
     (``problem.pose_covariance``, from ``method.align``) and the pixels' sensitivity to it. None
     when no camera was registered."""

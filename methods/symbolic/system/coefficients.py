@@ -70,7 +70,7 @@ class TiledCoefficients:
     coefficients never need to fit in memory at once.
 
     Consumers (:func:`predicted`, :func:`~methods.symbolic.system.view_systems.weighted_system`,
-    :func:`~methods.symbolic.uncertainty.standard_errors.score_meat`) iterate :meth:`blocks` of either class.
+    :func:`~methods.symbolic.uncertainty.sandwich_meat.score_meat`) iterate :meth:`blocks` of either class.
     """
 
     def __init__(self, starts, blocks: list, n_rows: int):
