@@ -92,7 +92,8 @@ def test_exclusion_reasons_by_hand():
     from types import SimpleNamespace
 
     from framework.scene.model import EXCLUSION_REASONS
-    from methods.symbolic.fit.field import LEFT_OUT, _View, exclusion_reasons
+    from methods.symbolic.fit.field import _View, exclusion_reasons
+    from methods.symbolic.misfit.robust_scale import LEFT_OUT
     code = EXCLUSION_REASONS.index
     scene = SimpleNamespace(excluded={"v": np.array([[code("mask"), code("saturated"), 0], [0, 0, 0]], np.uint8)})
     view = _View("v", (2, 3), None, np.zeros((6, 3)), np.array([0, 0, 0, 1, 1, 1.0]), None,

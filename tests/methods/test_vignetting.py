@@ -25,7 +25,7 @@ from framework.scene.model import Camera, Photometry
 from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.trace.monomial_codes import multiset_codes
 from methods.symbolic.system.coefficients import TiledCoefficients, ViewCoefficients
-from methods.symbolic.fit.field import GAIN_MAX, with_gain
+from methods.symbolic.survey.exposure import GAIN_MAX, with_gain
 from methods.symbolic.survey.vignetting import (PROFILE_BOUND, Vignetting, estimate_terms, falloff, pixel_radius,
                                          with_factors)
 

@@ -4,18 +4,13 @@ All four act on the per-pixel coefficients the polynomial pass stored, never on 
 
 Pixel weights
     A view's Gram system is rebuilt from its coefficients with weights ``w_p``
-    (:func:`weighted_system`): the cost becomes ``Σ_p w_p (γ_p·μ - y_p)²``. Weights come from
+    (:func:`~methods.symbolic.system.view_systems.weighted_system`): the cost becomes ``Σ_p w_p (γ_p·μ - y_p)²``. Weights come from
     the scene (0 on masked, saturated, black-clipped pixels and pixels the undistortion left
     empty) times the robust weights.
 
 Per-view exposure (``photometry: exposure: per_view``)
-    A photograph is ``g_{v,c} · L_v(ρ)``: one unknown gain per view and channel multiplies every
-    monomial of the view, so the pixel stays a polynomial, of degree ``N_max + 1``, in the
-    parameters ``(ρ, h)``. Each non-reference view ``v`` gets a parameter ``h_v = g_v / G_MAX``
-    in ``[0, 1]`` (the solver's box; :data:`GAIN_MAX`), and every monomial of its pixels is
-    multiplied by ``h_v`` (:func:`with_gain`): the gains are solved jointly with ρ, exactly,
-    and their standard errors come from the same sandwich as ρ's. The reference view's gains
-    are 1 and fix the scale, which the data cannot (``g·L(ρ)`` = ``(g/s)·L(sρ)`` at first order).
+    One unknown gain per view and channel multiplies every monomial of the view: one more
+    parameter per non-reference view, solved jointly with ρ (:mod:`methods.symbolic.survey.exposure`).
 
 Vignetting (``photometry: vignetting``)
     A known lens falloff multiplies each pixel's coefficients by its factor; an estimated one
@@ -23,23 +18,12 @@ Vignetting (``photometry: vignetting``)
     (:mod:`methods.symbolic.survey.vignetting`).
 
 Robust weights (``method.robust``)
-    Iteratively reweighted least squares: after each solve, the residuals ``r_{p,c}`` of every
-    pixel are divided by a robust scale per view and channel, ``s = max(1.4826·MAD(r),
-    σ_q)`` (``σ_q``: the median quantisation noise of the delivered 8/16-bit encoding, so that
-    quantisation never makes an outlier), widened per pixel by the Monte Carlo variance ``v_{p,c}``
-    of the pixel's own prediction (from its two half-sample estimates,
-    :func:`~methods.symbolic.system.coefficients.predicted_with_variance`), combined over channels into
-    ``t_p = sqrt(mean_c r_{p,c}² / (s_c² + v_{p,c}))``, and the pixel gets the weight ``ψ(t)/t`` of the Cauchy
-    (``1/(1 + (t/2.385)²)``) or Huber (``min(1, 1.345/t)``) loss (95 % Gaussian efficiency
-    each). A car or a pedestrian the model lacks leaves residuals many times the scale and is
-    weighted out; the fit stops when the estimate moves less than ``tol`` between two rounds
-    or after ``iterations`` rounds. Why the pixel's own variance: an unbiased Monte Carlo pass
-    is heavy-tailed (a few pixels drew a rare bright path); measured against the view's scale
-    alone those pixels look like outliers and were weighted out, which biased ρ by up to 15 std
-    on clean linear images (tests/methods/test_consistency.py); against their own variance
-    they are not.
-    With ``method.consistency=auto`` a pixel that two or more other views can be compared with
-    is weighed by the views' disagreement instead (:mod:`methods.symbolic.misfit.consistency`).
+    Iteratively reweighted least squares: after each solve every pixel gets the weight of the
+    Cauchy or Huber loss at its residual, measured against the view's robust scale widened by the
+    pixel's own Monte Carlo variance (:mod:`methods.symbolic.misfit.robust_weights`); the fit
+    stops when the estimate moves less than ``tol`` between two rounds or after ``iterations``
+    rounds. With ``method.consistency=auto`` a pixel that two or more other views can be compared
+    with is weighed by the views' disagreement instead (:mod:`methods.symbolic.misfit.consistency`).
 """
 from __future__ import annotations
 
@@ -47,126 +31,23 @@ import operator
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
 from framework.results import per_channel
 from methods.symbolic.system.basis import MonomialBasis
-from methods.symbolic.trace.monomial_codes import code_digits, encode_digits, merge_codes
+from methods.symbolic.trace.monomial_codes import merge_codes
 from methods.symbolic.fit.fit import Fit, StageClock
 from methods.symbolic.fit.fit_quality import material_fit
 from methods.symbolic.system.view_systems import weighted_system
-from methods.symbolic.options import ROBUST_LOSSES, SymbolicOptions
-from methods.symbolic.misfit.robust_scale import LEFT_OUT, cauchy_weight, pixel_variance, robust_scale
-from methods.symbolic.system.coefficients import TiledCoefficients, ViewCoefficients, predicted, predicted_with_variance
+from methods.symbolic.options import SymbolicOptions
+from methods.symbolic.misfit.robust_scale import LEFT_OUT, pixel_variance
+from methods.symbolic.misfit.robust_weights import robust_weights
+from methods.symbolic.system.coefficients import predicted, predicted_with_variance
 from methods.symbolic.misfit.consistency import MIN_OTHERS, ViewPairs
+from methods.symbolic.survey.exposure import GAIN_MAX, GAIN_PREFIX, gain_guess, with_gain
 from methods.symbolic.survey.illumination import Illumination
 from methods.symbolic.system.emitter_groups import unknown_emitters
 from methods.symbolic.survey.vignetting import Vignetting
 
-#: ``segment_name`` of a view's gain parameter: this prefix, then the view's name
-GAIN_PREFIX = "exposure:"
-#: largest gain representable: h = g / GAIN_MAX lies in the solver's box [0, 1]
-GAIN_MAX = 4.0
-#: Huber tuning constant at 95 % efficiency for Gaussian residuals (Cauchy's: robust_scale.CAUCHY_K)
-HUBER_K = 1.345
-
-
-def with_gain(coeffs, *, n_params: int, max_degree: int, n_total: int, gain: int | None):
-    """A view's coefficients in the basis of ``n_total`` parameters and degree ``max_degree + 1``.
-
-    Parameters
-    ----------
-    coeffs : ViewCoefficients or TiledCoefficients
-        Over ``n_params`` parameters of degree at most ``max_degree`` (multiset codes, base
-        ``n_params + 1``, :mod:`methods.symbolic.system.basis`). Tiled ones are relabelled block by
-        block and held in memory (the field fit reweights them every round).
-    n_params, max_degree : int
-        The pass's ``D`` and ``N_max``.
-    n_total : int
-        ``D`` plus the gain parameters.
-    gain : int or None
-        Index (``>= n_params``) of this view's gain parameter: every monomial is multiplied by it
-        and the coefficients by :data:`GAIN_MAX`; None for the reference view (only relabelled).
-
-    Returns
-    -------
-    ViewCoefficients or TiledCoefficients
-        As ``coeffs``, columns sorted by their new codes.
-    """
-    if isinstance(coeffs, TiledCoefficients):
-        blocks = [with_gain(b, n_params=n_params, max_degree=max_degree, n_total=n_total, gain=gain)
-                  for _, b in coeffs.blocks()]
-        return TiledCoefficients(coeffs.starts, blocks, coeffs.n_rows)
-    digits = code_digits(np.asarray(coeffs.codes, np.int64), n_params, max_degree)
-    degree = (digits > 0).sum(axis=1)
-    wide = np.zeros((len(digits), max_degree + 1), dtype=np.int64)
-    wide[:, :max_degree] = digits
-    scale = 1.0
-    if gain is not None:
-        # the gain's index exceeds every ρ index: appended after the used digits, it keeps them sorted
-        wide[np.arange(len(wide)), degree] = gain + 1
-        scale = GAIN_MAX
-    codes = encode_digits(wide, n_total)
-    order = np.argsort(codes, kind="stable")
-    move = sp.csr_matrix((np.full(len(order), scale), (order, np.arange(len(order)))),
-                         shape=(len(order), len(order)))
-    relabel = lambda mats: None if mats is None else [sp.csr_matrix(m @ move) for m in mats]
-    return ViewCoefficients(relabel(coeffs.a), relabel(coeffs.b), float(coeffs.split), codes[order])
-
-
-def robust_weights(residual: np.ndarray, used: np.ndarray, *, loss: str, floor: np.ndarray | float = 0.0,
-                   variance: np.ndarray | None = None) -> np.ndarray:
-    """``(n,)`` IRLS weights of one view's pixels (module docstring).
-
-    Parameters
-    ----------
-    residual : numpy.ndarray
-        ``(n, C)`` residuals ``prediction - observation``.
-    used : numpy.ndarray
-        ``(n,)`` bool: pixels with a non-zero scene weight (the scale is taken over them).
-    loss : str
-        ``cauchy`` or ``huber`` (``none``: all ones).
-    floor : float or numpy.ndarray
-        Smallest scale per channel (the quantisation noise).
-    variance : numpy.ndarray, optional
-        ``(n, C)`` Monte Carlo variance of each pixel's prediction
-        (:func:`~methods.symbolic.system.coefficients.predicted_with_variance`): a pixel's residual is
-        measured against ``sqrt(scale² + variance)``, so a pixel whose pass drew a rare bright
-        path is not taken for an outlier. Down-weighting those would drop the very samples that
-        keep the estimate unbiased (measured on the tiny scene's clean linear images: the
-        per-pixel weights alone moved ρ by up to 15 std).
-    """
-    n, C = residual.shape
-    if loss == "none" or not used.any():
-        return np.ones(n)
-    r = residual[used]
-    spread = robust_scale(r - np.median(r, axis=0), None if variance is None else variance[used])
-    scale = np.maximum(spread, np.broadcast_to(np.asarray(floor, float), (C,)))
-    scale = np.maximum(scale, 1e-12 * (np.abs(r).max() + 1e-30))
-    spread = scale ** 2 if variance is None else scale ** 2 + variance
-    t = np.sqrt(np.mean(residual ** 2 / spread, axis=1))
-    if loss == "cauchy":
-        return cauchy_weight(t)
-    if loss == "huber":
-        return np.minimum(1.0, HUBER_K / np.maximum(t, 1e-300))
-    raise ValueError(f"robust loss '{loss}' unknown; use one of {', '.join(ROBUST_LOSSES)}")
-
-
-def gain_guess(coeffs, y: np.ndarray, weights: np.ndarray | None, mu: np.ndarray, codes: np.ndarray
-               ) -> np.ndarray:
-    """``(C,)`` least-squares gains ``Σ w m y / Σ w m²`` of a view whose unit-gain image at the
-    guess is ``m`` (the closed form of the gain for a fixed ρ), in ``[0, GAIN_MAX]``."""
-    m = predicted(coeffs, mu, codes)
-    y = np.asarray(y, dtype=np.float64).reshape(m.shape)
-    w = np.ones(len(m)) if weights is None else np.asarray(weights, float)
-    num, den = (w[:, None] * m * y).sum(axis=0), (w[:, None] * m * m).sum(axis=0)
-    g = np.where(den > 0, num / np.where(den > 0, den, 1.0), 1.0)
-    return np.clip(g, 0.0, GAIN_MAX)
-
-
-# ----------------------------------------------------------------------------------------------
-# The fit
-# ----------------------------------------------------------------------------------------------
 
 @dataclass(frozen=True)
 class FieldOptions:
@@ -328,8 +209,8 @@ def field_views(result, problem, params, x0: np.ndarray, options: FieldOptions
     (:meth:`Illumination.parameters`; the pass's coefficients are already over them), per gain
     (``segment`` -1 - j, kernel ``gain``, ``segment_name`` ``exposure:<view>``), then per lens the
     three profile parameters with ``vignetting: estimate`` (:meth:`Vignetting.parameters`); ``x0``
-    with the scales' start (the declared light), each view's gain guess (:func:`gain_guess` at
-    ``x0``, over ``GAIN_MAX``) and the profiles' start (no falloff) appended; the run's
+    with the scales' start (the declared light), each view's gain guess (:func:`~methods.symbolic.survey.exposure.gain_guess`
+    at ``x0``, over ``GAIN_MAX``) and the profiles' start (no falloff) appended; the run's
     :class:`~methods.symbolic.survey.vignetting.Vignetting` and
     :class:`~methods.symbolic.survey.illumination.Illumination` (None without).
     """

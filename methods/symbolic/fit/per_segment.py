@@ -49,7 +49,7 @@ from framework.render.checks import check_memory
 from methods.symbolic.misfit.registration import pose_terms
 from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.fit.fit import Fit
-from methods.symbolic.fit.field import GAIN_PREFIX
+from methods.symbolic.survey.exposure import GAIN_PREFIX
 from methods.symbolic.survey.vignetting import VIGNETTING_PREFIX, lens_key
 from methods.symbolic.system.view_systems import owned_systems, summed
 from methods.symbolic.fit.solve import SolveResult
