@@ -15,7 +15,7 @@ import numpy as np
 
 from framework.executor import make_executor
 from framework.memory import release_freed_memory
-from methods.symbolic.misfit.registration import pose_terms
+from methods.symbolic.misfit.alignment import pose_terms
 from methods.symbolic.misfit.clusters import view_clusters
 from methods.symbolic.fit.fit import Fit, full
 from methods.symbolic.options import SymbolicOptions

@@ -46,7 +46,7 @@ import scipy.sparse as sp
 
 from framework.optim import minimize_sqp, project_feasible
 from framework.render.checks import check_memory
-from methods.symbolic.misfit.registration import pose_terms
+from methods.symbolic.misfit.alignment import pose_terms
 from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.fit.fit import Fit
 from methods.symbolic.survey.exposure import GAIN_PREFIX

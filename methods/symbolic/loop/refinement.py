@@ -6,7 +6,7 @@ equations, or the field path around either (pixel weights, exposure gains, robus
 ``refine`` > 0 the next pass is rendered at the estimate (the tail's linearisation and the kernel
 selection move there) until no weight moved beyond ``refine_tol`` plus what the Monte Carlo
 noise of two passes explains for that many weights (:func:`moved`), or the cap. With ``align`` each view's camera is registered to the prediction before the
-next pass (:mod:`methods.symbolic.misfit.registration`). With ``bias=richardson`` the last pass is also
+next pass (:mod:`methods.symbolic.misfit.alignment`). With ``bias=richardson`` the last pass is also
 fitted at half its spp and the estimate extrapolated (:mod:`methods.symbolic.loop.richardson`).
 """
 from __future__ import annotations
@@ -19,7 +19,7 @@ import numpy as np
 from framework.cache import Cache
 from framework.executor import make_executor
 from methods._common import Trace, segment_groups
-from methods.symbolic.misfit.registration import Alignment
+from methods.symbolic.misfit.alignment import Alignment
 from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.fit.field import FieldOptions, fit_field
 from methods.symbolic.fit.fit import Fit, StageClock, images_at

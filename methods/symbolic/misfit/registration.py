@@ -1,4 +1,4 @@
-"""Views aligned to the model: register an observed image to the prediction at the estimate.
+"""One view aligned to the model: its observed image registered to the prediction at the estimate.
 
 COLMAP poses of a surveyed street are off by a fraction of a pixel; along a misregistered edge
 hundreds of neighbouring residuals share one error, and the fit follows it. Between two passes
@@ -8,7 +8,8 @@ its centre, and the next pass renders the corrected camera.
 
 The model: a camera turned by the rotation ``R`` (``cam_from_world' = R · cam_from_world``, the
 centre fixed) sees through pixel ``p`` what the given camera sees through
-``q(p) = K Rᵀ K⁻¹ p`` (a homography; ``K`` the pinhole's intrinsics). The rotation vector ``ω``
+``q(p) = K Rᵀ K⁻¹ p`` (a homography; ``K`` the pinhole's intrinsics;
+:mod:`methods.symbolic.misfit.turned_camera`). The rotation vector ``ω``
 (about the camera's x, y, z axes: pitch, yaw, roll; roll held at 0 with ``roll=False``)
 minimises ``Σ_p w_p Σ_c (m_c(q(p; ω)) - y_c(p))²`` over the usable pixels (weight ``w`` > 0, off
 the image's outer ring, ``q`` inside the image), ``m`` the prediction (cubic-spline samples), ``y``
@@ -35,15 +36,6 @@ A correction is applied only when
 
 Otherwise the camera is kept and :attr:`Registration.why` says why.
 
-The camera the next pass renders is then known to the registration's precision only: each
-view's covariance (:attr:`Registration.cov_px`, whether the correction was applied or was within
-its noise) goes to the fit as ``Problem.pose_covariance``, and the std propagates it (the delta
-method: a pose error ``δ`` moves pixel ``p``'s residual by ``G_p δ``, :func:`pose_sensitivity`;
-:func:`~methods.symbolic.uncertainty.sandwich_meat.score_meat` adds ``T Σ Tᵀ`` to the sandwich's meat). Measured
-on the bundled field and misfit scenes (registrations within 0.006-0.03 px): it adds at most 6 %
-to the meat's diagonal, and the RMS of error/std moved by less than 0.002; the pose's error is
-not what is left of their misfit.
-
 Limitations: a rotation about the camera centre only (a translation error of the pose shows as
 parallax, which no rotation matches); the registration's precision is that of the pass's Monte
 Carlo prediction (measured on a 64x64 view of the tiny scene, one registration erred by 0.10-0.28
@@ -52,12 +44,12 @@ for about 1.5 times its size at 16 spp (hence the strict level).
 """
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
 from framework.scene.model import Camera
+from methods.symbolic.misfit.turned_camera import centre_shift, pixel_grid, pixel_scale, rotated, warp
 
 #: the Gauss-Newton iterations stop when a step moves the image by less than this (pixels) or
 #: than a tenth of the motion's standard error (bilinear samples make the cost piecewise smooth:
@@ -120,13 +112,6 @@ class Registration:
         return [float(v) for v in np.degrees(self.rotation)]
 
 
-def rotated(camera: Camera, rotation: np.ndarray) -> Camera:
-    """``camera`` turned about its centre by the rotation vector ``rotation`` (camera axes):
-    ``cam_from_world' = R · cam_from_world``."""
-    R = _rotation_matrix(rotation)
-    return dataclasses.replace(camera, cam_from_world=R @ np.asarray(camera.cam_from_world, float))
-
-
 def register(observed: np.ndarray, predicted: np.ndarray, camera: Camera, *, weights: np.ndarray | None = None,
              max_px: float = 3.0, min_px: float = 0.0, roll: bool = True,
              clusters: np.ndarray | None = None) -> Registration:
@@ -180,10 +165,10 @@ def register(observed: np.ndarray, predicted: np.ndarray, camera: Camera, *, wei
     if clusters is not None and np.shape(clusters) != (H * W,):
         raise ValueError(f"clusters of {np.size(clusters)} pixels for a {H}x{W} view")
     n_par = 3 if roll else 2
-    scale = _pixel_scale(camera)[:n_par]                          # radians -> pixels of motion
+    scale = pixel_scale(camera)[:n_par]                          # radians -> pixels of motion
     # (H·W, C, 2) d/dx, d/dy of the observation (central differences): the Jacobian's image gradient
     grad = np.stack(np.gradient(y, axis=(1, 0)), axis=-1).reshape(H * W, y.shape[2], 2)
-    px, yv, m = _pixel_grid(camera), y.reshape(H * W, -1), _spline(m)
+    px, yv, m = pixel_grid(camera), y.reshape(H * W, -1), _spline(m)
     omega, system = np.zeros(3), None
     why, iterations = "accepted", 0
     for iterations in range(1, MAX_ITERATIONS + 1):
@@ -204,8 +189,8 @@ def register(observed: np.ndarray, predicted: np.ndarray, camera: Camera, *, wei
             break
     else:
         why = f"no convergence in {MAX_ITERATIONS} Gauss-Newton iterations"
-    shift = _centre_shift(camera, omega)
-    roll_px = float(abs(omega[2]) * _pixel_scale(camera)[2])
+    shift = centre_shift(camera, omega)
+    roll_px = float(abs(omega[2]) * pixel_scale(camera)[2])
     std, cov = np.nan, None
     if why == "accepted":
         cov = _covariance(*system)
@@ -224,7 +209,7 @@ def pose_sensitivity(observed: np.ndarray, camera: Camera, *, roll: bool = True)
     y = _as_hwc(observed)
     H, W = camera.height, camera.width
     grad = np.stack(np.gradient(y, axis=(1, 0)), axis=-1).reshape(H * W, y.shape[2], 2)
-    _, dq = _warp(camera, np.zeros(3), _pixel_grid(camera), 3 if roll else 2)
+    _, dq = warp(camera, np.zeros(3), pixel_grid(camera), 3 if roll else 2)
     return np.einsum("kcd,kdp->kcp", grad, dq)
 
 
@@ -265,7 +250,7 @@ def _normal_system(m, yv, grad, w, camera: Camera, omega, px, n_par, clusters=No
     erred by 0.27 px rms on a 1 px turn, the observation's by 0.13 px.
     """
     H, W = camera.height, camera.width
-    q, dq = _warp(camera, omega, px, n_par)          # (n, 2) x, y; (n, 2, n_par) per pixel of motion
+    q, dq = warp(camera, omega, px, n_par)          # (n, 2) x, y; (n, 2, n_par) per pixel of motion
     # not the outer ring (one-sided gradients; and pixels flipping in and out of the image at
     # ω = 0, where the centres of the outer ring lie on its border, made the steps cycle)
     ring = (px[:, 0] > 1) & (px[:, 0] < W - 1) & (px[:, 1] > 1) & (px[:, 1] < H - 1)
@@ -308,71 +293,6 @@ def _motion_std(A: np.ndarray, b: np.ndarray, scores: np.ndarray) -> float:
     return float("nan") if cov is None else float(np.sqrt(np.max(np.diag(cov)[:2])))
 
 
-def pose_terms(problem, views):
-    """Per view of ``views`` (``(coefficients, y, ...)`` in the order of ``problem.cameras``) None
-    or ``(G, Σ)`` for :func:`~methods.symbolic.uncertainty.sandwich_meat.score_meat`, made as each view is
-    reached (a megapixel view's ``G`` is 72 MB): the registered cameras' covariance
-    (``problem.pose_covariance``, from ``method.align``) and the pixels' sensitivity to it. None
-    when no camera was registered."""
-    cov = problem.pose_covariance or {}
-    if not any(v is not None for v in cov.values()):
-        return None
-
-    def term(cam, y):
-        sigma = cov.get(cam.name)
-        if sigma is None:
-            return None
-        image = np.asarray(y, float).reshape(cam.height, cam.width, -1)
-        return pose_sensitivity(image, cam, roll=len(sigma) == 3), sigma
-    return (term(cam, y) for cam, (_, y, *_) in zip(problem.cameras, views))
-
-
-# ----------------------------------------------------------------------------------------------
-# Geometry
-# ----------------------------------------------------------------------------------------------
-
-def _rotation_matrix(rotation: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-    return Rotation.from_rotvec(np.asarray(rotation, float)).as_matrix()
-
-
-def _pixel_scale(camera: Camera) -> np.ndarray:
-    """Pixels of motion per radian: ``f`` for pitch and yaw (at the principal point), the half
-    diagonal for roll (at the corner)."""
-    return np.array([camera.f, camera.f, 0.5 * np.hypot(camera.width, camera.height)])
-
-
-def _pixel_grid(camera: Camera) -> np.ndarray:
-    """``(H·W, 2)`` pixel centres (x, y), row-major."""
-    ys, xs = np.mgrid[0:camera.height, 0:camera.width]
-    return np.stack([xs.ravel() + 0.5, ys.ravel() + 0.5], axis=1).astype(float)
-
-
-def _project_back(camera: Camera, omega: np.ndarray, px: np.ndarray) -> np.ndarray:
-    """``q = K Rᵀ K⁻¹ p``: where the given camera sees what the turned one sees through ``px``."""
-    d = np.stack([(px[:, 0] - camera.cx) / camera.f, (px[:, 1] - camera.cy) / camera.f, np.ones(len(px))], axis=1)
-    d = d @ _rotation_matrix(omega)         # rows: Rᵀ d
-    return np.stack([camera.f * d[:, 0] / d[:, 2] + camera.cx, camera.f * d[:, 1] / d[:, 2] + camera.cy], axis=1)
-
-
-def _warp(camera: Camera, omega: np.ndarray, px: np.ndarray, n_par: int) -> tuple[np.ndarray, np.ndarray]:
-    """``q(p; ω)`` and ``∂q/∂ω`` per pixel of motion (central differences, ``(n, 2, n_par)``)."""
-    q = _project_back(camera, omega, px)
-    scale = _pixel_scale(camera)
-    dq = np.empty((len(px), 2, n_par))
-    for j in range(n_par):
-        h = np.zeros(3)
-        h[j] = 1e-4 / scale[j]                 # 1e-4 px of motion
-        dq[:, :, j] = (_project_back(camera, omega + h, px) - _project_back(camera, omega - h, px)) / 2e-4
-    return q, dq
-
-
-def _centre_shift(camera: Camera, omega: np.ndarray) -> np.ndarray:
-    """The motion ``c - q(c)`` of the content at the principal point ``c``."""
-    c = np.array([[camera.cx, camera.cy]])
-    return (c - _project_back(camera, omega, c))[0]
-
-
 # ----------------------------------------------------------------------------------------------
 # Images and algebra
 # ----------------------------------------------------------------------------------------------
@@ -410,99 +330,3 @@ def _inverse(A: np.ndarray) -> np.ndarray | None:
     if not np.isfinite(values).all() or values[-1] <= 0 or values[0] <= 1e-10 * values[-1]:
         return None
     return np.linalg.inv(A)
-
-
-# ----------------------------------------------------------------------------------------------
-# The run's alignment
-# ----------------------------------------------------------------------------------------------
-
-class Alignment:
-    """The views' alignment over the passes of one run (``method.align``): each view's given
-    camera, the registration of every pass and the cameras the next pass renders.
-
-    Parameters
-    ----------
-    cameras : list of Camera
-        The given cameras (the scene's poses).
-    mode : str
-        ``shift`` (pitch and yaw) or ``rotation`` (and roll).
-    max_px : float
-        Largest correction accepted, of one registration and in total from the given camera.
-    min_px : float
-        Smallest correction applied (:func:`register`).
-    """
-
-    def __init__(self, cameras, *, mode: str, max_px: float, min_px: float = 0.0):
-        if mode not in ("shift", "rotation"):
-            raise ValueError(f"alignment mode '{mode}' unknown; use shift or rotation")
-        self.given = {c.name: c for c in cameras}
-        self.mode, self.max_px, self.min_px = mode, float(max_px), float(min_px)
-        self.passes: dict[str, list] = {c.name: [] for c in cameras}
-
-    def update(self, problem, fit, *, before_pass: int):
-        """``problem`` with each view's camera registered to ``fit``'s prediction (its images at the
-        estimate, weighted by its pixel weights); ``before_pass``: the pass that will render them."""
-        predicted = fit.images()
-        weights = fit.pixel_weights or {}
-        clusters = _view_clusters(problem, fit)
-        cameras, covariance = [], {}
-        for cam in problem.cameras:
-            reg = register(problem.observed[cam.name], predicted[cam.name], cam, weights=weights.get(cam.name),
-                           max_px=self.max_px, min_px=self.min_px, roll=self.mode == "rotation",
-                           clusters=clusters.get(cam.name))
-            accepted, why = reg.accepted, reg.why
-            total = correction(self.given[cam.name], reg.camera)["motion_px"]
-            if accepted and total > self.max_px:
-                accepted, why = False, f"the total correction {total:.2f} px is above the bound of {self.max_px:g} px"
-            self.passes[cam.name].append({
-                "pass": int(before_pass), "shift_px": list(reg.shift_px), "rotation_deg": reg.rotation_deg,
-                "std_px": None if not np.isfinite(reg.std_px) else reg.std_px, "iterations": reg.iterations,
-                "accepted": accepted, "why": why})
-            cameras.append(reg.camera if accepted else cam)
-            # the camera the next pass renders is known to the registration's precision, whether
-            # corrected or kept (a correction within its noise)
-            covariance[cam.name] = reg.cov_px
-        return dataclasses.replace(problem, cameras=cameras, pose_covariance=covariance)
-
-    def moved(self) -> bool:
-        """Whether the last registrations corrected a camera: the pass rendered at it is then
-        registered again before the passes stop."""
-        return any(entries and entries[-1]["accepted"] for entries in self.passes.values())
-
-    def report(self, cameras) -> list[dict]:
-        """results.json ``alignment``: per view the total correction from the given camera to
-        its camera in ``cameras`` and every registration (docs/results.md)."""
-        out = []
-        for cam in cameras:
-            total = correction(self.given[cam.name], cam)
-            entries = self.passes[cam.name]
-            out.append({"view": cam.name, "shift_px": total["shift_px"], "rotation_deg": total["rotation_deg"],
-                        "passes": entries, "accepted": bool(entries and entries[-1]["accepted"]),
-                        "why": entries[-1]["why"] if entries else "no refinement pass ran"})
-        return out
-
-
-def _view_clusters(problem, fit) -> dict:
-    """View name -> ``(H·W,)`` cluster ids of the fit's cluster std (its side, each view's segments),
-    so that a registration's covariance counts correlated pixels as the std does; ``{}`` when the
-    fit's std is the pixel sandwich."""
-    side = (fit.clusters or {}).get("side") if fit.std_method == "cluster" else None
-    if not side:
-        return {}
-    from framework.render.mitsuba_scene import segment_maps
-    from methods.symbolic.misfit.clusters import cluster_ids
-    maps = segment_maps(problem.scene, problem.cameras)
-    return {name: cluster_ids(seg, int(side)) for name, seg in maps.items()}
-
-
-def correction(given: Camera, camera: Camera) -> dict:
-    """The rotation from ``given`` to ``camera`` (same centre): ``shift_px`` (the motion at the
-    principal point), ``rotation_deg`` ([pitch, yaw, roll]) and ``motion_px`` (the larger of the
-    shift's length and the roll's motion at the corner)."""
-    from scipy.spatial.transform import Rotation
-    R = np.asarray(camera.cam_from_world, float)[:, :3] @ np.asarray(given.cam_from_world, float)[:, :3].T
-    omega = Rotation.from_matrix(R).as_rotvec()
-    shift = _centre_shift(given, omega)
-    roll_px = abs(omega[2]) * _pixel_scale(given)[2]
-    return {"shift_px": [float(shift[0]), float(shift[1])], "rotation_deg": [float(v) for v in np.degrees(omega)],
-            "motion_px": float(max(np.hypot(*shift), roll_px))}

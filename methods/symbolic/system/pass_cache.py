@@ -121,7 +121,7 @@ def _distortion(cam) -> list | None:
 
 def camera_key(cam) -> list:
     """The camera's pose and pinhole, in the pass's key: a view whose camera was corrected
-    (:mod:`methods.symbolic.misfit.registration`) keeps its name but renders other pixels."""
+    (:mod:`methods.symbolic.misfit.alignment`) keeps its name but renders other pixels."""
     pinhole = [int(cam.width), int(cam.height), float(cam.f), float(cam.cx), float(cam.cy)]
     return pinhole + np.round(np.asarray(cam.cam_from_world, float), 12).ravel().tolist()
 

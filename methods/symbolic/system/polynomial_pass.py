@@ -256,7 +256,7 @@ def render_view_task(task: dict, *, variant: str, threads: int | None = None
 
 def _scene_and_integrator(task: dict, variant: str):
     scene, params = task["scene"], task["parameters"]
-    # the cameras by pose too: a corrected camera (methods.symbolic.misfit.registration) keeps its name
+    # the cameras by pose too: a corrected camera (methods.symbolic.misfit.alignment) keeps its name
     key = (variant, scene.content_hash, scene.root, tuple(c.name for c in task["cameras"]),
            tuple(tuple(camera_key(c)) for c in task["cameras"]), task["spp"],
            task["guesses"].tobytes(), task["prob_floor"], task["max_bounces"], task["tile_pixels"],
