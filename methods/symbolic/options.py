@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from framework.errors import ConfigError
-from framework.kernels import KERNEL_SELECTION
+from framework.brdf_kernels import KERNEL_SELECTION
 from framework.options import choice, either, flag, number, option
 from framework.relight import RelightOptions
 from methods._common import StartOptions

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from factory import ad_and_fd_gradients, edit_scene_yaml, make_problem, make_tiny_scene, mean_difference, run_symbolic
 
-from framework import kernels as K
+from framework import brdf_kernels as K
 from framework.errors import SceneError
 
 GLOSSY = "glossy(0.2)"

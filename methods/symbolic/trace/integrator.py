@@ -25,7 +25,7 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
     r"""Polynomial (a.k.a. "symbolic", paper section 4.2) path tracer for kernel-BRDF scenes.
 
     Every segment ``s`` of the scene has the kernel BRDF ``f_s = Σ_k ρ_{p_k} f_k`` (paper eq. 3-4),
-    a weighted sum of parameterless *unit* kernels ``f_k`` (:mod:`framework.kernels`). A light
+    a weighted sum of parameterless *unit* kernels ``f_k`` (:mod:`framework.brdf_kernels`). A light
     path ``C`` that reflects on kernels ``k_0 .. k_{d-1}`` (parameters ``p_0 .. p_{d-1}``) carries
     ``L(ρ, C) = α ∏_i ρ_{p_i}`` (eq. 7), so each pixel is a polynomial of degree ``<= N_max``
     in ``ρ`` (eq. 8). This integrator estimates the coefficients ``γ`` of that polynomial over

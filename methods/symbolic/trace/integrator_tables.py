@@ -10,7 +10,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from framework import kernels as kernel_registry
+from framework import brdf_kernels as kernel_registry
 from framework.errors import ConfigError
 from methods.symbolic.trace.monomial_codes import check_key_range
 

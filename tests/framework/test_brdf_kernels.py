@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from factory import mean_and_se
 
-from framework import kernels as K
+from framework import brdf_kernels as K
 from framework.render import kernel_bsdf as KB
 
 
