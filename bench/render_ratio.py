@@ -20,9 +20,9 @@ from framework.experiment import prepare
 from framework.render.jit_timing import kernel_split
 from framework.render.mitsuba_scene import MitsubaScene, max_depth_for
 from methods._common import initial_guess, segment_groups
+from methods.symbolic.loop.refinement import solve_system
 from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.system.polynomial_pass import render_view_task, tile_pixels_for, view_task
-from methods.symbolic.loop.refinement import solve_system
 from bench.tables import f, table, yes
 
 

@@ -3,6 +3,13 @@
 One polynomial rendering pass gives every pixel as a polynomial in the kernel weights (eq. 7-8);
 the L2 cost (eq. 6, p = 2) becomes μᵀGμ - 2bᵀμ + yᵀy in the monomials μ, minimised exactly
 (SQP on its exact Hessian by default), with no more rendering.
+
+The method is built in stages, each a sub-package that imports only the stages below it
+(pyproject.toml's import-linter contract), lowest first: ``trace`` (the device's path loop),
+``system`` (the pass and its Gram systems), ``survey`` and ``misfit`` (the survey's unknowns; what
+the model does not explain), ``uncertainty``, ``fit`` (the solves of one pass) and ``loop`` (the
+passes and the result); each ``__init__`` says what enters the stage and what leaves it. The
+options (:mod:`methods.symbolic.options`) are below them all; this module registers the method.
 """
 from __future__ import annotations
 
@@ -17,14 +24,14 @@ from framework.errors import ConfigError
 from framework.options import build
 from framework.registry import Method, MethodResult, register
 from methods._common import Trace, initial_guess
-from methods.symbolic.survey.illumination import check_gauge, nominal, pass_basis
-from methods.symbolic.system.emitter_groups import unknown_emitters
 from methods.symbolic.fit.field import FieldOptions
 from methods.symbolic.fit.fit import images_at
-from methods.symbolic.survey.known import known_guess, warn_unseen
-from methods.symbolic.options import SolverOptions, SymbolicOptions
 from methods.symbolic.loop.outputs import method_result
 from methods.symbolic.loop.refinement import render_pass, run_passes
+from methods.symbolic.options import SolverOptions, SymbolicOptions
+from methods.symbolic.survey.illumination import check_gauge, nominal, pass_basis
+from methods.symbolic.survey.known import known_guess, warn_unseen
+from methods.symbolic.system.emitter_groups import unknown_emitters
 
 
 @register("symbolic")
@@ -50,7 +57,7 @@ class SymbolicMethod(Method):
     ``render.spp``, ``render.max_bounces`` (N_max), ``render.tail_bounces``, ``seed``,
     ``executor`` and ``cache.dir`` of the run.
 
-    Uncertainty (:mod:`methods.symbolic.uncertainty.standard_errors`): parameters no pixel depends on are
+    Uncertainty (:mod:`methods.symbolic.uncertainty`): parameters no pixel depends on are
     ``observable`` False (estimate and std NaN) and left out of the solve; ``extras`` holds the
     formula of ``std`` (``std_method``), the correlation of the observable parameters, and which
     parameters are ill-determined (std above 0.05 or NaN); docs/results.md lists every extra.

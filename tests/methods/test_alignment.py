@@ -21,9 +21,9 @@ import pytest
 from factory import make_tiny_scene, method_config, run_symbolic
 from framework.errors import ConfigError
 from framework.scene.model import Camera
+from methods.symbolic.misfit.alignment import Alignment
 from methods.symbolic.misfit.registration import register
 from methods.symbolic.misfit.turned_camera import correction, rotated
-from methods.symbolic.misfit.alignment import Alignment
 
 
 # ------------------------------------------------------------------------------------------------

@@ -8,14 +8,14 @@ import pytest
 import scipy.sparse as sp
 from scipy.ndimage import uniform_filter
 
-from methods.symbolic.system.basis import MonomialBasis
-from methods.symbolic.trace.monomial_codes import all_codes
 from methods.symbolic.misfit.clusters import (CORRELATION_FLOOR, cluster_ids, correlation_length, cr1_factor,
                                        side_for)
+from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.system.coefficients import ViewCoefficients
 from methods.symbolic.system.view_systems import weighted_system
-from methods.symbolic.uncertainty.standard_errors import parameter_uncertainty
+from methods.symbolic.trace.monomial_codes import all_codes
 from methods.symbolic.uncertainty.sandwich_meat import score_meat
+from methods.symbolic.uncertainty.standard_errors import parameter_uncertainty
 
 SIZE, TRUTH, SIGMA = 64, 0.4, 0.02
 

@@ -8,10 +8,10 @@ import pytest
 from factory import run_method, run_symbolic, tiny_problem, view_systems
 from framework.errors import ConfigError
 from framework.scene.model import Photometry
-from methods.symbolic.system.view_systems import weighted_system
 from methods.symbolic.misfit.robust_weights import robust_weights
 from methods.symbolic.survey.exposure import GAIN_MAX, with_gain
 from methods.symbolic.system.coefficients import ViewCoefficients
+from methods.symbolic.system.view_systems import weighted_system
 
 GAINS = np.array([1.5, 0.8, 1.2])      # view_1's gains per channel; view_0 is the reference
 

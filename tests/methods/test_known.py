@@ -10,11 +10,11 @@ import scipy.sparse as sp
 from factory import compose_config, edit_scene_yaml, make_tiny_scene, quad, run_method, tiny_problem
 from framework.errors import ConfigError
 from framework.scene.model import Photometry
+from methods.symbolic.survey.known import Substitution, known_guess
 from methods.symbolic.system.basis import MonomialBasis
-from methods.symbolic.trace.monomial_codes import all_codes
 from methods.symbolic.system.coefficients import ViewCoefficients
 from methods.symbolic.system.gram import GramSystem
-from methods.symbolic.survey.known import Substitution, known_guess
+from methods.symbolic.trace.monomial_codes import all_codes
 
 GAINS = np.array([1.5, 0.8, 1.2])      # view_1's gains per channel; view_0 is the reference
 

@@ -10,11 +10,11 @@ from scipy.optimize import fsolve
 from factory import run_symbolic, small_copy, tiny_problem
 from framework.errors import ConfigError
 from framework.scene.model import Parameter, Photometry
-from methods.symbolic.system.basis import MonomialBasis
-from methods.symbolic.system.view_systems import owned_systems, weighted_system
 from methods.symbolic.fit.per_segment import estimating_jacobian, ownership, parameter_blocks, solve_blocks
+from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.system.coefficients import ViewCoefficients
 from methods.symbolic.system.cost import ChannelCost, hessian
+from methods.symbolic.system.view_systems import owned_systems, weighted_system
 from methods.symbolic.uncertainty.standard_errors import estimating_uncertainty, parameter_uncertainty
 
 # Two segments, two parameters, N_max = 2: monomials 1, ρ0, ρ1, ρ0², ρ0ρ1, ρ1² (codes 0 1 2 4 7 8).

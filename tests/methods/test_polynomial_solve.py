@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 
 from framework.errors import ConfigError
-from methods.symbolic.system.basis import MonomialBasis
-from methods.symbolic.system.gram import GramSystem
 from methods.symbolic.fit.solve import solve_polynomial
+from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.system.cost import channel_cost_grad, hessian
+from methods.symbolic.system.gram import GramSystem
 
 
 def _system(rho_true, seed=0, n=400, N=3):

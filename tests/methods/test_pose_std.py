@@ -12,11 +12,11 @@ import pytest
 import scipy.sparse as sp
 
 from methods.symbolic.system.basis import MonomialBasis
-from methods.symbolic.trace.monomial_codes import all_codes
 from methods.symbolic.system.coefficients import ViewCoefficients
 from methods.symbolic.system.view_systems import weighted_system
-from methods.symbolic.uncertainty.standard_errors import parameter_uncertainty
+from methods.symbolic.trace.monomial_codes import all_codes
 from methods.symbolic.uncertainty.sandwich_meat import score_meat
+from methods.symbolic.uncertainty.standard_errors import parameter_uncertainty
 
 SIZE, TRUTH, SIGMA, POSE_STD = 64, 0.4, 0.02, 0.3
 

@@ -7,12 +7,12 @@ from factory import make_problem, make_tiny_scene, method_config
 
 from framework.errors import ConfigError
 from framework.registry import get_method
-from methods.symbolic.system.coefficients import PassResult, TiledCoefficients, ViewCoefficients
 from methods.symbolic.fit.fit import Fit
-from methods.symbolic.system.view_systems import weighted_system
-from methods.symbolic.options import SymbolicOptions
-from methods.symbolic.system.pass_cache import _pack, _unpack
 from methods.symbolic.loop.richardson import extrapolated
+from methods.symbolic.options import SymbolicOptions
+from methods.symbolic.system.coefficients import PassResult, TiledCoefficients, ViewCoefficients
+from methods.symbolic.system.pass_cache import _pack, _unpack
+from methods.symbolic.system.view_systems import weighted_system
 
 
 def _fit(estimate) -> Fit:

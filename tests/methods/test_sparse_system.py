@@ -10,10 +10,10 @@ from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.trace.monomial_codes import check_key_range
 import scipy.sparse as sp
 
-from methods.symbolic.system.gram import GramSystem
-from methods.symbolic.system.upper_triangle import principal, sandwich, symmetric_dot
 from methods.symbolic.fit.solve import check_solve_memory, solve_polynomial
 from methods.symbolic.system.cost import ChannelCost
+from methods.symbolic.system.gram import GramSystem
+from methods.symbolic.system.upper_triangle import principal, sandwich, symmetric_dot
 
 
 def _exponents(D: int, N: int) -> list[tuple[int, ...]]:

@@ -32,10 +32,10 @@ from factory import make_problem, make_tiny_scene, method_config
 
 from framework.registry import get_method
 from methods.symbolic.system.basis import MonomialBasis
-from methods.symbolic.system.gram import GramSystem
 from methods.symbolic.system.coefficients import ViewCoefficients
-from methods.symbolic.uncertainty.standard_errors import ill_determined, parameter_uncertainty
+from methods.symbolic.system.gram import GramSystem
 from methods.symbolic.uncertainty.sandwich_meat import score_meat
+from methods.symbolic.uncertainty.standard_errors import ill_determined, parameter_uncertainty
 
 SEEDS = range(20)
 

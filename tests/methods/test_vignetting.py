@@ -22,12 +22,12 @@ from factory import compose_config, edit_scene_yaml, make_problem, make_tiny_sce
 from framework.errors import ConfigError
 from framework.observe import render_references
 from framework.scene.model import Camera, Photometry
-from methods.symbolic.system.basis import MonomialBasis
-from methods.symbolic.trace.monomial_codes import multiset_codes
-from methods.symbolic.system.coefficients import TiledCoefficients, ViewCoefficients
 from methods.symbolic.survey.exposure import GAIN_MAX, with_gain
 from methods.symbolic.survey.vignetting import (PROFILE_BOUND, Vignetting, estimate_terms, falloff, pixel_radius,
                                          with_factors)
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.system.coefficients import TiledCoefficients, ViewCoefficients
+from methods.symbolic.trace.monomial_codes import multiset_codes
 
 PROFILE = (-0.3, 0.0, 0.0)          # the lens of the scene tests: 1 - 0.3 r²
 

@@ -33,20 +33,20 @@ from dataclasses import dataclass
 import numpy as np
 
 from framework.results import per_channel
-from methods.symbolic.system.basis import MonomialBasis
-from methods.symbolic.trace.monomial_codes import merge_codes
 from methods.symbolic.fit.fit import Fit, StageClock
 from methods.symbolic.fit.fit_quality import material_fit
-from methods.symbolic.system.view_systems import weighted_system
-from methods.symbolic.options import SymbolicOptions
+from methods.symbolic.misfit.consistency import MIN_OTHERS, ViewPairs
 from methods.symbolic.misfit.robust_scale import LEFT_OUT, pixel_variance
 from methods.symbolic.misfit.robust_weights import robust_weights
-from methods.symbolic.system.coefficients import predicted, predicted_with_variance
-from methods.symbolic.misfit.consistency import MIN_OTHERS, ViewPairs
+from methods.symbolic.options import SymbolicOptions
 from methods.symbolic.survey.exposure import GAIN_MAX, GAIN_PREFIX, gain_guess, with_gain
 from methods.symbolic.survey.illumination import Illumination
-from methods.symbolic.system.emitter_groups import unknown_emitters
 from methods.symbolic.survey.vignetting import Vignetting
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.system.coefficients import predicted, predicted_with_variance
+from methods.symbolic.system.emitter_groups import unknown_emitters
+from methods.symbolic.system.view_systems import weighted_system
+from methods.symbolic.trace.monomial_codes import merge_codes
 
 
 @dataclass(frozen=True)

@@ -28,8 +28,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from methods.symbolic.system.coefficients import predicted_with_variance
 from methods.symbolic.misfit.robust_scale import LEFT_OUT, pixel_variance, robust_scale
+from methods.symbolic.system.coefficients import predicted_with_variance
 
 #: share of a material's usable pixels the robust weights may leave out (over all views) before
 #: its fit counts as poor

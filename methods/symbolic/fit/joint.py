@@ -15,14 +15,14 @@ import numpy as np
 
 from framework.executor import make_executor
 from framework.memory import release_freed_memory
+from methods.symbolic.fit.fit import Fit, full
+from methods.symbolic.fit.solve import check_solve_memory, solve_polynomial
 from methods.symbolic.misfit.alignment import pose_terms
 from methods.symbolic.misfit.clusters import view_clusters
-from methods.symbolic.fit.fit import Fit, full
 from methods.symbolic.options import SymbolicOptions
-from methods.symbolic.fit.solve import check_solve_memory, solve_polynomial
-from methods.symbolic.uncertainty.standard_errors import correlation_extra, parameter_uncertainty
-from methods.symbolic.uncertainty.sandwich_meat import score_meat
 from methods.symbolic.uncertainty.observability import observable_parameters, restrict_system
+from methods.symbolic.uncertainty.sandwich_meat import score_meat
+from methods.symbolic.uncertainty.standard_errors import correlation_extra, parameter_uncertainty
 
 
 def fit_joint(system, basis, params, x0: np.ndarray, problem, options: SymbolicOptions, *, views, groups) -> Fit:

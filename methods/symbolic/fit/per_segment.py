@@ -46,17 +46,17 @@ import scipy.sparse as sp
 
 from framework.optim import minimize_sqp, project_feasible
 from framework.render.checks import check_memory
-from methods.symbolic.misfit.alignment import pose_terms
-from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.fit.fit import Fit
+from methods.symbolic.fit.solve import SolveResult
+from methods.symbolic.misfit.alignment import pose_terms
 from methods.symbolic.survey.exposure import GAIN_PREFIX
 from methods.symbolic.survey.vignetting import VIGNETTING_PREFIX, lens_key
-from methods.symbolic.system.view_systems import owned_systems, summed
-from methods.symbolic.fit.solve import SolveResult
+from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.system.cost import ChannelCost
-from methods.symbolic.uncertainty.standard_errors import correlation_extra, estimating_uncertainty
-from methods.symbolic.uncertainty.sandwich_meat import score_meat
+from methods.symbolic.system.view_systems import owned_systems, summed
 from methods.symbolic.uncertainty.observability import observable_parameters
+from methods.symbolic.uncertainty.sandwich_meat import score_meat
+from methods.symbolic.uncertainty.standard_errors import correlation_extra, estimating_uncertainty
 
 log = logging.getLogger(__name__)
 

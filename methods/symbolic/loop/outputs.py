@@ -11,8 +11,8 @@ from framework.registry import MethodResult
 from framework.relight import relight_outputs
 from methods._common import Trace
 from methods.symbolic.fit.fit_quality import poor_parameters
-from methods.symbolic.options import SymbolicOptions
 from methods.symbolic.loop.refinement import Passes
+from methods.symbolic.options import SymbolicOptions
 from methods.symbolic.uncertainty.standard_errors import ill_determined
 
 def method_result(passes: Passes, problem, params, guess: np.ndarray, options: SymbolicOptions, *,

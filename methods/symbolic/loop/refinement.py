@@ -19,16 +19,16 @@ import numpy as np
 from framework.cache import Cache
 from framework.executor import make_executor
 from methods._common import Trace, segment_groups
-from methods.symbolic.misfit.alignment import Alignment
-from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.fit.field import FieldOptions, fit_field
 from methods.symbolic.fit.fit import Fit, StageClock, images_at
 from methods.symbolic.fit.joint import fit_joint
-from methods.symbolic.fit.with_known import fit_with_known
-from methods.symbolic.options import SymbolicOptions
 from methods.symbolic.fit.per_segment import fit_per_segment
-from methods.symbolic.system.polynomial_pass import polynomial_pass
+from methods.symbolic.fit.with_known import fit_with_known
 from methods.symbolic.loop.richardson import extrapolated
+from methods.symbolic.misfit.alignment import Alignment
+from methods.symbolic.options import SymbolicOptions
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.system.polynomial_pass import polynomial_pass
 
 
 @dataclasses.dataclass

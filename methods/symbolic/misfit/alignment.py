@@ -61,7 +61,7 @@ class Alignment:
     max_px : float
         Largest correction accepted, of one registration and in total from the given camera.
     min_px : float
-        Smallest correction applied (:func:`register`).
+        Smallest correction applied (:func:`~methods.symbolic.misfit.registration.register`).
     """
 
     def __init__(self, cameras, *, mode: str, max_px: float, min_px: float = 0.0):

@@ -51,10 +51,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from methods.symbolic.system.basis import MonomialBasis
-from methods.symbolic.trace.monomial_codes import code_digits, encode_digits, merge_codes
 from methods.symbolic.system.coefficients import ViewCoefficients
 from methods.symbolic.system.gram import GramSystem
 from methods.symbolic.system.upper_triangle import sandwich
+from methods.symbolic.trace.monomial_codes import code_digits, encode_digits, merge_codes
 
 log = logging.getLogger(__name__)
 

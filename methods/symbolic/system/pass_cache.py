@@ -14,9 +14,9 @@ import scipy.sparse as sp
 
 from framework.cache import Cache
 from methods.symbolic.system.coefficients import TiledCoefficients, ViewCoefficients
+from methods.symbolic.system.emitter_groups import unknown_emitters
 from methods.symbolic.system.gram import GramSystem
 from methods.symbolic.system.view_systems import weighted_system
-from methods.symbolic.system.emitter_groups import unknown_emitters
 
 
 def empty_system(C: int) -> GramSystem:

@@ -27,15 +27,15 @@ from framework.memory import release_freed_memory
 from framework.observe import inversion_seed
 from framework.render.checks import MiB, check_memory
 from framework.render.mitsuba_scene import MitsubaScene
-from methods.symbolic.trace.monomial_codes import check_key_range
 from methods.symbolic.system.coefficients import PassResult, TiledCoefficients, ViewCoefficients
-from methods.symbolic.trace.events import event_slots
-from methods.symbolic.system.gram import GramSystem
-from methods.symbolic.system.view_systems import weighted_system
 from methods.symbolic.system.emitter_groups import split_environments, unknown_emitters
-from methods.symbolic.trace.integrator import integrator_class
+from methods.symbolic.system.gram import GramSystem
 from methods.symbolic.system.pass_cache import (TileWriter, cached_view, camera_key, empty_system, footprint_kernel,
                                          observed_pixels, store_tile, view_key)
+from methods.symbolic.system.view_systems import weighted_system
+from methods.symbolic.trace.events import event_slots
+from methods.symbolic.trace.integrator import integrator_class
+from methods.symbolic.trace.monomial_codes import check_key_range
 
 log = logging.getLogger(__name__)
 BYTES_COPIES = 3   # an event buffer lives in Dr.Jit, compacted on the device, and in numpy

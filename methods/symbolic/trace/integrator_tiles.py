@@ -8,9 +8,9 @@ import mitsuba as mi
 import numpy as np
 
 from framework.errors import ConfigError
-from methods.symbolic.trace.monomial_codes import emitter_columns, merge_codes, monomial_columns
 from methods.symbolic.trace.camera_rays import TileFootprint, camera_rays, pixel_window, tile_sampler
 from methods.symbolic.trace.events import EventBuffer, lane_pixel, reindex_columns, stack_tiles, tile_matrices
+from methods.symbolic.trace.monomial_codes import emitter_columns, merge_codes, monomial_columns
 from methods.symbolic.trace.pixel_sums import pixel_sums
 
 
