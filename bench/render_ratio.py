@@ -4,7 +4,8 @@ Both at the same spp on the same 200x200 view; ``path`` with ``max_depth = N_max
 the box filter (as the pass): the paper's pass (``method=symbolic_paper``, T = 0) at every spp,
 and the default pass (``method=symbolic``, T = 4) at one. The pass is timed as the method runs it
 (:func:`methods.symbolic.system.polynomial_pass.render_view_task`: coefficients, Gram accumulation,
-sparse coefficients), and the solve (:func:`methods.symbolic.loop.refinement.solve_system`: the solver and the uncertainty)
+sparse coefficients), and the solve (:func:`methods.symbolic.loop.refinement.solve_system`: the solver and
+the uncertainty)
 on its Gram system; each the median of ``reps`` runs after a warm-up (the solve's stages and
 evaluation count: of the last run).
 """

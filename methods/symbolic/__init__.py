@@ -78,7 +78,8 @@ class SymbolicMethod(Method):
 
     Options = SymbolicOptions
     #: a segment's ``known`` weights are substituted in the solve (:mod:`methods.symbolic.survey.known`);
-    #: scene.yaml's ``photometry: vignetting`` is applied or estimated (:mod:`methods.symbolic.survey.vignetting`)
+    #: scene.yaml's ``photometry: vignetting`` is applied or estimated
+    #: (:mod:`methods.symbolic.survey.vignetting`)
     #: an emitter's ``scale: unknown`` is estimated with ρ (:mod:`methods.symbolic.survey.illumination`)
     survey = frozenset({"known", "vignetting", "scale"})
     kernels: tuple[str, ...] | None = None     # fixed by subclasses (lambertian_prior)

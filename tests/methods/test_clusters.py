@@ -8,8 +8,7 @@ import pytest
 import scipy.sparse as sp
 from scipy.ndimage import uniform_filter
 
-from methods.symbolic.misfit.clusters import (CORRELATION_FLOOR, cluster_ids, correlation_length, cr1_factor,
-                                       side_for)
+from methods.symbolic.misfit.clusters import CORRELATION_FLOOR, cluster_ids, correlation_length, cr1_factor, side_for
 from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.system.coefficients import ViewCoefficients
 from methods.symbolic.system.view_systems import weighted_system

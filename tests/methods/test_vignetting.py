@@ -24,7 +24,7 @@ from framework.observe import render_references
 from framework.scene.model import Camera, Photometry
 from methods.symbolic.survey.exposure import GAIN_MAX, with_gain
 from methods.symbolic.survey.vignetting import (PROFILE_BOUND, Vignetting, estimate_terms, falloff, pixel_radius,
-                                         with_factors)
+                                                with_factors)
 from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.system.coefficients import TiledCoefficients, ViewCoefficients
 from methods.symbolic.trace.monomial_codes import multiset_codes

@@ -4,7 +4,8 @@ All four act on the per-pixel coefficients the polynomial pass stored, never on 
 
 Pixel weights
     A view's Gram system is rebuilt from its coefficients with weights ``w_p``
-    (:func:`~methods.symbolic.system.view_systems.weighted_system`): the cost becomes ``Σ_p w_p (γ_p·μ - y_p)²``. Weights come from
+    (:func:`~methods.symbolic.system.view_systems.weighted_system`): the cost becomes
+    ``Σ_p w_p (γ_p·μ - y_p)²``. Weights come from
     the scene (0 on masked, saturated, black-clipped pixels and pixels the undistortion left
     empty) times the robust weights.
 
@@ -209,7 +210,8 @@ def field_views(result, problem, params, x0: np.ndarray, options: FieldOptions
     (:meth:`Illumination.parameters`; the pass's coefficients are already over them), per gain
     (``segment`` -1 - j, kernel ``gain``, ``segment_name`` ``exposure:<view>``), then per lens the
     three profile parameters with ``vignetting: estimate`` (:meth:`Vignetting.parameters`); ``x0``
-    with the scales' start (the declared light), each view's gain guess (:func:`~methods.symbolic.survey.exposure.gain_guess`
+    with the scales' start (the declared light), each view's gain guess
+    (:func:`~methods.symbolic.survey.exposure.gain_guess`
     at ``x0``, over ``GAIN_MAX``) and the profiles' start (no falloff) appended; the run's
     :class:`~methods.symbolic.survey.vignetting.Vignetting` and
     :class:`~methods.symbolic.survey.illumination.Illumination` (None without).

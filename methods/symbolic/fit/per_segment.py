@@ -94,7 +94,8 @@ def parameter_blocks(params, groups: list[list[int]]) -> list[list[int]]:
 
 def block_systems(views, owned: list[sp.csr_matrix], blocks: list[list[int]]) -> list:
     """Per block the Gram system of its pixels over every view (None where it owns none); a
-    view's blocks from one pass over its coefficients (:func:`~methods.symbolic.system.view_systems.owned_systems`)."""
+    view's blocks from one pass over its coefficients
+    (:func:`~methods.symbolic.system.view_systems.owned_systems`)."""
     systems: list = [None] * len(blocks)
     for (coeffs, y, *weights), own in zip(views, owned):
         mask = own[:, [b[0] for b in blocks]].toarray() > 0      # a block's kernels own the same pixels

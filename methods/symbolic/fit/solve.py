@@ -147,7 +147,8 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
     precondition : bool
         Run nlopt in coordinates where the cost's Hessian is about the identity
         (:func:`framework.optim.minimize`'s ``metric``, from
-        :meth:`~methods.symbolic.system.cost.ChannelCost.metric`): at ``x0`` for the first start, at its minimum for the others. SLSQP then needs
+        :meth:`~methods.symbolic.system.cost.ChannelCost.metric`): at ``x0`` for the first start, at its
+        minimum for the others. SLSQP then needs
         about 10-30 evaluations per start instead of 50-70 (the Hessian of a street's cost
         spans orders of magnitude, which BFGS otherwise learns one evaluation at a time).
     seed : int

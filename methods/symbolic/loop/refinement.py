@@ -1,6 +1,7 @@
 """The passes of ``method=symbolic``: a polynomial pass, its fit, and further passes at the estimate.
 
-Each pass renders every view once at guesses ``x0`` (:func:`~methods.symbolic.system.polynomial_pass.polynomial_pass`)
+Each pass renders every view once at guesses ``x0``
+(:func:`~methods.symbolic.system.polynomial_pass.polynomial_pass`)
 and is solved without more rendering: through the joint cost, the per-segment estimating
 equations, or the field path around either (pixel weights, exposure gains, robust rounds). With
 ``refine`` > 0 the next pass is rendered at the estimate (the tail's linearisation and the kernel

@@ -26,7 +26,8 @@ class MonomialBasis:
         ``D`` and ``N_max``.
     codes : numpy.ndarray, optional
         Sorted, unique multiset codes (:mod:`~methods.symbolic.trace.monomial_codes`) of the
-        monomials; default all (:func:`~methods.symbolic.trace.monomial_codes.all_codes`). Code 0 (the constant, emitters seen directly) is always added.
+        monomials; default all (:func:`~methods.symbolic.trace.monomial_codes.all_codes`). Code 0 (the
+        constant, emitters seen directly) is always added.
 
     Attributes
     ----------

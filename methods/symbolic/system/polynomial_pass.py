@@ -31,7 +31,7 @@ from methods.symbolic.system.coefficients import PassResult, TiledCoefficients, 
 from methods.symbolic.system.emitter_groups import split_environments, unknown_emitters
 from methods.symbolic.system.gram import GramSystem
 from methods.symbolic.system.pass_cache import (TileWriter, cached_view, camera_key, empty_system, footprint_kernel,
-                                         observed_pixels, store_tile, view_key)
+                                                observed_pixels, store_tile, view_key)
 from methods.symbolic.system.view_systems import weighted_system
 from methods.symbolic.trace.events import event_slots
 from methods.symbolic.trace.integrator import integrator_class
@@ -140,7 +140,8 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
     -------
     PassResult
         Its ``system`` is over the monomials that occur in some view (``system.codes``): over ρ,
-        and with unknown emitter scales over ``(ρ, s)`` (:func:`~methods.symbolic.survey.illumination.pass_basis`).
+        and with unknown emitter scales over ``(ρ, s)``
+        (:func:`~methods.symbolic.survey.illumination.pass_basis`).
     """
     G, n_parts = len(unknown_emitters(problem.scene)), len(split_environments(problem.scene))
     check_key_range(len(parameters), max_bounces, G)

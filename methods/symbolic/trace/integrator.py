@@ -68,7 +68,8 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
       light is linear in each emitter's scale ``s_g``, so the contributions of an emitter of group
       ``g >= 1`` (seen from the camera, reached by next-event estimation or hit) go to key
       ``κ + g (D + 1)^N_max``, each vertex's two contributions in their own slots; the host
-      appends the digit of ``s_g`` to the monomial (:func:`~methods.symbolic.trace.monomial_codes.emitter_columns`):
+      appends the digit of ``s_g`` to the monomial
+      (:func:`~methods.symbolic.trace.monomial_codes.emitter_columns`):
       a polynomial of degree ``N_max + 1`` over ``(ρ, s)``, exact in ``s``. Several
       environments (say sunsky skies of turbidity 2, 4 and 6 whose non-negative combination
       stands for a sky of unknown turbidity) are one environment to Mitsuba, their sum, which
@@ -84,9 +85,10 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
     sparse matrices, so memory is ``tile_pixels × spp × (N_max + T + 1)``
     events, never pixels × N_e.
 
-    Kernel selection probabilities (:func:`~methods.symbolic.trace.integrator_tables.selection_probabilities`): ``q_k ∝ mean_c guess[p_k, c]``,
-    floored so that every kernel keeps ``q_k >= min(prob_floor, 1/K)`` (``K`` kernels on the
-    segment), renormalised. The estimate is unbiased for *any* ρ whatever the guesses; guesses
+    Kernel selection probabilities
+    (:func:`~methods.symbolic.trace.integrator_tables.selection_probabilities`):
+    ``q_k ∝ mean_c guess[p_k, c]``, floored so that every kernel keeps
+    ``q_k >= min(prob_floor, 1/K)`` (``K`` kernels on the segment), renormalised. The estimate is unbiased for *any* ρ whatever the guesses; guesses
     near ρ reduce the variance.
 
     Parameters (``mi.load_dict`` / ``mi.Properties``)

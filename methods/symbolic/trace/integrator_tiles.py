@@ -21,7 +21,8 @@ class CoefficientTiles:
     Each tile's events are summed per pixel and monomial on the device
     (:func:`~methods.symbolic.trace.pixel_sums.pixel_sums`); where the key range is too wide for its key
     table, or with :attr:`device_sums` False, they are compacted and summed on the host
-    (:meth:`~methods.symbolic.trace.events.EventBuffer.compact`, :func:`~methods.symbolic.trace.events.tile_matrices`).
+    (:meth:`~methods.symbolic.trace.events.EventBuffer.compact`,
+    :func:`~methods.symbolic.trace.events.tile_matrices`).
     """
 
     #: sum each tile's events on the device (False: on the host; both give the same coefficients)
@@ -84,7 +85,8 @@ class CoefficientTiles:
         :meth:`coefficients_sparse`, with ``spp >= 2``; with ``quarters`` (``spp`` a multiple of
         4) also ``A₁`` and ``B₁``, the estimates from the first half of ``A``'s and of ``B``'s
         samples: ``(codes, A, B, Γ, A₁, B₁)``, four independent quarter estimates
-        ``A₁, 2A - A₁, B₁, 2B - B₁`` of the same render (:func:`~methods.symbolic.trace.events.tile_matrices`).
+        ``A₁, 2A - A₁, B₁, 2B - B₁`` of the same render
+        (:func:`~methods.symbolic.trace.events.tile_matrices`).
         """
         if int(spp) < 2:
             raise ConfigError(f"spp={spp}: two independent halves need spp >= 2")

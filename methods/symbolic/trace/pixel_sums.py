@@ -58,7 +58,8 @@ def pixel_sums(events, *, n: int, spp: int, split: int, quarters: bool, span: in
     -------
     tuple or None
         None when the key range has no table or the cells overflow 32 bits (the caller sums on the
-        host); else ``(codes, mats)``, ``mats`` as :func:`~methods.symbolic.trace.events.tile_matrices` returns them:
+        host); else ``(codes, mats)``, ``mats`` as :func:`~methods.symbolic.trace.events.tile_matrices`
+        returns them:
         ``(Γ,)``, ``(A, B, Γ)`` or ``(A, B, Γ, A₁, B₁)``, each a list of ``C`` canonical float64
         ``csr_matrix`` of shape ``(n, len(codes))``.
     """

@@ -58,7 +58,8 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
         :class:`~methods.symbolic.system.coefficients.TiledCoefficients` or ``ViewCoefficients``),
         and the ``(n, C)`` observed pixels.
     columns : numpy.ndarray
-        Index in ``codes`` of each monomial of ``basis`` (:func:`~methods.symbolic.uncertainty.observability.restrict_system`); the other
+        Index in ``codes`` of each monomial of ``basis``
+        (:func:`~methods.symbolic.uncertainty.observability.restrict_system`); the other
         columns are weighted 0.
     codes : numpy.ndarray
         Sorted codes of the system the views were summed into.

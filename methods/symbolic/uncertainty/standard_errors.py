@@ -10,7 +10,8 @@ Standard errors: sandwich (default, ``method.std=sandwich``)
     The estimate solves ``g(ρ̂) = 0`` for the gradient ``g = Σ_p s_p`` of the cost, a sum of
     independent per-pixel terms (each pixel has its own samples and its own observation noise),
     so ``ρ̂ - ρ ≈ -H_c⁻¹ g(ρ)`` and ``Cov_c ≈ H_c⁻¹ M_c H_c⁻¹`` with ``M_c = Cov(g)`` estimated
-    by ``Σ_p (s_p - s̄)(s_p - s̄)ᵀ`` (:func:`~methods.symbolic.uncertainty.sandwich_meat.score_meat`; Huber/White). With the cross Gram,
+    by ``Σ_p (s_p - s̄)(s_p - s̄)ᵀ`` (:func:`~methods.symbolic.uncertainty.sandwich_meat.score_meat`;
+    Huber/White). With the cross Gram,
     ``s_p = Jᵀ[a_p(b_pᵀμ̂ - y_p) + b_p(a_pᵀμ̂ - y_p)]`` from the two independent half-sample
     coefficient estimates ``a_p, b_p``, which the pass keeps (with ``γ_p = (a_p + b_p)/2`` and
     ``d_p = (a_p - b_p)/2`` at even spp: ``s_p = 2Jᵀ(γ_p r_p - d_p d_pᵀμ̂)``, ``r_p = γ_pᵀμ̂ - y_p``).
@@ -39,7 +40,8 @@ Standard errors of the per-segment fit (``method.cost=per_segment``)
     (:mod:`methods.symbolic.fit.per_segment`), so the bread is their Jacobian ``J``, not symmetric:
     ``Cov_c = J_c⁺ M_c J_c⁺ᵀ`` (:func:`estimating_uncertainty`, pseudo-inverse by SVD), with
     ``M_c`` from each pixel's score restricted to the parameters owning the pixel
-    (:func:`~methods.symbolic.uncertainty.sandwich_meat.score_meat` with ``owned``). Measured on the tiny diffuse scene, seeds 0-7: RMS z
+    (:func:`~methods.symbolic.uncertainty.sandwich_meat.score_meat` with ``owned``). Measured on the tiny
+    diffuse scene, seeds 0-7: RMS z
     0.84, |z| < 2 for 96 % (tests/methods/test_per_segment.py).
 
 Both formulas
@@ -114,18 +116,21 @@ def parameter_uncertainty(system: GramSystem, basis: MonomialBasis, rho: np.ndar
                           meat: np.ndarray | None = None, rcond: float = RCOND,
                           null_tol: float = NULL_TOL) -> Uncertainty:
     """Standard errors at the estimate ``rho``: ``sqrt(diag(H_c⁺ M_c H_c⁺))`` with the sandwich
-    ``meat`` (:func:`~methods.symbolic.uncertainty.sandwich_meat.score_meat`), or ``sqrt(diag(2σ²_c H_c⁺))`` without it.
+    ``meat`` (:func:`~methods.symbolic.uncertainty.sandwich_meat.score_meat`), or
+    ``sqrt(diag(2σ²_c H_c⁺))`` without it.
 
     Parameters
     ----------
     system : GramSystem
-        Gram system of the observable parameters (:func:`~methods.symbolic.uncertainty.observability.restrict_system`).
+        Gram system of the observable parameters
+        (:func:`~methods.symbolic.uncertainty.observability.restrict_system`).
     basis : MonomialBasis
         Its basis (``D`` parameters).
     rho : numpy.ndarray
         ``(D, C)`` estimate.
     meat : numpy.ndarray, optional
-        ``(C, D, D)`` covariance of the cost's gradient (:func:`~methods.symbolic.uncertainty.sandwich_meat.score_meat`); None: the
+        ``(C, D, D)`` covariance of the cost's gradient
+        (:func:`~methods.symbolic.uncertainty.sandwich_meat.score_meat`); None: the
         residual-only formula.
     rcond, null_tol : float
         Eigenvalue threshold of the pseudo-inverse, and the loading on dropped directions
@@ -162,7 +167,8 @@ def estimating_uncertainty(bread: np.ndarray, meat: np.ndarray, sigma2: np.ndarr
     bread : numpy.ndarray
         ``(C, D, D)`` Jacobian ``J_c = ∂U/∂ρ`` at the estimate (not symmetric in general).
     meat : numpy.ndarray
-        ``(C, D, D)`` covariance of ``U`` (:func:`~methods.symbolic.uncertainty.sandwich_meat.score_meat` with ``owned``).
+        ``(C, D, D)`` covariance of ``U`` (:func:`~methods.symbolic.uncertainty.sandwich_meat.score_meat`
+        with ``owned``).
     sigma2 : numpy.ndarray
         ``(C,)`` residual variance, reported as is.
     rcond, null_tol : float
