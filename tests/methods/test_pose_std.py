@@ -1,5 +1,5 @@
 """The registered cameras' pose uncertainty in the std (``score_meat(poses=...)``,
-:func:`methods.symbolic.fit.joint.pose_terms`): by hand, and its coverage on a view whose pose error
+:func:`methods.symbolic.misfit.alignment.pose_terms`): by hand, and its coverage on a view whose pose error
 is drawn from the covariance the std is given.
 
 The model: one weight ρ, pixels ``y_p = ρ a(x_p - δ) + e_p`` on a 64x64 view with a ramp and a
