@@ -52,7 +52,7 @@ from bench.common import compose, downsample_scene
 from bench.tables import f, table
 from framework.config import BUNDLED_SCENES
 from framework.experiment import run_experiment
-from framework.kernels import canonical
+from framework.brdf_kernels import canonical
 from framework.scene import load_scene
 from framework.scene.write import write_scene_yaml
 from scenes import urban_canyon_glossy as ucg

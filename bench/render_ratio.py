@@ -3,8 +3,9 @@
 Both at the same spp on the same 200x200 view; ``path`` with ``max_depth = N_max + T + 1`` and
 the box filter (as the pass): the paper's pass (``method=symbolic_paper``, T = 0) at every spp,
 and the default pass (``method=symbolic``, T = 4) at one. The pass is timed as the method runs it
-(:func:`methods.symbolic.polynomial_pass.render_view_task`: coefficients, Gram accumulation,
-sparse coefficients), and the solve (:func:`methods.symbolic.refinement.solve_system`: the solver and the uncertainty)
+(:func:`methods.symbolic.system.polynomial_pass.render_view_task`: coefficients, Gram accumulation,
+sparse coefficients), and the solve (:func:`methods.symbolic.loop.refinement.solve_system`: the solver and
+the uncertainty)
 on its Gram system; each the median of ``reps`` runs after a warm-up (the solve's stages and
 evaluation count: of the last run).
 """
@@ -20,9 +21,9 @@ from framework.experiment import prepare
 from framework.render.jit_timing import kernel_split
 from framework.render.mitsuba_scene import MitsubaScene, max_depth_for
 from methods._common import initial_guess, segment_groups
-from methods.symbolic.basis import MonomialBasis
-from methods.symbolic.polynomial_pass import render_view_task, tile_pixels_for, view_task
-from methods.symbolic.refinement import solve_system
+from methods.symbolic.loop.refinement import solve_system
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.system.polynomial_pass import render_view_task, tile_pixels_for, view_task
 from bench.tables import f, table, yes
 
 

@@ -20,7 +20,7 @@ from framework.errors import ConfigError
 from framework.executor import check_address
 from framework.holdout import HeldOut, check_held_out, holdout_names, split_holdout
 from framework.holdout_run import holdout_entries
-from framework.kernels import canonical
+from framework.brdf_kernels import canonical
 from framework.observe import observed_images
 from framework.registry import Method, Problem, get_method, refuse_survey_unknowns
 from framework.render import backend

@@ -1,7 +1,7 @@
 """``urban_canyon_glossy``: :mod:`scenes.urban_canyon` whose glass and walls are glossy, not mirrors.
 
 Same meshes, segments, sky, sun and nine views as ``urban_canyon``. The truth differs in two
-segments, whose mirror weight moves to a GGX lobe (:mod:`framework.kernels`, ``glossy(α)``):
+segments, whose mirror weight moves to a GGX lobe (:mod:`framework.brdf_kernels`, ``glossy(α)``):
 
 * ``window``: kernels ``[diffuse, specular, glossy(0.05)]``, reference diffuse as urban_canyon,
   specular 0, ``glossy(0.05)`` 0.72 (slightly rough glass);

@@ -12,7 +12,7 @@ and three things a survey does not know exactly, each declared as an unknown in 
 * **The lens.** Every view is taken through one lens (one COLMAP camera, id 1, shared by the nine
   views, whose intrinsics are identical) with a falloff pixel = (1 - 0.3 r²) · radiance
   (:data:`PROFILE`; r = distance of the pixel centre from the principal point / half the image
-  diagonal, as :func:`methods.symbolic.vignetting.pixel_radius` defines it, so the corners get
+  diagonal, as :func:`methods.symbolic.survey.vignetting.pixel_radius` defines it, so the corners get
   70 %); declared ``photometry: {vignetting: estimate}``.
 * **The calibration panel.** A 1 m x 1 m grey panel (diffuse :data:`PANEL_DIFFUSE`), its own
   segment ``panel`` with ``known: {diffuse: 0.5}``, lies on the asphalt in the sunlit part of

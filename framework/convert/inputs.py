@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from framework import kernels as kernel_registry
+from framework import brdf_kernels as kernel_registry
 from framework.convert.model import SURVEY_LIMIT, Triangulated, origin_text
 from framework.convert.ply import labels_file
 from framework.errors import SceneError, UserError

@@ -18,7 +18,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from framework import kernels as K
+from framework import brdf_kernels as K
 from framework.render.plugin import plugin_class
 
 

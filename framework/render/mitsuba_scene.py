@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from framework import kernels as K
+from framework import brdf_kernels as K
 from framework.render.envmap import TO_WORLD
 from framework.render.kernel_bsdf import forward_bsdf, weight_keys
 from framework.scene import Camera, Scene

@@ -1,6 +1,6 @@
 """The lens falloff of scene.yaml ``photometry: vignetting`` (docs/scene-format.md): a pixel is
 ``V(r) · radiance`` with ``V(r) = 1 + a1 r² + a2 r⁴ + a3 r⁶``. One definition for the symbolic
-fit (:mod:`methods.symbolic.vignetting`, where the model is explained) and for the observations
+fit (:mod:`methods.symbolic.survey.vignetting`, where the model is explained) and for the observations
 rendered from a scene's references (:mod:`framework.observe`), so that both see the same lens.
 """
 from __future__ import annotations
@@ -11,7 +11,7 @@ import numpy as np
 def pixel_radius(camera) -> np.ndarray:
     """``(H·W,)`` ``r`` of each pixel of ``camera`` (a :class:`~framework.scene.model.Camera`),
     row-major: the distance of the pixel centre, in the delivered image, from the principal
-    point over half the image diagonal (:mod:`methods.symbolic.vignetting`)."""
+    point over half the image diagonal (:mod:`methods.symbolic.survey.vignetting`)."""
     h, w = int(camera.height), int(camera.width)
     if getattr(camera, "distortion", None) is None:
         xs, ys = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from framework.errors import SceneError
-from framework.kernels import canonical
+from framework.brdf_kernels import canonical
 
 CHANNELS = {"rgb": ("R", "G", "B"), "mono": ("Y",)}
 
@@ -186,7 +186,7 @@ class Scene:
 
     def parameters(self, *, kernels: tuple[str, ...] | None = None):
         """The unknowns (segment, kernel) in segment order; ``kernels`` (canonical names,
-        :func:`framework.kernels.canonical`) restricts the kernel set."""
+        :func:`framework.brdf_kernels.canonical`) restricts the kernel set."""
         out = []
         for s, seg in enumerate(self.segments):
             for k in seg.kernels:

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from framework import kernels as kernel_registry
+from framework import brdf_kernels as kernel_registry
 from framework.errors import SceneError
 from framework.scene.emitter_schema import EmitterSpec, read_emitter
 from framework.scene.model import Photometry, Segment

@@ -19,7 +19,7 @@ class LambertianPriorMethod(SymbolicMethod):
     diffuse-only model cannot reproduce mirrors and glossy segments, and the joint cost lets
     their misfit move the albedos they light (measured on urban_canyon's default view: the
     asphalt far closer per segment than joint, BENCHMARKS.md "Accurate by default";
-    :mod:`methods.symbolic.per_segment`).
+    :mod:`methods.symbolic.fit.per_segment`).
     ``method.cost=joint`` is the paper's cost (eq. 6), which the benchmark's Table 1 uses.
     """
 

@@ -3,6 +3,13 @@
 One polynomial rendering pass gives every pixel as a polynomial in the kernel weights (eq. 7-8);
 the L2 cost (eq. 6, p = 2) becomes μᵀGμ - 2bᵀμ + yᵀy in the monomials μ, minimised exactly
 (SQP on its exact Hessian by default), with no more rendering.
+
+The method is built in stages, each a sub-package that imports only the stages below it
+(pyproject.toml's import-linter contract), lowest first: ``trace`` (the device's path loop),
+``system`` (the pass and its Gram systems), ``survey`` and ``misfit`` (the survey's unknowns; what
+the model does not explain), ``uncertainty``, ``fit`` (the solves of one pass) and ``loop`` (the
+passes and the result); each ``__init__`` says what enters the stage and what leaves it. The
+options (:mod:`methods.symbolic.options`) are below them all; this module registers the method.
 """
 from __future__ import annotations
 
@@ -17,13 +24,14 @@ from framework.errors import ConfigError
 from framework.options import build
 from framework.registry import Method, MethodResult, register
 from methods._common import Trace, initial_guess
-from methods.symbolic.illumination import check_gauge, nominal, pass_basis, unknown_emitters
-from methods.symbolic.field import FieldOptions
-from methods.symbolic.fit import images_at
-from methods.symbolic.known import known_guess, warn_unseen
+from methods.symbolic.fit.field import FieldOptions
+from methods.symbolic.fit.fit import images_at
+from methods.symbolic.loop.outputs import method_result
+from methods.symbolic.loop.refinement import render_pass, run_passes
 from methods.symbolic.options import SolverOptions, SymbolicOptions
-from methods.symbolic.outputs import method_result
-from methods.symbolic.refinement import render_pass, run_passes
+from methods.symbolic.survey.illumination import check_gauge, nominal, pass_basis
+from methods.symbolic.survey.known import known_guess, warn_unseen
+from methods.symbolic.system.emitter_groups import unknown_emitters
 
 
 @register("symbolic")
@@ -31,17 +39,17 @@ class SymbolicMethod(Method):
     """Symbolic-ray-tracing inversion of the kernel weights ρ (paper sections 4.2-4.4).
 
     One polynomial pass renders every selected view once and keeps each pixel as a polynomial
-    in ρ (eq. 7-8; :class:`~methods.symbolic.integrator.PolynomialPathIntegrator`); the L2 cost
+    in ρ (eq. 7-8; :class:`~methods.symbolic.trace.integrator.PolynomialPathIntegrator`); the L2 cost
     (eq. 6, p = 2) becomes ``μᵀGμ - 2bᵀμ + yᵀy`` in the monomials μ and is minimised exactly
-    (:mod:`methods.symbolic.joint`, or :mod:`methods.symbolic.per_segment` with
+    (:mod:`methods.symbolic.fit.joint`, or :mod:`methods.symbolic.fit.per_segment` with
     ``method.cost=per_segment``), with no more rendering. By default the pass also traces
     ``render.tail_bounces`` reflections beyond N_max weighted by the guesses, and further passes
-    are rendered at the estimate until it stops moving (:mod:`methods.symbolic.refinement`).
+    are rendered at the estimate until it stops moving (:mod:`methods.symbolic.loop.refinement`).
     Field photographs (pixel weights, per-view exposure gains, a lens's vignetting, robust
-    reweighting) are fitted from the same stored coefficients (:mod:`methods.symbolic.field`,
-    :mod:`methods.symbolic.vignetting`). An emitter of unknown scale (scene.yaml ``scale:
+    reweighting) are fitted from the same stored coefficients (:mod:`methods.symbolic.fit.field`,
+    :mod:`methods.symbolic.survey.vignetting`). An emitter of unknown scale (scene.yaml ``scale:
     unknown``) is one more variable of the pass's polynomials, solved with ρ
-    (:mod:`methods.symbolic.illumination`; refused when every emitter is unknown and no segment
+    (:mod:`methods.symbolic.survey.illumination`; refused when every emitter is unknown and no segment
     is ``known``, and with ``method.cost=per_segment``).
 
     Options: :class:`~methods.symbolic.options.SymbolicOptions` (defaults in
@@ -54,7 +62,7 @@ class SymbolicMethod(Method):
     formula of ``std`` (``std_method``), the correlation of the observable parameters, and which
     parameters are ill-determined (std above 0.05 or NaN); docs/results.md lists every extra.
 
-    Known weights (scene.yaml ``known``, a calibration panel; :mod:`methods.symbolic.known`): the
+    Known weights (scene.yaml ``known``, a calibration panel; :mod:`methods.symbolic.survey.known`): the
     pass renders them as variables at their values, the solve substitutes the values (they are
     not parameters of the solve); they are reported with their value, std 0, ``"known": true``.
     A known kernel outside ``method.kernels`` (``lambertian_prior``: a known specular) is left
@@ -62,16 +70,17 @@ class SymbolicMethod(Method):
 
     Limitations: kernel BRDFs only (paper section 4.3). The solve costs O(nnz(G)) per evaluation
     and O(D²) memory per Hessian. The PSD projection is exact on each connected component of G
-    of at most :data:`~methods.symbolic.gram.PSD_BLOCK_LIMIT` monomials; larger components are
+    of at most :data:`~methods.symbolic.system.gram.PSD_BLOCK_LIMIT` monomials; larger components are
     left unprojected (a log warning, and their sizes in ``extras["psd_skipped_components"]``).
     Neither std covers the bias of observations holding more than N_max reflections with
     ``render.tail_bounces=0``, nor that of ``gram: plain``.
     """
 
     Options = SymbolicOptions
-    #: a segment's ``known`` weights are substituted in the solve (:mod:`methods.symbolic.known`);
-    #: scene.yaml's ``photometry: vignetting`` is applied or estimated (:mod:`methods.symbolic.vignetting`)
-    #: an emitter's ``scale: unknown`` is estimated with ρ (:mod:`methods.symbolic.illumination`)
+    #: a segment's ``known`` weights are substituted in the solve (:mod:`methods.symbolic.survey.known`);
+    #: scene.yaml's ``photometry: vignetting`` is applied or estimated
+    #: (:mod:`methods.symbolic.survey.vignetting`)
+    #: an emitter's ``scale: unknown`` is estimated with ρ (:mod:`methods.symbolic.survey.illumination`)
     survey = frozenset({"known", "vignetting", "scale"})
     kernels: tuple[str, ...] | None = None     # fixed by subclasses (lambertian_prior)
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from framework.errors import ConfigError
-from framework.kernels import KERNEL_SELECTION
+from framework.brdf_kernels import KERNEL_SELECTION
 from framework.options import choice, either, flag, number, option
 from framework.relight import RelightOptions
 from methods._common import StartOptions
@@ -165,7 +165,7 @@ class SymbolicOptions(StartOptions):
         "`spp_bias`. `none`: the estimate as solved. `auto`: `richardson` for photographs (the field "
         "path) when spp is a multiple of 4, else `none` (on small rendered scenes the correction's own "
         "noise outweighs the bias; on the survey scene it doubled the worst errors, BENCHMARKS.md section "
-        "10: see methods/symbolic/richardson.py)", choice("auto", "none", "richardson"))
+        "10: see methods/symbolic/loop/richardson.py)", choice("auto", "none", "richardson"))
     irls: IrlsOptions = option("the robust rounds")
     memory_mb: float = option(
         "memory for the event buffers of one tile of the pass (sets the tile size). With a cache, each "

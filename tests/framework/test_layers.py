@@ -42,3 +42,14 @@ def test_upward_import_is_caught(tmp_path):
     assert out.returncode == 1
     assert "framework.scene.model -> methods.symbolic" in out.stdout
     assert "BROKEN" in out.stdout
+
+
+def test_symbolic_stage_breach_is_caught(tmp_path):
+    """The device's trace importing the host's system breaks the symbolic method's stage layers."""
+    _copy_sources(tmp_path)
+    events = tmp_path / "methods" / "symbolic" / "trace" / "events.py"
+    events.write_text(events.read_text() + "\nimport methods.symbolic.system.basis  # noqa: E402,F401  (deliberate breach)\n")
+    out = _lint(tmp_path)
+    assert out.returncode == 1
+    assert "methods.symbolic.trace.events -> methods.symbolic.system.basis" in out.stdout
+    assert "Symbolic method" in out.stdout and "BROKEN" in out.stdout

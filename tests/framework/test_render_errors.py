@@ -164,7 +164,7 @@ def test_dask_scheduler_errors():
 def test_failed_render_leaves_whole_cache_entries(tmp_path, monkeypatch):
     """A pass that fails on its second view keeps the first view's entry (whole, loadable) and
     leaves nothing of the second; a write that fails leaves neither an entry nor a temporary file."""
-    pp = importlib.import_module("methods.symbolic.polynomial_pass")    # the package exports a function of that name
+    pp = importlib.import_module("methods.symbolic.system.polynomial_pass")    # the package exports a function of that name
     root = make_tiny_scene(tmp_path / "s", kernels=("diffuse",))
     cache_dir = tmp_path / "cache"
     problem = make_problem(root, None, f"cache.dir={cache_dir}")

@@ -1,4 +1,4 @@
-"""Views aligned to the model (``method.align``, :mod:`methods.symbolic.alignment`).
+"""Views aligned to the model (``method.align``, :mod:`methods.symbolic.misfit.alignment`).
 
 The registration alone on synthetic images (an analytic texture seen through a camera and
 through the same camera turned), then the symbolic method on the tiny scene (64x64 views,
@@ -21,7 +21,9 @@ import pytest
 from factory import make_tiny_scene, method_config, run_symbolic
 from framework.errors import ConfigError
 from framework.scene.model import Camera
-from methods.symbolic.alignment import Alignment, correction, register, rotated
+from methods.symbolic.misfit.alignment import Alignment
+from methods.symbolic.misfit.registration import register
+from methods.symbolic.misfit.turned_camera import correction, rotated
 
 
 # ------------------------------------------------------------------------------------------------
@@ -176,7 +178,7 @@ def test_pass_key_holds_the_pose():
     corrected pass would read the given camera's coefficients)."""
     from types import SimpleNamespace
 
-    from methods.symbolic.pass_cache import view_key
+    from methods.symbolic.system.pass_cache import view_key
     cam = _camera()
     problem = SimpleNamespace(scene=SimpleNamespace(content_hash="h", emitters=()),
                               observed={cam.name: np.zeros((SIZE, SIZE, 3), np.float32)},
@@ -285,11 +287,12 @@ def test_pose_sensitivity_is_the_derivative_of_the_turned_image(j):
     change per pixel of motion. They differ by the central differences of the sampled image
     (the texture's shortest period is about 19 px); measured worst difference 1.0, 1.5, 1.6 % of the largest
     value on the pixels off the outer ring; the test allows 5 %."""
-    from methods.symbolic.alignment import _pixel_scale, pose_sensitivity
+    from methods.symbolic.misfit.registration import pose_sensitivity
+    from methods.symbolic.misfit.turned_camera import pixel_scale
     camera = _camera()
     G = pose_sensitivity(_seen(camera, np.zeros(3)), camera)
     h = np.zeros(3)
-    h[j] = 0.01 / _pixel_scale(camera)[j]
+    h[j] = 0.01 / pixel_scale(camera)[j]
     expected = (_seen(camera, h) - _seen(camera, -h)) / 0.02
     inner = (slice(1, -1), slice(1, -1))
     got = G[:, :, j].reshape(SIZE, SIZE, -1)[inner]

@@ -1,4 +1,4 @@
-"""The cluster-robust sandwich (methods/symbolic/clusters.py, ``method.std=cluster``): clusters,
+"""The cluster-robust sandwich (methods/symbolic/misfit/clusters.py, ``method.std=cluster``): clusters,
 the correlation length, the CR1 factor by hand, and its coverage on residuals of known spatial
 correlation, where the pixel sandwich's std is too small."""
 from __future__ import annotations
@@ -8,12 +8,13 @@ import pytest
 import scipy.sparse as sp
 from scipy.ndimage import uniform_filter
 
-from methods.symbolic.basis import MonomialBasis, all_codes
-from methods.symbolic.clusters import (CORRELATION_FLOOR, cluster_ids, correlation_length, cr1_factor,
-                                       side_for)
-from methods.symbolic.coefficients import ViewCoefficients
-from methods.symbolic.gram import weighted_system
-from methods.symbolic.uncertainty import parameter_uncertainty, score_meat
+from methods.symbolic.misfit.clusters import CORRELATION_FLOOR, cluster_ids, correlation_length, cr1_factor, side_for
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.system.coefficients import ViewCoefficients
+from methods.symbolic.system.view_systems import weighted_system
+from methods.symbolic.trace.monomial_codes import all_codes
+from methods.symbolic.uncertainty.sandwich_meat import score_meat
+from methods.symbolic.uncertainty.standard_errors import parameter_uncertainty
 
 SIZE, TRUTH, SIGMA = 64, 0.4, 0.02
 

@@ -1,4 +1,4 @@
-"""Objects the model lacks, found by the views' disagreement (methods/symbolic/consistency.py;
+"""Objects the model lacks, found by the views' disagreement (methods/symbolic/misfit/consistency.py;
 issue 27 item 1).
 
 The tiny diffuse scene (32 x 32 pixels, 4 views, observations at 256 spp, pass at 16 spp, seed 0)
@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from factory import run_symbolic, tiny_problem
-from methods.symbolic.consistency import ViewPairs, _cauchy
-from methods.symbolic.robust_scale import robust_scale
+from methods.symbolic.misfit.consistency import ViewPairs, _cauchy
+from methods.symbolic.misfit.robust_scale import robust_scale
 
 
 @pytest.fixture(scope="module")
@@ -92,7 +92,8 @@ def test_exclusion_reasons_by_hand():
     from types import SimpleNamespace
 
     from framework.scene.model import EXCLUSION_REASONS
-    from methods.symbolic.field import LEFT_OUT, _View, exclusion_reasons
+    from methods.symbolic.fit.field import _View, exclusion_reasons
+    from methods.symbolic.misfit.robust_scale import LEFT_OUT
     code = EXCLUSION_REASONS.index
     scene = SimpleNamespace(excluded={"v": np.array([[code("mask"), code("saturated"), 0], [0, 0, 0]], np.uint8)})
     view = _View("v", (2, 3), None, np.zeros((6, 3)), np.array([0, 0, 0, 1, 1, 1.0]), None,

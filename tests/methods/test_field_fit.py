@@ -1,4 +1,4 @@
-"""The symbolic fit of field photographs (methods/symbolic/field.py): pixel weights, per-view
+"""The symbolic fit of field photographs (methods/symbolic/fit/field.py): pixel weights, per-view
 exposure gains and robust reweighting, all from the stored per-pixel coefficients."""
 import dataclasses
 
@@ -8,8 +8,10 @@ import pytest
 from factory import run_method, run_symbolic, tiny_problem, view_systems
 from framework.errors import ConfigError
 from framework.scene.model import Photometry
-from methods.symbolic.field import GAIN_MAX, robust_weights, weighted_system, with_gain
-from methods.symbolic.coefficients import ViewCoefficients
+from methods.symbolic.misfit.robust_weights import robust_weights
+from methods.symbolic.survey.exposure import GAIN_MAX, with_gain
+from methods.symbolic.system.coefficients import ViewCoefficients
+from methods.symbolic.system.view_systems import weighted_system
 
 GAINS = np.array([1.5, 0.8, 1.2])      # view_1's gains per channel; view_0 is the reference
 
@@ -64,7 +66,8 @@ def test_with_gain_multiplies_every_monomial_by_the_gain():
     """A view's polynomial at (ρ, h) equals GAIN_MAX·h times its polynomial at ρ (hand-built
     coefficients over D = 2, N_max = 2: monomials 1, ρ0, ρ1, ρ0², ρ0ρ1)."""
     import scipy.sparse as sp
-    from methods.symbolic.basis import MonomialBasis, multiset_codes
+    from methods.symbolic.system.basis import MonomialBasis
+    from methods.symbolic.trace.monomial_codes import multiset_codes
     D, N = 2, 2
     keys = np.array([0, 1, 2, 1 + 3 * 1, 1 + 3 * 2])            # ordered keys -> multiset codes
     codes = np.unique(multiset_codes(keys, D, N))

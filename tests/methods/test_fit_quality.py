@@ -1,4 +1,4 @@
-"""How well the model explains each material (:mod:`methods.symbolic.fit_quality`): a material an
+"""How well the model explains each material (:mod:`methods.symbolic.fit.fit_quality`): a material an
 unmodelled object covers in every view is flagged with the reason; a clean one is not.
 
 The tiny scene, 4 views at 16 spp, photographs' field path (pixel weights 1: robust Cauchy);
@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from factory import run_symbolic, tiny_problem
-from methods.symbolic.fit_quality import CHI2_MAX, DROP_MAX, _verdict, poor_parameters
+from methods.symbolic.fit.fit_quality import CHI2_MAX, DROP_MAX, _verdict, poor_parameters
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from factory import ad_and_fd_gradients, edit_scene_yaml, make_problem, make_tiny_scene, mean_difference, run_symbolic
 
-from framework import kernels as K
+from framework import brdf_kernels as K
 from framework.errors import SceneError
 
 GLOSSY = "glossy(0.2)"
@@ -98,7 +98,7 @@ def _sphere_scene(bsdf: dict, res: int):
 
 def _polynomial_image(integ, scene, rho: np.ndarray, spp: int, seed: int, res: int) -> np.ndarray:
     """One pass's polynomial (``seed``) evaluated at ``rho`` (D, 3): a (res, res, 3) image."""
-    from methods.symbolic.basis import MonomialBasis
+    from methods.symbolic.system.basis import MonomialBasis
     codes, mats = integ.coefficients_sparse(scene, spp=spp, seed=seed)
     basis = MonomialBasis(integ.n_params, integ.max_bounces)
     at = np.searchsorted(basis.codes, codes)
@@ -136,7 +136,7 @@ def test_white_furnace_matches_roughconductor(alpha):
     """
     import mitsuba as mi
 
-    from methods.symbolic.integrator import PolynomialPathIntegrator
+    from methods.symbolic.trace.integrator import PolynomialPathIntegrator
     res, spp, R = 32, 16, 16
     name = f"glossy({alpha})"
     scene = _sphere_scene({"type": "diffuse"}, res)
@@ -206,7 +206,7 @@ def test_polynomial_matches_path_with_glossy():
     """
     import mitsuba as mi
 
-    from methods.symbolic.integrator import PolynomialPathIntegrator
+    from methods.symbolic.trace.integrator import PolynomialPathIntegrator
     rng = np.random.default_rng(11)
     rho = rng.uniform(0.15, 0.45, (3, 3))
     res, spp, R, N = 32, 32, 16, 3

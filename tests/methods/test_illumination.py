@@ -1,4 +1,4 @@
-"""Unknown emitter scales in the symbolic fit (methods/symbolic/illumination.py; issue 26 item 1).
+"""Unknown emitter scales in the symbolic fit (methods/symbolic/survey/illumination.py; issue 26 item 1).
 
 The scene tests photograph the tiny diffuse scene (32 x 32 pixels, 3 views, observations at
 256 spp, polynomial pass at 16 spp, seed 0) under a light that differs from the declared one:
@@ -15,7 +15,7 @@ from factory import method_config, run_symbolic
 from framework.errors import ConfigError
 from framework.scene.model import Emitter
 from methods.symbolic import SymbolicMethod
-from methods.symbolic.illumination import SCALE_MAX, Illumination, check_gauge
+from methods.symbolic.survey.illumination import SCALE_MAX, Illumination, check_gauge
 
 SUN, SKY = 1.15, 0.85               # true / declared
 

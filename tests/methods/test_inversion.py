@@ -203,8 +203,8 @@ def test_polynomial_matches_path_on_small_urban_canyon(small_canyon):
     from framework.registry import Problem
     from framework.render.mitsuba_scene import MitsubaScene
     from framework.scene import load_scene
-    from methods.symbolic.basis import MonomialBasis
-    from methods.symbolic.polynomial_pass import polynomial_pass
+    from methods.symbolic.system.basis import MonomialBasis
+    from methods.symbolic.system.polynomial_pass import polynomial_pass
 
     scene = load_scene(small_canyon)
     cams = [scene.camera("street_002.png"), scene.camera("aerial_000.png")]
@@ -258,12 +258,12 @@ def test_refinement_move_ignores_weights_without_std():
     without a finite std (the data do not pin it) wandering 0 -> 0.7 does not count, nor does one
     not estimated in both passes. The Šidák bound by hand: n = 12 -> Φ⁻¹(0.5 + 0.5 · 0.95^(1/12))
     = Φ⁻¹(0.997865) = 2.858; n = 384 -> 3.82."""
-    from methods.symbolic.refinement import moved as _moved
+    from methods.symbolic.loop.refinement import moved as _moved
     previous = np.array([[0.10, 0.0, np.nan]])
     current = np.array([[0.12, 0.7, 0.3]])
     # one weight compared: 0.02 / (0.005 + √2 · 1.959964 · 0.005) = 0.02 / 0.0188590 = 1.06050
     assert _moved(previous, current, np.array([[0.005, np.nan, 0.01]]), 0.005) == pytest.approx(1.06050, rel=1e-5)
     assert _moved(previous, current, np.array([[np.nan, np.nan, 0.01]]), 0.005) == 0.0
-    from methods.symbolic.refinement import noise_bound
+    from methods.symbolic.loop.refinement import noise_bound
     assert noise_bound(1) == pytest.approx(1.959964, rel=1e-6)
     assert noise_bound(12) == pytest.approx(2.858, abs=1e-3) and noise_bound(384) == pytest.approx(3.820, abs=1e-3)

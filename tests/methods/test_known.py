@@ -1,5 +1,5 @@
 """Known weights (scene.yaml ``known``: a calibration panel) in the symbolic family
-(methods/symbolic/known.py): substituted in the solve, reported with ``"known": true``."""
+(methods/symbolic/survey/known.py): substituted in the solve, reported with ``"known": true``."""
 import dataclasses
 import logging
 
@@ -10,10 +10,11 @@ import scipy.sparse as sp
 from factory import compose_config, edit_scene_yaml, make_tiny_scene, quad, run_method, tiny_problem
 from framework.errors import ConfigError
 from framework.scene.model import Photometry
-from methods.symbolic.basis import MonomialBasis, all_codes
-from methods.symbolic.coefficients import ViewCoefficients
-from methods.symbolic.gram import GramSystem
-from methods.symbolic.known import Substitution, known_guess
+from methods.symbolic.survey.known import Substitution, known_guess
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.system.coefficients import ViewCoefficients
+from methods.symbolic.system.gram import GramSystem
+from methods.symbolic.trace.monomial_codes import all_codes
 
 GAINS = np.array([1.5, 0.8, 1.2])      # view_1's gains per channel; view_0 is the reference
 
@@ -168,9 +169,9 @@ def test_known_segment_no_view_sees_warns(tmp_path, caplog):
     edit_scene_yaml(root, lambda d: d["segments"].append(
         {"name": "panel", "meshes": ["meshes/panel.ply"], "kernels": ["diffuse"], "known": {"diffuse": 0.5}}))
     edit_scene_yaml(root, lambda d: d["segments"][0].update(known={"diffuse": [0.5, 0.4, 0.3]}))
-    with caplog.at_level(logging.WARNING, logger="methods.symbolic.known"):
+    with caplog.at_level(logging.WARNING, logger="methods.symbolic.survey.known"):
         problem, method, _ = prepare(compose_config(root, "views=all"))
-    lines = [r.getMessage() for r in caplog.records if r.name == "methods.symbolic.known"]
+    lines = [r.getMessage() for r in caplog.records if r.name == "methods.symbolic.survey.known"]
     assert len(lines) == 1 and "'panel'" in lines[0] and "\n" not in lines[0], lines
     result = method.run(problem)
     assert result.estimate[2].tolist() == [0.5, 0.5, 0.5] and np.isfinite(result.estimate[1]).all()

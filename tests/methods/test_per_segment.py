@@ -1,4 +1,4 @@
-"""The per-segment fit (methods/symbolic/per_segment.py, ``method.cost=per_segment``): each
+"""The per-segment fit (methods/symbolic/fit/per_segment.py, ``method.cost=per_segment``): each
 segment's weights fitted to the pixels that see it, the others at their estimates."""
 import dataclasses
 
@@ -10,12 +10,12 @@ from scipy.optimize import fsolve
 from factory import run_symbolic, small_copy, tiny_problem
 from framework.errors import ConfigError
 from framework.scene.model import Parameter, Photometry
-from methods.symbolic.basis import MonomialBasis
-from methods.symbolic.gram import owned_systems, weighted_system
-from methods.symbolic.per_segment import estimating_jacobian, ownership, parameter_blocks, solve_blocks
-from methods.symbolic.coefficients import ViewCoefficients
-from methods.symbolic.solve import ChannelCost, hessian
-from methods.symbolic.uncertainty import estimating_uncertainty, parameter_uncertainty
+from methods.symbolic.fit.per_segment import estimating_jacobian, ownership, parameter_blocks, solve_blocks
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.system.coefficients import ViewCoefficients
+from methods.symbolic.system.cost import ChannelCost, hessian
+from methods.symbolic.system.view_systems import owned_systems, weighted_system
+from methods.symbolic.uncertainty.standard_errors import estimating_uncertainty, parameter_uncertainty
 
 # Two segments, two parameters, N_max = 2: monomials 1, ρ0, ρ1, ρ0², ρ0ρ1, ρ1² (codes 0 1 2 4 7 8).
 BASIS = MonomialBasis(2, 2)
@@ -209,7 +209,7 @@ def test_per_segment_memory_error(problem, monkeypatch):
     """The block systems' bound beyond the machine's memory: one ConfigError before they are
     formed, saying how to fix it."""
     from framework.render import checks
-    from methods.symbolic import per_segment
+    from methods.symbolic.fit import per_segment
 
     def tiny_machine(need, what, fix):          # 1 KiB left once the pass has rendered
         with monkeypatch.context() as m:

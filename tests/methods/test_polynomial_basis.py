@@ -5,7 +5,8 @@ from math import comb
 import numpy as np
 import pytest
 
-from methods.symbolic.basis import MonomialBasis, monomial_columns, multiset_codes
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.trace.monomial_codes import monomial_columns, multiset_codes
 
 
 @pytest.mark.parametrize("D,N", [(1, 1), (1, 4), (3, 2), (4, 3), (10, 3), (5, 0)])
@@ -104,7 +105,7 @@ def test_emitter_columns_by_hand():
     (ρ_1, ρ_0): multiset digits [1, 2], code 1 + 2·4 = 9 in base D + G + 1 = 4; with the scale
     (g = 1) its digit 3 is appended: 1 + 2·4 + 3·16 = 57. κ = 0 (a directly seen emitter):
     code 0, with the scale 3; κ = 1 (ρ_0 alone) with the scale: digits [1, 3], 1 + 3·4 = 13."""
-    from methods.symbolic.basis import emitter_columns
+    from methods.symbolic.trace.monomial_codes import emitter_columns
     keys = np.array([5, 5 + 9, 0, 9, 5 + 9, 1 + 9])
     codes, cols = emitter_columns(keys, 2, 2, 1)
     assert codes.tolist() == [0, 3, 9, 13, 57]

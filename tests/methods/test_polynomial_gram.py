@@ -1,8 +1,8 @@
 """GramSystem: normal equations of the p = 2 cost (paper eq. 6)."""
 import numpy as np
 
-from methods.symbolic.basis import MonomialBasis
-from methods.symbolic.gram import GramSystem
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.system.gram import GramSystem
 
 
 def _data(seed=0, n=300, N_e=20, C=3, density=0.05):

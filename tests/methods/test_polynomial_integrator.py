@@ -18,8 +18,8 @@ from factory import mean_and_se, mean_difference  # noqa: E402
 
 from framework.render import kernel_bsdf as KB  # noqa: E402
 from framework.errors import ConfigError  # noqa: E402
-from methods.symbolic.basis import MonomialBasis  # noqa: E402
-from methods.symbolic.integrator import PolynomialPathIntegrator  # noqa: E402
+from methods.symbolic.system.basis import MonomialBasis  # noqa: E402
+from methods.symbolic.trace.integrator import PolynomialPathIntegrator  # noqa: E402
 
 T = mi.ScalarTransform4f
 L_ENV = [1.0, 2.0, 3.0]
@@ -380,7 +380,7 @@ def test_footprint_errors():
 def test_event_csr_matches_scipy_coo():
     """_csr (one within-row sort shared by the channels) equals scipy's COO -> CSR conversion,
     duplicates summed, on random events with sorted rows."""
-    from methods.symbolic.events import csr as _csr
+    from methods.symbolic.trace.events import csr as _csr
     import scipy.sparse as sp
     rng = np.random.default_rng(0)
     rows = np.sort(rng.integers(0, 50, 2000))
@@ -410,7 +410,7 @@ def test_mono_variant_in_subprocess():
     code = textwrap.dedent("""
         import framework.render.backend; framework.render.backend.set_variant('llvm_ad_mono')
         import mitsuba as mi, numpy as np
-        from methods.symbolic.integrator import PolynomialPathIntegrator
+        from methods.symbolic.trace.integrator import PolynomialPathIntegrator
         T = mi.ScalarTransform4f
         s = mi.load_dict({'type': 'scene', 'sensor': {'type': 'perspective', 'fov': 40,
             'to_world': T().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0]),
@@ -540,7 +540,7 @@ def _assert_same_matrices(device, host):
 
 @pytest.mark.parametrize("quarters", [False, True])
 def test_device_sums_equal_host_sums(quarters, monkeypatch):
-    """Coefficients summed per pixel and monomial on the device (methods.symbolic.pixel_sums) and
+    """Coefficients summed per pixel and monomial on the device (methods.symbolic.trace.pixel_sums) and
     on the host (events.tile_matrices) from the same render: same codes and sparsity, values to
     float32 rounding, for the halves (and quarters) over several tiles and for the plain pass; the
     device sums of one render are the same bits every time (no atomic adds)."""
@@ -562,7 +562,7 @@ def test_device_sums_equal_host_sums(quarters, monkeypatch):
 def test_device_sums_with_emitter_groups_and_wide_keys(monkeypatch):
     """With an unknown emitter scale (keys carry the emitter's group) the device sums equal the
     host's; a key range beyond the key table (TABLE_KEYS) falls back to the host path."""
-    import methods.symbolic.pixel_sums as PS
+    import methods.symbolic.trace.pixel_sums as PS
     rho = np.full((5, 3), 0.4)
     scene, shapes = _lit_cornell(rho, res=16)
     light = [sh.emitter() for sh, _ in shapes if sh.emitter() is not None]

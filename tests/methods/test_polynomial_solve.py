@@ -3,9 +3,10 @@ import numpy as np
 import pytest
 
 from framework.errors import ConfigError
-from methods.symbolic.basis import MonomialBasis
-from methods.symbolic.gram import GramSystem
-from methods.symbolic.solve import channel_cost_grad, hessian, solve_polynomial
+from methods.symbolic.fit.solve import solve_polynomial
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.system.cost import channel_cost_grad, hessian
+from methods.symbolic.system.gram import GramSystem
 
 
 def _system(rho_true, seed=0, n=400, N=3):
@@ -82,7 +83,7 @@ def test_preconditioned_solve_same_minimum_fewer_evaluations():
 def test_metric_is_hessian_when_positive_definite():
     """At the minimiser of a noise-free system the residual is zero, so the Hessian is its
     Gauss-Newton part, and here PD: metric == hessian."""
-    from methods.symbolic.solve import ChannelCost
+    from methods.symbolic.system.cost import ChannelCost
     rho = np.array([[0.3], [0.4], [0.6]])
     s, b = _system(rho, seed=2)
     cost = ChannelCost(s, b, 0)
@@ -96,7 +97,7 @@ def test_metric_falls_back_to_gauss_newton():
     """One pixel ρ0·ρ1 observed as 1: f = (ab - 1)². By hand, at a = b = 0.1 the Hessian
     [[2b², 4ab - 2], [4ab - 2, 2a²]] = [[0.02, -1.96], [-1.96, 0.02]] is indefinite, and the
     metric is the Gauss-Newton part 2JᵀJ with J = (b, a): [[0.02, 0.02], [0.02, 0.02]]."""
-    from methods.symbolic.solve import ChannelCost
+    from methods.symbolic.system.cost import ChannelCost
     basis = MonomialBasis(2, 2)
     gamma = np.zeros((1, basis.size, 1))
     gamma[0, basis.index([0, 1]), 0] = 1.0

@@ -1,5 +1,5 @@
 """The registered cameras' pose uncertainty in the std (``score_meat(poses=...)``,
-:func:`methods.symbolic.joint.pose_terms`): by hand, and its coverage on a view whose pose error
+:func:`methods.symbolic.misfit.alignment.pose_terms`): by hand, and its coverage on a view whose pose error
 is drawn from the covariance the std is given.
 
 The model: one weight ρ, pixels ``y_p = ρ a(x_p - δ) + e_p`` on a 64x64 view with a ramp and a
@@ -11,10 +11,12 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from methods.symbolic.basis import MonomialBasis, all_codes
-from methods.symbolic.coefficients import ViewCoefficients
-from methods.symbolic.gram import weighted_system
-from methods.symbolic.uncertainty import parameter_uncertainty, score_meat
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.system.coefficients import ViewCoefficients
+from methods.symbolic.system.view_systems import weighted_system
+from methods.symbolic.trace.monomial_codes import all_codes
+from methods.symbolic.uncertainty.sandwich_meat import score_meat
+from methods.symbolic.uncertainty.standard_errors import parameter_uncertainty
 
 SIZE, TRUTH, SIGMA, POSE_STD = 64, 0.4, 0.02, 0.3
 
@@ -25,7 +27,7 @@ def _pattern(x: np.ndarray) -> np.ndarray:
 
 def _view(seed: int):
     """``(coefficients, y, G, rho)``: the view, its pose sensitivity along x (the observation's
-    gradient, as :func:`~methods.symbolic.alignment.pose_sensitivity` takes it) and the
+    gradient, as :func:`~methods.symbolic.misfit.registration.pose_sensitivity` takes it) and the
     least-squares estimate."""
     rng = np.random.default_rng(seed)
     x = np.tile(np.arange(SIZE) + 0.5, SIZE)

@@ -1,4 +1,4 @@
-"""``method.bias=richardson`` (methods/symbolic/richardson.py): the pass's quarters paired into two
+"""``method.bias=richardson`` (methods/symbolic/loop/richardson.py): the pass's quarters paired into two
 passes of half the spp, and the estimate extrapolated to 2ρ̂_n - ρ̂_{n/2}."""
 import numpy as np
 import pytest
@@ -7,12 +7,12 @@ from factory import make_problem, make_tiny_scene, method_config
 
 from framework.errors import ConfigError
 from framework.registry import get_method
-from methods.symbolic.coefficients import PassResult, TiledCoefficients, ViewCoefficients
-from methods.symbolic.fit import Fit
-from methods.symbolic.gram import weighted_system
+from methods.symbolic.fit.fit import Fit
+from methods.symbolic.loop.richardson import extrapolated
 from methods.symbolic.options import SymbolicOptions
-from methods.symbolic.pass_cache import _pack, _unpack
-from methods.symbolic.richardson import extrapolated
+from methods.symbolic.system.coefficients import PassResult, TiledCoefficients, ViewCoefficients
+from methods.symbolic.system.pass_cache import _pack, _unpack
+from methods.symbolic.system.view_systems import weighted_system
 
 
 def _fit(estimate) -> Fit:
@@ -183,7 +183,7 @@ class _Field:
     (False, 64, {"bias": "richardson", "std": "cluster"}, "richardson", "cluster"),
 ])
 def test_auto_resolves_on_the_field_path(active, spp, overrides, bias, std):
-    from methods.symbolic.refinement import resolved
+    from methods.symbolic.loop.refinement import resolved
     options = SymbolicOptions(**{**_shipped(), **overrides})
     out = resolved(options, _Field(active), spp, photographs=active)
     assert (out.bias, out.std) == (bias, std)
@@ -197,7 +197,7 @@ def test_auto_resolves_on_the_field_path(active, spp, overrides, bias, std):
     (False, {"align": "rotation"}, "rotation"),
 ])
 def test_auto_align_resolves_on_the_field_path(active, overrides, align):
-    from methods.symbolic.refinement import resolved
+    from methods.symbolic.loop.refinement import resolved
     options = SymbolicOptions(**{**_shipped(), **overrides})
     assert resolved(options, _Field(active), 64, photographs=active).align == align
 
@@ -206,7 +206,7 @@ def test_linear_photographs_get_the_cluster_std_and_alignment_without_the_field_
     """Photographs decoded as linear radiance (EXR) with no pixel weights, gains or robust rounds:
     aligned and cluster std as any photographs, but no bias correction (their L2 solve is as near
     linear as a rendered scene's); a rendered scene keeps exact poses and the pixel sandwich."""
-    from methods.symbolic.refinement import resolved
+    from methods.symbolic.loop.refinement import resolved
     options = SymbolicOptions(**_shipped())
     out = resolved(options, _Field(False), 64, photographs=True)
     assert (out.bias, out.std, out.align) == ("none", "cluster", "rotation")

@@ -1,7 +1,7 @@
-"""The heteroscedastic robust scale (methods/symbolic/robust_scale.py)."""
+"""The heteroscedastic robust scale (methods/symbolic/misfit/robust_scale.py)."""
 import numpy as np
 
-from methods.symbolic.robust_scale import robust_scale
+from methods.symbolic.misfit.robust_scale import robust_scale
 
 
 def test_plain_scale_is_the_mad_about_zero():

@@ -6,11 +6,14 @@ import pytest
 
 from factory import run_street_cli
 from framework.errors import ConfigError
-from methods.symbolic.basis import MonomialBasis, check_key_range
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.trace.monomial_codes import check_key_range
 import scipy.sparse as sp
 
-from methods.symbolic.gram import GramSystem, principal, sandwich, symmetric_dot
-from methods.symbolic.solve import ChannelCost, check_solve_memory, solve_polynomial
+from methods.symbolic.fit.solve import check_solve_memory, solve_polynomial
+from methods.symbolic.system.cost import ChannelCost
+from methods.symbolic.system.gram import GramSystem
+from methods.symbolic.system.upper_triangle import principal, sandwich, symmetric_dot
 
 
 def _exponents(D: int, N: int) -> list[tuple[int, ...]]:
@@ -189,7 +192,7 @@ def test_too_large_problems_fail_with_one_line(monkeypatch):
     with pytest.raises(ConfigError, match="render.max_bounces") as err:
         check_key_range(68, 6)
     assert "\n" not in str(err.value)
-    import methods.symbolic.solve as solve
+    import methods.symbolic.fit.solve as solve
     monkeypatch.setattr(solve, "check_memory", _tight_memory)
     basis = MonomialBasis(3, 2)
     with pytest.raises(ConfigError, match="render.max_bounces") as err:
@@ -242,7 +245,7 @@ def _two_block_system(rng, n=300, C=2):
 def test_independent_blocks_give_the_joint_minimiser(monkeypatch):
     """The cost splits into one term per segment here: the solve finds two blocks, and their
     separate minimisers equal the joint solve's (blocks forced into one) to 1e-6."""
-    import methods.symbolic.solve as S
+    import methods.symbolic.fit.solve as S
     basis, system, rho = _two_block_system(np.random.default_rng(3))
     segs = [[0, 1], [2, 3]]
     assert [b.tolist() for b in S.parameter_blocks(system, basis, segs)] == [[0, 1], [2, 3]]
@@ -259,7 +262,7 @@ def test_independent_blocks_give_the_joint_minimiser(monkeypatch):
 
 def test_a_segment_constraint_joins_its_weights():
     """Two weights of one segment are one block even if no monomial holds both."""
-    import methods.symbolic.solve as S
+    import methods.symbolic.fit.solve as S
     basis, system, _ = _two_block_system(np.random.default_rng(4))
     assert [b.tolist() for b in S.parameter_blocks(system, basis, [[0, 1, 2, 3]])] == [[0, 1, 2, 3]]
 

@@ -31,10 +31,11 @@ import scipy.sparse as sp
 from factory import make_problem, make_tiny_scene, method_config
 
 from framework.registry import get_method
-from methods.symbolic.basis import MonomialBasis
-from methods.symbolic.gram import GramSystem
-from methods.symbolic.coefficients import ViewCoefficients
-from methods.symbolic.uncertainty import ill_determined, parameter_uncertainty, score_meat
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.system.coefficients import ViewCoefficients
+from methods.symbolic.system.gram import GramSystem
+from methods.symbolic.uncertainty.sandwich_meat import score_meat
+from methods.symbolic.uncertainty.standard_errors import ill_determined, parameter_uncertainty
 
 SEEDS = range(20)
 

@@ -1,4 +1,4 @@
-"""The polynomial pass in tiles (methods/symbolic/polynomial_pass.py): a view's coefficients kept
+"""The polynomial pass in tiles (methods/symbolic/system/polynomial_pass.py): a view's coefficients kept
 as row blocks, on disk when the run has a cache, and every consumer reading them block by block."""
 import numpy as np
 import pytest
@@ -6,11 +6,11 @@ import pytest
 from factory import tiny_problem
 from framework.cache import Cache
 from framework.executor import SerialExecutor
-from methods.symbolic.basis import MonomialBasis
-from methods.symbolic.coefficients import TiledCoefficients, predicted
-from methods.symbolic.pass_cache import TileLoader
-from methods.symbolic.polynomial_pass import polynomial_pass, render_view_task, tile_pixels_for, view_task
-from methods.symbolic.uncertainty import score_meat
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.system.coefficients import TiledCoefficients, predicted
+from methods.symbolic.system.pass_cache import TileLoader
+from methods.symbolic.system.polynomial_pass import polynomial_pass, render_view_task, tile_pixels_for, view_task
+from methods.symbolic.uncertainty.sandwich_meat import score_meat
 
 #: 16 spp, N_max 3, 2 tail bounces, RGB: 4.5 KiB of event buffers a pixel, so 0.3 MiB gives tiles
 #: of 68 pixels (4 tiles on the 16 x 16 views)
@@ -133,7 +133,7 @@ def test_only_resampled_photographs_are_rendered_over_a_footprint(problem):
     from dataclasses import replace
     from types import SimpleNamespace
     from factory import distorted
-    from methods.symbolic.pass_cache import footprint_kernel, view_key
+    from methods.symbolic.system.pass_cache import footprint_kernel, view_key
     cam = problem.cameras[0]
     lens = distorted(cam, "OPENCV")
     photographed = SimpleNamespace(scene=replace(problem.scene, images={}, photometry=replace(
@@ -153,7 +153,7 @@ def test_the_meat_scored_in_row_chunks_equals_the_whole_blocks(problem, monkeypa
     temporaries bounded whatever the tile): with chunks of a few pixels the meat, pixel or
     cluster sums, equals the one scored block by block to 1e-12 (relative; only the order of the
     sums differs)."""
-    import methods.symbolic.uncertainty as U
+    import methods.symbolic.uncertainty.sandwich_meat as U
     passed = _pass(problem, Cache(None))
     basis = MonomialBasis(len(problem.parameters), 3, passed.codes)
     rho = np.random.default_rng(1).uniform(0.1, 0.4, (len(problem.parameters), 3))

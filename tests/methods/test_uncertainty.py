@@ -14,9 +14,10 @@ from pathlib import Path
 import numpy as np
 from factory import make_problem, make_tiny_scene, quad, run_symbolic, view_systems
 
-from methods.symbolic.basis import MonomialBasis
-from methods.symbolic.gram import GramSystem
-from methods.symbolic.uncertainty import observable_parameters, parameter_uncertainty, restrict_system
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.system.gram import GramSystem
+from methods.symbolic.uncertainty.observability import observable_parameters, restrict_system
+from methods.symbolic.uncertainty.standard_errors import parameter_uncertainty
 
 
 def make_pit_scene(root: Path) -> Path:
@@ -124,8 +125,8 @@ def test_joint_inversion_equals_solve_of_summed_gram_systems(tmp_path):
     per-view systems are those of the pass; the solver is deterministic: identical to 1e-12)."""
     from framework.cache import Cache
     from methods._common import segment_groups
-    from methods.symbolic.polynomial_pass import polynomial_pass
-    from methods.symbolic.solve import solve_polynomial
+    from methods.symbolic.fit.solve import solve_polynomial
+    from methods.symbolic.system.polynomial_pass import polynomial_pass
     problem = make_problem(make_tiny_scene(tmp_path / "s", kernels=("diffuse",)), None, "render.tail_bounces=0")
     result = run_symbolic(problem, refine=0)
     params = problem.parameters

@@ -1,4 +1,4 @@
-"""Lens vignetting in the symbolic fit (methods/symbolic/vignetting.py; issue 26 item 3).
+"""Lens vignetting in the symbolic fit (methods/symbolic/survey/vignetting.py; issue 26 item 3).
 
 pixel = (1 + a1 r² + a2 r⁴ + a3 r⁶) · radiance, r = distance of the pixel centre (in the delivered
 image) from the principal point / half the image diagonal, one profile per COLMAP camera.
@@ -22,11 +22,12 @@ from factory import compose_config, edit_scene_yaml, make_problem, make_tiny_sce
 from framework.errors import ConfigError
 from framework.observe import render_references
 from framework.scene.model import Camera, Photometry
-from methods.symbolic.basis import MonomialBasis, multiset_codes
-from methods.symbolic.coefficients import TiledCoefficients, ViewCoefficients
-from methods.symbolic.field import GAIN_MAX, with_gain
-from methods.symbolic.vignetting import (PROFILE_BOUND, Vignetting, estimate_terms, falloff, pixel_radius,
-                                         with_factors)
+from methods.symbolic.survey.exposure import GAIN_MAX, with_gain
+from methods.symbolic.survey.vignetting import (PROFILE_BOUND, Vignetting, estimate_terms, falloff, pixel_radius,
+                                                with_factors)
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.system.coefficients import TiledCoefficients, ViewCoefficients
+from methods.symbolic.trace.monomial_codes import multiset_codes
 
 PROFILE = (-0.3, 0.0, 0.0)          # the lens of the scene tests: 1 - 0.3 r²
 

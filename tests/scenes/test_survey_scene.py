@@ -102,8 +102,8 @@ def test_panel_seen_in_several_views_and_above_the_road():
 
 @pytest.mark.slow
 def test_pixel_radius_is_the_methods_r():
-    """The builder's r (scenes may not import methods) is :func:`methods.symbolic.vignetting.pixel_radius`."""
-    from methods.symbolic.vignetting import pixel_radius
+    """The builder's r (scenes may not import methods) is :func:`methods.symbolic.survey.vignetting.pixel_radius`."""
+    from methods.symbolic.survey.vignetting import pixel_radius
 
     cam = load_scene(FOLDER).cameras[0]
     ours = survey.pixel_radius(cam.width, cam.height, cam.cx, cam.cy)

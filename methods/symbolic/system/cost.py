@@ -1,0 +1,88 @@
+"""The polynomial cost of one channel as a function of ρ, with its exact gradient and Hessian.
+
+Per channel ``c`` the cost of a Gram system (:class:`~methods.symbolic.system.gram.GramSystem`)
+is ``ε²_c(ρ) = μ(ρ)ᵀ G_c μ(ρ) - 2 b_cᵀ μ(ρ) + yy_c`` (paper eq. 6 with p = 2), an explicit
+polynomial in the kernel weights: its gradient ``2 J(ρ)ᵀ (G_c μ - b_c)`` comes from
+:meth:`MonomialBasis.jacobian_t_dot <methods.symbolic.system.basis.MonomialBasis.jacobian_t_dot>`
+and its exact Hessian from the sparse Jacobian and the monomials' second derivatives, with no
+rendering. The solver minimises it (:mod:`methods.symbolic.fit.solve`); the standard errors
+invert its Hessian at the estimate (:mod:`methods.symbolic.uncertainty`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.system.gram import GramSystem
+from methods.symbolic.system.upper_triangle import principal, sandwich, symmetric_dot
+
+
+class ChannelCost:
+    """``ε²_c(x)`` and its exact gradient ``2 Jᵀ(G_c μ - b_c)`` for one channel.
+
+    Only the monomials some pixel depends on (:meth:`GramSystem.used_monomials`) enter the
+    products, and ``G_c`` is sparse (its upper triangle stored): an evaluation costs O(nnz(G_c)).
+    """
+
+    def __init__(self, system: GramSystem, basis: MonomialBasis, c: int, used: np.ndarray | None = None):
+        self.basis = basis
+        self.used = system.used_monomials() if used is None else np.asarray(used)
+        self.G = principal(system.G[c], self.used)
+        self.diagonal = self.G.diagonal()
+        self.b = system.b[c][self.used]
+        self.yy = float(system.yy[c])
+        self._last = None          # (x, r, μ) of the last residual: the Hessian follows the gradient
+
+    def _residual(self, x: np.ndarray) -> np.ndarray:
+        """``(size,)`` residual ``G_c μ - b_c`` on the used monomials, 0 elsewhere, and ``μ_used``."""
+        if self._last is not None and np.array_equal(self._last[0], x):
+            return self._last[1], self._last[2]
+        m = self.basis.evaluate(x)[self.used]
+        r = np.zeros(self.basis.size)
+        r[self.used] = symmetric_dot(self.G, m, self.diagonal) - self.b
+        self._last = (np.array(x, dtype=float, copy=True), r, m)
+        return r, m
+
+    def __call__(self, x: np.ndarray) -> tuple[float, np.ndarray]:
+        r, m = self._residual(x)
+        f = float(m @ (r[self.used] + self.b) - 2.0 * self.b @ m + self.yy)
+        return f, 2.0 * self.basis.jacobian_t_dot(x, r)
+
+    def gauss_newton(self, x: np.ndarray) -> np.ndarray:
+        """``(D, D)`` Gauss-Newton part ``2 Jᵀ G_c J`` of the Hessian (PSD when ``G_c`` is), with
+        the sparse Jacobian, from G's triangle (:func:`~methods.symbolic.system.upper_triangle.sandwich`)."""
+        J = self.basis.jacobian_sparse(x)[self.used]
+        return 2.0 * sandwich(self.G, J, self.diagonal).toarray()
+
+    def _residual_curvature(self, x: np.ndarray) -> np.ndarray:
+        """``(D, D)`` second-order part ``2 Σ_m (G_c μ - b_c)_m ∇²μ_m`` of the Hessian
+        (:meth:`MonomialBasis.hessian_dot`)."""
+        return 2.0 * self.basis.hessian_dot(x, self._residual(x)[0])
+
+    def hessian(self, x: np.ndarray) -> np.ndarray:
+        """``(D, D)`` exact Hessian ``2 Jᵀ G_c J + 2 Σ_m (G_c μ - b_c)_m ∇²μ_m``."""
+        return self.gauss_newton(x) + self._residual_curvature(x)
+
+    def metric(self, x: np.ndarray) -> np.ndarray:
+        """Curvature for :func:`framework.optim.minimize`'s ``metric``: the exact Hessian at ``x``
+        when it is positive definite, else its Gauss-Newton part."""
+        gn = self.gauss_newton(x)
+        H = gn + self._residual_curvature(x)
+        return H if np.linalg.eigvalsh(H)[0] > 0.0 else gn
+
+
+def channel_cost_grad(system: GramSystem, basis: MonomialBasis, c: int, x: np.ndarray):
+    """Cost ``ε²_c(x)`` and its exact gradient (one-off :class:`ChannelCost`)."""
+    return ChannelCost(system, basis, c)(x)
+
+
+def hessian(system: GramSystem, basis: MonomialBasis, rho: np.ndarray) -> np.ndarray:
+    """Exact Hessian of the per-channel cost, ``(C, D, D)`` (:meth:`ChannelCost.hessian`).
+
+    ``rho``: ``(D, C)``, or ``(D,)`` for every channel.
+    """
+    rho = np.asarray(rho, dtype=float).reshape(basis.n_params, -1)
+    C = system.n_channels
+    rho = np.broadcast_to(rho, (basis.n_params, C))
+    used = system.used_monomials()
+    return np.stack([ChannelCost(system, basis, c, used).hessian(rho[:, c]) for c in range(C)])

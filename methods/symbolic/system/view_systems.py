@@ -1,0 +1,101 @@
+"""The Gram systems of a view's coefficients: pixel-weighted, per owner, one row block at a time.
+
+A view's coefficients (:class:`~methods.symbolic.system.coefficients.ViewCoefficients`, or
+:class:`~methods.symbolic.system.coefficients.TiledCoefficients` loaded one tile at a time) give
+the Gram system of its pixels, pixel ``p`` weighted by ``w_p`` (:func:`weighted_system`): the
+cost ``Σ_p w_p (γ_p·μ - y_p)²``, with the cross Gram of the two half-sample estimates when the
+pass kept them. The pass builds each view's own system so (weights None), the field path
+rebuilds them with its pixel weights every robust round, the per-segment fit one per parameter
+block from the pixels the block owns (:func:`owned_systems`).
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import scipy.sparse as sp
+
+from methods.symbolic.system.gram import GramSystem
+
+
+def weighted_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSystem:
+    """The Gram system of one view from its coefficients, pixel ``p`` weighted by ``w_p``.
+
+    With the two half-sample estimates ``a`` and ``b``, the cross Gram ½(AᵀWB + BᵀWA)
+    (:meth:`GramSystem.accumulate_sparse`, rows scaled by √w); without ``b``, ΓᵀWΓ. With
+    ``weights`` None this is the pass's own system
+    (:func:`~methods.symbolic.system.polynomial_pass.polynomial_pass` builds it so). One row block of
+    the coefficients at a time (:func:`row_blocks`: a tiled view's are loaded one by one).
+
+    Parameters
+    ----------
+    coeffs : ViewCoefficients or TiledCoefficients
+    y : numpy.ndarray
+        ``(n, C)`` observed pixels.
+    weights : numpy.ndarray or None
+        ``(n,)`` weights >= 0 (None: all 1).
+    """
+    total = None
+    for block, y_rows, w_rows in row_blocks(coeffs, y, weights):
+        total = summed(total, _block_system(block, y_rows, w_rows))
+    return total
+
+
+def summed(total: GramSystem | None, part: GramSystem) -> GramSystem:
+    """``total += part`` in place (:meth:`GramSystem.__iadd__`), or ``part`` when ``total`` is None."""
+    if total is None:
+        return part
+    total += part
+    return total
+
+
+def owned_systems(coeffs, y: np.ndarray, weights: np.ndarray | None, owned: np.ndarray) -> list[GramSystem]:
+    """One Gram system per column of ``owned``: :func:`weighted_system` of the pixels that
+    column owns, every system from the same single pass over the view's row blocks.
+
+    Parameters
+    ----------
+    coeffs, y, weights
+        As for :func:`weighted_system`.
+    owned : numpy.ndarray
+        ``(n, K)`` bool: pixel ``p`` enters system ``k`` when ``owned[p, k]``.
+
+    Returns
+    -------
+    list
+        ``K`` GramSystem, None where no pixel is owned.
+    """
+    owned = np.asarray(owned, bool).reshape(coeffs.n_rows, -1)
+    systems: list = [None] * owned.shape[1]
+    start = 0
+    for block, y_rows, w_rows in row_blocks(coeffs, y, weights):
+        rows = owned[start:start + block.n_rows]
+        start += block.n_rows
+        for k in np.flatnonzero(rows.any(axis=0)):
+            idx = np.flatnonzero(rows[:, k])          # the owned rows only: K systems cost one
+            rows_k = dataclasses.replace(block, a=[m[idx] for m in block.a],
+                                         b=None if block.b is None else [m[idx] for m in block.b])
+            systems[k] = summed(systems[k], _block_system(rows_k, y_rows[idx], None if w_rows is None else w_rows[idx]))
+    return systems
+
+
+def row_blocks(coeffs, y: np.ndarray, weights: np.ndarray | None = None):
+    """``(block, y rows, weight rows or None)`` of each row block of a view's coefficients
+    (their ``blocks()``; a tiled view's blocks are loaded one at a time), with the block's rows
+    of the ``(n, C)`` observed pixels ``y`` and of the ``(n,)`` pixel ``weights``."""
+    y = np.asarray(y, dtype=np.float64).reshape(coeffs.n_rows, -1)
+    w = None if weights is None else np.asarray(weights, dtype=np.float64).reshape(coeffs.n_rows)
+    for start, block in coeffs.blocks():
+        rows = slice(start, start + block.n_rows)
+        yield block, y[rows], None if w is None else w[rows]
+
+
+def _block_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSystem:
+    """:func:`weighted_system` of one block (a :class:`ViewCoefficients`)."""
+    C = len(coeffs.a)
+    root = None if weights is None else sp.diags(np.sqrt(weights))
+    scaled = lambda m: m if root is None else (root @ m).tocsr()
+    y = y if weights is None else y * np.sqrt(weights)[:, None]
+    A = [scaled(m) for m in coeffs.a]
+    B = None if coeffs.b is None else [scaled(m) for m in coeffs.b]
+    return GramSystem.zeros(coeffs.codes, C).accumulate_sparse(A, y, B)

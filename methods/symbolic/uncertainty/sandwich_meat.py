@@ -1,0 +1,177 @@
+"""The meat of the sandwich standard errors: the covariance of the cost's gradient, from each
+pixel's score.
+
+The estimate solves ``g(ρ̂) = 0`` for the gradient ``g = Σ_p s_p`` of the cost, a sum of
+independent per-pixel terms, so its covariance ``M_c`` is estimated by
+``Σ_p (s_p - s̄)(s_p - s̄)ᵀ`` (:func:`score_meat`; the scores summed within clusters first for the
+cluster std, :mod:`methods.symbolic.misfit.clusters`; a registered camera's pose uncertainty
+added by the delta method). Each view's coefficients are scored one row block, and one chunk of
+rows, at a time. :mod:`methods.symbolic.uncertainty.standard_errors` puts ``M_c`` between the
+inverted Hessians (or the estimating equations' Jacobians) and says why.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from framework.threads import run_threads
+from methods.symbolic.misfit.clusters import cr1_factor
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.system.view_systems import row_blocks
+
+#: stored coefficients (both halves, one channel) of the rows :func:`score_meat` scores at once,
+#: so that its sparse temporaries (the coefficients times J, the scores) stay bounded whatever the
+#: pass's tile. Measured on a 1920x1080 view (bench section 1b, 48 tiles): scored a whole tile at
+#: a time on two threads the run peaked at 1,345 MiB, on one thread 854 MiB, in chunks on two
+#: threads 841 MiB
+SCORE_CHUNK_NNZ = 1 << 20
+
+
+def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray, codes: np.ndarray, *,
+               owned: list | None = None, clusters: list | None = None, poses=None) -> np.ndarray:
+    """``(C, D, D)`` sandwich meat ``M_c = Σ_p (s_p - s̄)(s_p - s̄)ᵀ`` over every pixel of every view.
+
+    ``s_p`` is pixel ``p``'s term of the gradient of the (cross-Gram) cost at ``rho``:
+    ``s_p = Jᵀ[a_p (b_pᵀμ - y_p) + b_p (a_pᵀμ - y_p)]`` with the half-sample coefficients
+    ``a_p``, ``b_p`` (at even spp, with ``γ_p = (a_p + b_p)/2``, ``d_p = (a_p - b_p)/2`` and
+    ``r_p = γ_pᵀμ - y_p``: ``s_p = 2Jᵀ(γ_p r_p - d_p d_pᵀμ)``). Without halves (``b`` None)
+    ``s_p = 2Jᵀa_p r_p``. ``s̄`` is their mean (0 at an interior
+    minimum of the unprojected cost). With ``clusters`` the scores are summed within each cluster
+    first (the cluster-robust meat, :mod:`methods.symbolic.misfit.clusters`, with its CR1 correction).
+    With ``poses`` each view's camera is uncertain too (``method.align``): an error ``δ`` of its
+    pose moves pixel ``p``'s residual by ``G_p δ``, so the view's summed scores by ``T δ`` with
+    ``T = Σ_p ∂s_p/∂r_p G_p``; ``T Σ Tᵀ`` (``Σ`` the pose's covariance) is added to the meat
+    (the delta method; the pose error independent of the pixels' noise in this pass).
+
+    Parameters
+    ----------
+    basis : MonomialBasis
+        Basis of the observable parameters (``D``).
+    rho : numpy.ndarray
+        ``(D, C)`` estimate.
+    views : iterable
+        ``(coefficients, y[, weights])`` per view (``weights``: ``(n,)`` pixel weights of the
+        cost, or None for all 1): the coefficients as row blocks (``n_rows`` and ``blocks()``
+        giving ``(first row, block)``, a block with ``a``, ``b`` (lists of ``C`` sparse
+        matrices, ``b`` possibly None), ``split`` and ``codes`` (the monomial codes of the
+        matrices' columns, a subset of ``codes``):
+        :class:`~methods.symbolic.system.coefficients.TiledCoefficients` or ``ViewCoefficients``),
+        and the ``(n, C)`` observed pixels.
+    columns : numpy.ndarray
+        Index in ``codes`` of each monomial of ``basis``
+        (:func:`~methods.symbolic.uncertainty.observability.restrict_system`); the other
+        columns are weighted 0.
+    codes : numpy.ndarray
+        Sorted codes of the system the views were summed into.
+    owned : list, optional
+        Per view a ``(n, D)`` sparse 0/1 matrix: each pixel's score kept on the parameters that
+        own the pixel only (the per-segment fit's estimating equations,
+        :mod:`methods.symbolic.fit.per_segment`); None keeps every parameter (the joint cost).
+    clusters : list, optional
+        Per view the ``(n,)`` cluster id of each pixel (:func:`~methods.symbolic.misfit.clusters.cluster_ids`);
+        None: every pixel its own cluster (the pixel sandwich).
+    poses : iterable, optional
+        Per view, in turn, None (its camera exact) or ``(G, Σ)``: the ``(n, C, k)`` change of each pixel's
+        residual per unit of the pose's ``k`` parameters and their ``(k, k)`` covariance
+        (:func:`~methods.symbolic.misfit.registration.pose_sensitivity`).
+
+    Returns
+    -------
+    numpy.ndarray
+    """
+    rho = np.asarray(rho, dtype=float).reshape(basis.n_params, -1)
+    D, C = rho.shape
+    mu = np.zeros((C, len(codes)))
+    J = []
+    for c in range(C):
+        mu[c, columns] = basis.evaluate(rho[:, c])
+        Jc = basis.jacobian_sparse(rho[:, c]).tocoo()
+        J.append(sp.csr_matrix((Jc.data, (columns[Jc.row], Jc.col)), shape=(len(codes), D)))
+    outer, total, n, groups = np.zeros((C, D, D)), np.zeros((C, D)), 0, 0
+    pose_meat = np.zeros((C, D, D))
+    poses = None if poses is None else iter(poses)
+    for v, (view, y_view, *weights) in enumerate(views):
+        pose = None if poses is None else next(poses)
+        T = None if pose is None else np.zeros((C, D, pose[0].shape[2]))
+        n += view.n_rows
+        start = 0
+        ids = None if clusters is None else np.asarray(clusters[v])
+        n_groups = view.n_rows if ids is None else int(ids.max()) + 1
+        groups += n_groups
+        sums = [None] * C           # the view's cluster sums of the scores, per channel
+        # a tiled view: one block in memory at a time, scored a chunk of its rows at a time
+        for block, y_block, w_block in row_blocks(view, y_view, weights[0] if weights else None):
+            for lo, hi in _row_chunks(block):
+                y, w_pix = y_block[lo:hi], None if w_block is None else w_block[lo:hi]
+                own = None if owned is None else owned[v][start + lo:start + hi]
+                rows = None if ids is None else ids[start + lo:start + hi]
+                member = None if rows is None else sp.csr_matrix(
+                    (np.ones(len(rows)), (rows, np.arange(len(rows)))), shape=(n_groups, len(rows)))
+                # the channels on threads: their sparse products release the GIL
+                G = None if pose is None else pose[0][start + lo:start + hi]
+                tasks = [lambda c=c: _block_terms(*_score(block, (lo, hi), y, w_pix, mu, J, codes, own, c,
+                                                         slope=G is not None), member,
+                                                  None if G is None else G[:, c])
+                         for c in range(C)]
+                for c, (total_c, term, slope) in enumerate(run_threads(tasks)):
+                    total[c] += total_c
+                    if T is not None:
+                        T[c] += slope
+                    if member is None:
+                        outer[c] += term
+                    else:
+                        sums[c] = term if sums[c] is None else sums[c] + term
+            start += block.n_rows
+        for c in range(C):
+            if sums[c] is not None:
+                outer[c] += (sums[c].T @ sums[c]).toarray()
+            if T is not None:
+                pose_meat[c] += T[c] @ pose[1] @ T[c].T
+    meat = outer - np.einsum("ci,cj->cij", total, total) / max(groups, 1)
+    return (meat if clusters is None else cr1_factor(groups, n, D) * meat) + pose_meat
+
+
+def _row_chunks(block) -> list[tuple[int, int]]:
+    """``[lo, hi)`` row ranges of a block holding at most about :data:`SCORE_CHUNK_NNZ` stored
+    coefficients of one channel each (cut by channel 0's rows; a single row may exceed it)."""
+    count = block.a[0].indptr if block.b is None else block.a[0].indptr + block.b[0].indptr
+    cuts = np.searchsorted(count, np.arange(SCORE_CHUNK_NNZ, count[-1], SCORE_CHUNK_NNZ), side="right") - 1
+    edges = np.unique(np.concatenate([[0], cuts[cuts > 0], [block.n_rows]]))
+    return list(zip(edges[:-1].tolist(), edges[1:].tolist()))
+
+
+def _block_terms(s: sp.csr_matrix, ds: sp.csr_matrix | None, member: sp.csr_matrix | None, G: np.ndarray | None
+                 ) -> tuple[np.ndarray, object, np.ndarray | None]:
+    """A block's scores ``s`` summed over its pixels, and their outer product ``sᵀs`` (dense) or,
+    with the ``(clusters, n)`` 0/1 ``member``, their sums per cluster (sparse); with the pose
+    sensitivity ``G`` ``(n, k)`` of its residuals, ``dsᵀG`` ``(D, k)`` (``ds``: ∂s_p/∂r_p)."""
+    slope = None if G is None else np.asarray(ds.T @ G)
+    return np.asarray(s.sum(axis=0)).ravel(), (s.T @ s).toarray() if member is None else member @ s, slope
+
+
+def _score(block, rows: tuple[int, int], y, w_pix, mu, J, codes, own, c: int, *, slope: bool = False
+           ) -> tuple[sp.csr_matrix, sp.csr_matrix | None]:
+    """The ``(n, D)`` sparse scores ``s_p`` in channel ``c`` of a block's ``rows`` ``[lo, hi)``
+    and (``slope``) their derivatives ``∂s_p/∂r_p`` by the pixel's residual, else None
+    (:func:`score_meat`; the task copies only its own channel's rows)."""
+    lo, hi = rows
+    cut = (lambda m: m) if (lo, hi) == (0, block.n_rows) else (lambda m: m[lo:hi])   # noqa: E731
+    at = np.searchsorted(codes, block.codes)                 # the block's columns in ``codes``
+    mu_v, J_v = mu[c, at], J[c][at]
+    # sparse scores: a pixel's paths touch a few of the D parameters, so sᵀs costs
+    # Σ_p nnz(s_p)² instead of pixels × D² (dense)
+    A = cut(block.a[c])
+    ra, aJ = A @ mu_v - y[:, c], (A @ J_v).tocsr()
+    if block.b is None:
+        s = sp.diags(2.0 * ra) @ aJ
+        ds = 2.0 * aJ if slope else None
+    else:
+        B = cut(block.b[c])
+        rb, bJ = B @ mu_v - y[:, c], (B @ J_v).tocsr()
+        s = sp.diags(rb) @ aJ + sp.diags(ra) @ bJ
+        ds = aJ + bJ if slope else None
+    if w_pix is not None:            # the weighted cost's term: w_p times the unweighted one
+        s, ds = sp.diags(w_pix) @ s, None if ds is None else sp.diags(w_pix) @ ds
+    if own is not None:              # estimating equations: a pixel scores its owners only
+        s, ds = s.multiply(own), None if ds is None else ds.multiply(own)
+    return s.tocsr(), None if ds is None else sp.csr_matrix(ds)
