@@ -127,7 +127,8 @@ def main(argv=None) -> int:
     for name in [] if args.render_only else args.sections.split(","):
         t0 = time.perf_counter()
         data = measure(name, sizes, root, resume=args.resume)
-        record = {"section": name, "sizes": sizes.name, "date": machine["date"], "git": machine["git"],
+        record = {"section": name, "sizes": sizes.name, "sizes_values": dataclasses.asdict(sizes),
+                  "date": machine["date"], "git": machine["git"],
                   "variant": machine["variant"], "device": machine["device"],
                   "wall_s": time.perf_counter() - t0, "data": data}
         (store / f"{name}.json").write_text(json.dumps(_relative(_light(record)), indent=1, default=str))

@@ -177,7 +177,7 @@ def markdown(rows: list[dict], sizes, report_path, *, path: dict | None = None) 
                 f"{getattr(sizes, 'cmp_budget_all_differentiable', sizes.cmp_budget_all)} for the differentiable "
                 "one (the floors below say whether each curve had levelled off within its budget)")
              + _sizes_line(sizes)
-             + ", in this process with "
+             + ". Every run is in this process, by "
              "`run_experiment`. Observations come from a shared observation cache (rendered once per "
              "view set, copied into each run's otherwise empty cache), so totals exclude them. Errors: "
              "over the parameters and channels the symbolic run on the same views reports observable. "
@@ -211,9 +211,8 @@ def _sizes_line(sizes) -> str:
     where = " and ".join(x for x in (f"the single view at {single}" if single else "",
                                      f"all views at {every}" if every else "") if x)
     return (f"; {where} pixels wide (the cameras scaled, the observations rendered at that size, street_002 "
-            "is 200 wide in the bundled scene): a baseline's run is hundreds of renders, and at the scene's "
-            "own size the section alone took 85 min on this 2-core machine (2026-12-03), beyond the hour the "
-            "whole benchmark has. Every method runs at the same size, so the ratios and the equal-error "
+            "is 200 wide in the bundled scene): a baseline's run is hundreds of renders, which at the "
+            "scene's own size do not fit in the hour the whole benchmark has on a 2-core machine. Every method runs at the same size, so the ratios and the equal-error "
             "times compare like with like; the errors are those of the smaller images (fewer pixels per "
             "weight), not the bundled view's")
 

@@ -6,6 +6,8 @@ as its own module draws it (``markdown`` of :mod:`bench.render_ratio`, :mod:`ben
 :mod:`bench.tables`."""
 from __future__ import annotations
 
+import dataclasses
+
 from bench import (accuracy, compare, field, geometry, glossy, materials, megapixel, memory, misfit, paper,
                    render_ratio, survey)
 from bench.tables import stamped, table
@@ -32,19 +34,31 @@ def section_machine(m: dict, command: str, sizes, stored: dict) -> list[str]:
     return lines + table(["", ""], rows) + [""]
 
 
+def measured_sizes(record: dict, sizes):
+    """The sizes a stored section was measured at (its record's ``sizes_values``), so that its text
+    states them even after the defaults changed; ``sizes`` where the record has none."""
+    values = record.get("sizes_values")
+    if not values:
+        return sizes
+    known = {f.name for f in dataclasses.fields(sizes)}
+    return dataclasses.replace(sizes, **{k: tuple(v) if isinstance(v, list) else v
+                                          for k, v in values.items() if k in known})
+
+
 def render(machine: dict, command: str, sizes, stored: dict) -> str:
     """The whole BENCHMARKS.md text from the stored sections (:mod:`bench.__main__`)."""
     data = {name: rec["data"] for name, rec in stored.items()}
+    at = {name: measured_sizes(rec, sizes) for name, rec in stored.items()}
     lines = section_machine(machine, command, sizes, stored)
     cmp = data.get("compare") or {"rows": [], "lr": [], "report": ""}
     parts = {
         "ratio": lambda: render_ratio.markdown(data["ratio"]),
         "megapixel": lambda: megapixel.markdown(data["megapixel"]),
-        "memory": lambda: memory.markdown(data["memory"], sizes),
-        "compare": lambda: (compare.markdown(cmp["rows"], sizes, cmp["report"], path=cmp.get("path"))
+        "memory": lambda: memory.markdown(data["memory"], at["memory"]),
+        "compare": lambda: (compare.markdown(cmp["rows"], at["compare"], cmp["report"], path=cmp.get("path"))
                             + compare.lr_sweep_markdown(cmp["rows"], cmp["lr"])),
         "paper": lambda: paper.markdown(data["paper"], cmp["rows"]),
-        "materials": lambda: materials.markdown(data["materials"], sizes),
+        "materials": lambda: materials.markdown(data["materials"], at["materials"]),
         "defaults": lambda: accuracy.markdown(data["defaults"]),
         "field": lambda: field.markdown(data["field"]),
         "glossy": lambda: glossy.markdown(data["glossy"]),
