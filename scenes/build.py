@@ -13,7 +13,7 @@ from functools import partial
 from pathlib import Path
 
 from scenes import BUNDLED_DIR, city_block, cornell_box, furnace, plane_sky, street_block, urban_canyon
-from scenes import urban_canyon_field, urban_canyon_glossy, urban_canyon_misfit, urban_canyon_survey
+from scenes import urban_canyon_car, urban_canyon_field, urban_canyon_glossy, urban_canyon_misfit, urban_canyon_survey
 from scenes.preview import write_preview
 
 BUILDERS = {
@@ -28,6 +28,7 @@ BUILDERS = {
     "city_block": city_block.build,
     "urban_canyon_survey": urban_canyon_survey.build,
     "urban_canyon_misfit": urban_canyon_misfit.build,
+    "urban_canyon_car": urban_canyon_car.build,
 }
 
 

@@ -96,8 +96,11 @@ def pedestrian_box() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
 
 
 def extra_meshes(car_origin=CAR_ORIGIN) -> dict[str, g.Mesh]:
-    """Material name -> mesh of the objects the model lacks (car at ``car_origin``, pedestrian)."""
-    out = {k: g.merge([g.aabox(lo, hi) for lo, hi in boxes]) for k, boxes in car_boxes(car_origin).items()}
+    """Material name -> mesh of the objects the model lacks (car at ``car_origin``, pedestrian).
+    ``car_origin``: one (x, y), or a sequence of them (a car at each, the same materials)."""
+    origins = [car_origin] if np.ndim(car_origin) == 1 else list(car_origin)
+    boxes = [car_boxes(o) for o in origins]
+    out = {k: g.merge([g.aabox(lo, hi) for b in boxes for lo, hi in b[k]]) for k in boxes[0]}
     out["pedestrian"] = g.box(*pedestrian_box())
     return out
 
@@ -217,11 +220,12 @@ def _reference(value) -> np.ndarray:
 
 
 def photo_scene(folder: Path, segments: list[dict], emitters: list[dict], parts: dict[str, list],
-                cameras: list[Camera], car_origin=CAR_ORIGIN) -> Scene:
+                cameras: list[Camera], car_origin=CAR_ORIGIN, materials: dict | None = None) -> Scene:
     """The in-memory scene the photographs are rendered from: the delivered segments (meshes as
     ``parts`` holds them, emitters as written, the sky read back from ``sky.exr``) plus the
-    render-only materials of :data:`EXTRA_MATERIALS` on :func:`extra_meshes` (the car at
-    ``car_origin``)."""
+    render-only materials of ``materials`` (default :data:`EXTRA_MATERIALS`, the same keys) on
+    :func:`extra_meshes` (the car, or cars, at ``car_origin``)."""
+    materials = EXTRA_MATERIALS if materials is None else materials
     segs, meshes = [], []
     for s, seg in enumerate(segments):
         segs.append(Segment(seg["name"], tuple(seg["meshes"]), tuple(seg["kernels"]),
@@ -229,7 +233,7 @@ def photo_scene(folder: Path, segments: list[dict], emitters: list[dict], parts:
         for path, (_, (v, f)) in zip(seg["meshes"], parts[seg["name"]]):
             meshes.append(Mesh(path, np.asarray(v, float), np.asarray(f, np.int32), s))
     for name, mesh in extra_meshes(car_origin).items():
-        ref = EXTRA_MATERIALS[name]
+        ref = materials[name]
         segs.append(Segment(name, (f"<{name}>",), tuple(ref), {k: _reference(v) for k, v in ref.items()}))
         meshes.append(Mesh(f"<{name}>", np.asarray(mesh[0], float), np.asarray(mesh[1], np.int32), len(segs) - 1))
     ems = []

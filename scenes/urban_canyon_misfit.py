@@ -286,30 +286,55 @@ def build(folder: Path, *, image: int = IMAGE, spp: int = SPP, seed: int = SEED)
         Seeds urban_canyon_field's draws (intrinsics, gains, noise, sampler), the pose offsets and
         the tiles' levels.
     """
-    from framework.scene import load_scene
-
     t0 = time.perf_counter()
     folder = Path(folder)
-    parts, emitters, segments, cams, models = field.write_model(folder, image, seed, _comment())
+    made = photographed(folder, image=image, spp=spp, seed=seed, comment=_comment())
+    shares = made["measured"]["car_share"]
+    names = [c.name for c in made["cams"]]
+    car = {"masked": False, "origin": list(CAR_ORIGIN), "size_m": [4.2, 1.8, 1.5],
+           "boxes": {k: [{"lo": _r(lo), "hi": _r(hi)} for lo, hi in b] for k, b in field.car_boxes(CAR_ORIGIN).items()},
+           "materials": {k: field.EXTRA_MATERIALS[k] for k in CAR},
+           "pixels": {n: made["stats"][n]["car"] for n in names},
+           "asphalt_share": _r(shares, 4),
+           "views": [n for n in names if SHARE_RANGE[0] <= shares[n] <= SHARE_RANGE[1]]}
+    truth = truth_of(made, car, image=image, spp=spp, seed=seed)
+    (folder / "truth.yaml").write_text(_TRUTH_HEAD + yaml.safe_dump(truth, sort_keys=False, width=100,
+                                                                     default_flow_style=None))
+    (folder / "README.md").write_text(_readme(truth))
+    log.info("%s built in %.1f s", folder.name, time.perf_counter() - t0)
+    return folder
+
+
+def photographed(folder: Path, *, image: int, spp: int, seed: int, comment: str, car_origin=CAR_ORIGIN,
+                 materials: dict | None = None) -> dict:
+    """The model (urban_canyon_field's, ``comment`` atop scene.yaml) and the photographs of the
+    misfit truth (:func:`truth_parts`, rotated poses) with the car, or cars, at ``car_origin`` in
+    ``materials`` (:func:`scenes.urban_canyon_field.photo_scene`), written to ``folder``.
+
+    Returns
+    -------
+    dict
+        ``cams``, ``models``, ``gains``, ``stats``, ``offsets``, ``delta``, ``tile_stats`` and
+        ``measured`` (``car_share``: :func:`car_shares`, ``wall_seen``, ``motion``, ``facade``).
+    """
+    from framework.scene import load_scene
+
+    parts, emitters, segments, cams, models = field.write_model(folder, image, seed, comment)
     model = load_scene(folder)                       # before images/ exists: the model, no photographs
     offsets = pose_offsets(cams, seed)
     true_cams = [rotated(c, offsets[c.name]) for c in cams]
     renders = [field.render_camera(c, *m) for c, m in zip(true_cams, models)]
     view_gains = field.gains([c.name for c in cams], seed)
     t_segments, t_parts, delta, tile_stats = truth_parts(segments, parts, seed)
-    photo = field.photo_scene(folder, t_segments, emitters, t_parts, renders, car_origin=CAR_ORIGIN)
+    photo = field.photo_scene(folder, t_segments, emitters, t_parts, renders, car_origin=car_origin,
+                              materials=materials)
     codes, _, stats = field.photographs(photo, cams, models, renders, view_gains, spp=spp, seed=seed)
     field.write_images(folder, cams, codes, stats)
     measured = {"car_share": car_shares(model, photo, true_cams), "wall_seen": wall_seen(photo, delta, true_cams),
                 "motion": {c.name: image_motion(c, offsets[c.name]) for c in cams},
                 "facade": facade_motion(true_cams)}
-    truth = _truth(cams, models, view_gains, stats, offsets, measured, delta, tile_stats, image=image, spp=spp,
-                   seed=seed)
-    (folder / "truth.yaml").write_text(_TRUTH_HEAD + yaml.safe_dump(truth, sort_keys=False, width=100,
-                                                                     default_flow_style=None))
-    (folder / "README.md").write_text(_readme(truth))
-    log.info("%s built in %.1f s", folder.name, time.perf_counter() - t0)
-    return folder
+    return {"cams": cams, "models": models, "gains": view_gains, "stats": stats, "offsets": offsets,
+            "delta": delta, "tile_stats": tile_stats, "measured": measured}
 
 
 def _r(x, digits: int = 6):
@@ -320,9 +345,11 @@ def _r(x, digits: int = 6):
     return None if x is None else round(float(x), digits)
 
 
-def _truth(cams, models, view_gains, stats, offsets, measured, delta, tile_stats, *, image, spp, seed) -> dict:
+def truth_of(made: dict, car: dict, *, image: int, spp: int, seed: int) -> dict:
+    """truth.yaml's content: :func:`photographed`'s ``made`` and the ``car`` entry."""
+    cams, models, view_gains, stats = made["cams"], made["models"], made["gains"], made["stats"]
+    offsets, measured, delta, tile_stats = made["offsets"], made["measured"], made["delta"], made["tile_stats"]
     names = [c.name for c in cams]
-    shares = measured["car_share"]
     return {
         "seed": seed, "image_size": [image, image], "reference_view": field.REFERENCE_VIEW,
         "gains": {n: view_gains[n] for n in names},
@@ -331,13 +358,7 @@ def _truth(cams, models, view_gains, stats, offsets, measured, delta, tile_stats
                    "sizes": {n: stats[n]["render"] for n in names}},
         "clipped_pixels": {n: stats[n]["clipped"] for n in names},
         "saturated_pixels": {n: stats[n]["saturated"] for n in names},
-        "car": {"masked": False, "origin": list(CAR_ORIGIN), "size_m": [4.2, 1.8, 1.5],
-                "boxes": {k: [{"lo": _r(lo), "hi": _r(hi)} for lo, hi in b]
-                          for k, b in field.car_boxes(CAR_ORIGIN).items()},
-                "materials": {k: field.EXTRA_MATERIALS[k] for k in CAR},
-                "pixels": {n: stats[n]["car"] for n in names},
-                "asphalt_share": _r(shares, 4),
-                "views": [n for n in names if SHARE_RANGE[0] <= shares[n] <= SHARE_RANGE[1]]},
+        "car": car,
         "pedestrian": {"masked": False,
                        "box": {k: _r(v) for k, v in zip(("origin", "ex", "ey", "ez"), field.pedestrian_box())},
                        "pixels": {n: stats[n]["pedestrian"] for n in names}},
