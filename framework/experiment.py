@@ -18,7 +18,7 @@ from framework.cache import Cache
 from framework.config import RunSettings, requested_views, scene_dir
 from framework.errors import ConfigError
 from framework.executor import check_address
-from framework.holdout import HeldOut, check_held_out, holdout_names, split_holdout
+from framework.holdout import HeldOut, check_held_out, fitted_light, held_out_scenes, holdout_names, split_holdout
 from framework.holdout_run import holdout_entries
 from framework.brdf_kernels import canonical
 from framework.observe import observed_images
@@ -38,9 +38,10 @@ SAMPLES_PER_VIEW_MAX = 2**32 - 1
 
 
 def select_cameras(scene, cfg: DictConfig) -> list:
-    """The cameras of the views the configuration selects (all by default)."""
+    """The cameras of the views the configuration selects; ``views=all``: every view lit by
+    scene.yaml's ``emitters`` (the views of its ``lights`` are selected by name)."""
     names = requested_views(cfg)
-    return list(scene.cameras) if names is None else [scene.camera(n) for n in names]
+    return scene.lit_by(None) if names is None else [scene.camera(n) for n in names]
 
 
 def check_config(cfg: DictConfig) -> RunSettings:
@@ -118,25 +119,39 @@ def prepare(cfg: DictConfig, run_dir: str | Path | None = None) -> tuple[Problem
     Cache(settings.cache_dir).check_writable()     # before anything is loaded
     method = get_method(str(cfg.method.name))(cfg.method)
     backend.use_backend(str(cfg.variant))      # what loading evaluates (a sunsky) runs on the run's device
-    scene = load_scene(scene_dir(cfg))
+    loaded = load_scene(scene_dir(cfg))
+    cameras, held = split_holdout(loaded, select_cameras(loaded, cfg), holdout_names(cfg))
+    scene = loaded.under(fitted_light(loaded, cameras))          # the fit sees its views' light alone
     refuse_survey_unknowns(scene, type(method))
+    relit = held_out_scenes(loaded, scene, held)
     settings = dataclasses.replace(settings, variant=backend.set_variant(str(cfg.variant), channels=scene.channels))
-    cameras, held = split_holdout(scene, select_cameras(scene, cfg), holdout_names(cfg))
     _check_samples(scene, cameras + held, settings)
     _check_kernels_present(scene, getattr(method.options, "kernels", None))
     if run_dir is not None:
         check_output_names(run_dir, [c.name for c in cameras + held])
-    check_held_out(scene, held)
+    check_held_out(scene, held, relit)
     cameras, left_out = _usable_cameras(scene, cameras)
-    observed, t_observe = observed_images(scene, cameras + held, settings, cache=Cache(settings.cache_dir),
-                                          check=False)
+    observed, t_observe = _observations(scene, cameras, held, relit, settings)
     weights = None if scene.weights is None else {c.name: scene.weights[c.name] for c in cameras}
     held_out = HeldOut(held, {c.name: observed.pop(c.name) for c in held},
-                       None if scene.weights is None else {c.name: scene.weights[c.name] for c in held})
+                       None if scene.weights is None else {c.name: scene.weights[c.name] for c in held}, relit)
     problem = Problem(scene=scene, cameras=cameras, observed=observed, parameters=scene.parameters(),
                       settings=settings, weights=weights, views_left_out=left_out, held_out=held_out)
     method.check_problem(problem)        # what the method cannot do with this scene: before any run folder
     return problem, method, t_observe
+
+
+def _observations(scene, cameras: list, held: list, relit: dict, settings: RunSettings) -> tuple[dict, float]:
+    """The observed images of the fitted and the held-out views, and the seconds spent rendering
+    them: each view's under its own light (``relit``: the held-out views of another light)."""
+    cache = Cache(settings.cache_dir)
+    own = [c for c in held if c.name not in relit]
+    observed, seconds = observed_images(scene, cameras + own, settings, cache=cache, check=False)
+    for light in dict.fromkeys(relit[c.name].light for c in held if c.name in relit):
+        views = [c for c in held if c.name in relit and relit[c.name].light == light]
+        more, t = observed_images(relit[views[0].name], views, settings, cache=cache, check=False)
+        observed, seconds = {**observed, **more}, seconds + t
+    return observed, seconds
 
 
 def run_experiment(cfg: DictConfig, run_dir: str | Path, *,
@@ -202,6 +217,7 @@ def _write_run(cfg, run_dir: Path, problem: Problem, result, segment_maps: dict,
     result.timings_s["total"] = time.perf_counter() - t0
     summary = {"scene_dir": str(scene.root), "scene_hash": scene.content_hash, "views": [c.name for c in cameras],
                "holdout": [c.name for c in problem.held_out.cameras] if problem.held_out else [],
+               "light": scene.light,
                "variant": settings.variant, "device": backend.device_name(settings.variant),
                "seed": settings.seed, "spp": settings.spp, "max_bounces": settings.max_bounces,
                "tail_bounces": settings.tail_bounces,

@@ -10,6 +10,11 @@ gets the per-channel median of the fitted views' estimated gains (1 when the met
 none), and the vignetting profile of its lens (scene.yaml's, or the one the fit estimated). An
 emitter of unknown scale shines at the scale the fit estimated (:func:`estimated_light`).
 
+A view photographed under another light than the fitted views' (scene.yaml ``lights``) is
+predicted under its own light as declared: relighting. Its light must then be known (no emitter
+of unknown scale: no fitted view could estimate it, :func:`held_out_scenes`); the fitted views
+all share one light (:func:`fitted_light`), and the fit sees that light alone.
+
 Image-space std (``z_rms``): each pixel's predicted variance is the delta method through the
 pixel at the estimate, ``J Σ Jᵀ`` per channel (``J`` the pixel's derivatives in the weights,
 ``Σ`` the parameters' covariance from the method's ``std`` and ``correlation``), plus the
@@ -42,6 +47,13 @@ class HeldOut:
     cameras: list
     observed: dict
     weights: dict | None = None
+    #: view -> the scene it is lit by, for the views photographed under another light than the
+    #: fitted ones (:func:`held_out_scenes`); the others are lit by the problem's scene
+    scenes: dict | None = None
+
+    def scene_of(self, name: str, default):
+        """The scene view ``name`` is lit by: its own light's, or ``default`` (the fit's)."""
+        return (self.scenes or {}).get(name, default)
 
     def used(self, name: str) -> np.ndarray:
         """``(H, W)`` bool: the pixels of view ``name`` the run would have used."""
@@ -78,10 +90,53 @@ def split_holdout(scene, cameras: list, names: list[str]) -> tuple[list, list]:
     return fitted, [scene.camera(n) for n in names]
 
 
-def check_held_out(scene, held: list) -> None:
+def light_label(light: str | None) -> str:
+    """A light in a message: ``light 'name'``, or scene.yaml's emitters for None."""
+    return "scene.yaml emitters" if light is None else f"light '{light}'"
+
+
+def fitted_light(scene, cameras: list) -> str | None:
+    """The light the fitted ``cameras`` were photographed under (:meth:`Scene.light_of`); a
+    ConfigError when they span two lights (a fit sees one light)."""
+    groups: dict = {}
+    for c in cameras:
+        groups.setdefault(scene.light_of(c.name), []).append(c.name)
+    if len(groups) > 1:
+        shown = "; ".join(f"{light_label(k)}: {', '.join(v[:3])}{', ...' if len(v) > 3 else ''}"
+                          for k, v in groups.items())
+        raise ConfigError(f"views selects photographs of {len(groups)} lights ({shown}), and a fit takes the views "
+                          "of one light: select one light's views (views=[...]) and hold out the others "
+                          "(holdout=[...]) to predict them under their own light")
+    return next(iter(groups), None)
+
+
+def held_out_scenes(scene, fit_scene, held: list) -> dict:
+    """View -> the scene (loaded ``scene`` under the view's light, :meth:`Scene.under`) of each
+    held-out view photographed under another light than the fit's (``fit_scene.light``).
+    ConfigError for such a light with an emitter of unknown scale: no fitted view estimates it."""
+    out = {}
+    for cam in held:
+        light = scene.light_of(cam.name)
+        if light == fit_scene.light:
+            continue
+        lit = scene.under(light)
+        unknown = next((e for e in lit.emitters if e.scale_unknown), None)
+        if unknown is not None:
+            key = "scale" if unknown.part is None else f"{unknown.part}_scale"
+            kind = "sunsky" if unknown.part is not None else unknown.type
+            raise ConfigError(f"holdout view {cam.name} was photographed under {light_label(light)}, whose emitter "
+                              f"{unknown.source} ({kind}) {key} is unknown, and the fitted views (under "
+                              f"{light_label(fit_scene.light)}) cannot estimate it: give {key} as a number in "
+                              f"{light_label(light)}, or fit views of that light")
+        out[cam.name] = lit
+    return out
+
+
+def check_held_out(scene, held: list, scenes: dict | None = None) -> None:
     """ConfigError for a held-out view that could not be compared with its prediction: no usable
-    pixel, or (:func:`framework.render.checks.check_views` on the view alone) only sky in its
-    usable pixels, or no light on what it sees."""
+    pixel, or (:func:`framework.render.checks.check_views` on the view alone, under its own light:
+    ``scenes``, :func:`held_out_scenes`, else ``scene``'s) only sky in its usable pixels, or no
+    light on what it sees."""
     from framework.errors import SceneError
     from framework.render.checks import check_views
     for cam in held:
@@ -90,7 +145,7 @@ def check_held_out(scene, held: list) -> None:
             raise ConfigError(f"holdout view {cam.name} has no usable pixel (every pixel masked, saturated or "
                               "black), so there is nothing to compare its prediction with: hold out another view")
         try:
-            check_views(scene, [cam], weights=weights)
+            check_views((scenes or {}).get(cam.name, scene), [cam], weights=weights)
         except SceneError as exc:
             raise ConfigError(f"holdout view {cam.name} cannot be compared with its prediction ({exc})") from None
 

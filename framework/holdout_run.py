@@ -88,30 +88,54 @@ def jacobian_variance(problem, cameras, rho, params, cov: np.ndarray) -> dict:
     return out
 
 
-def _variances(problem, result, held: HeldOut, rho, params, mc_var: dict, noise: dict) -> dict:
+def _variances(problem, result, held: HeldOut, lit, rho, params, mc_var: dict, noise: dict) -> dict:
     """Predicted residual variance of each held-out pixel, per view: the observation noise, the
-    prediction's Monte Carlo variance and ``J Σ Jᵀ`` (None where the observation noise is
-    unknown)."""
+    prediction's Monte Carlo variance and ``J Σ Jᵀ`` (each view under its light, the fit's
+    ``lit``; None where the observation noise is unknown)."""
     cov = covariance(result, params)
-    model = jacobian_variance(problem, held.cameras, rho, params, cov) if cov is not None else {}
+    model = {}
+    if cov is not None:
+        model, = _by_light(problem, held, lit, lambda p, cams: (jacobian_variance(p, cams, rho, params, cov),))
     return {c.name: None if noise[c.name] is None else noise[c.name] + mc_var[c.name] + model.get(c.name, 0.0)
             for c in held.cameras}
+
+
+def light_groups(problem, held: HeldOut, scene) -> list:
+    """``[(problem, cameras)]``: the held-out views grouped by the scene they are lit by, each with
+    ``problem`` on that scene: ``scene`` (the fit's light) for the views of the fit's light, their
+    own light's (:attr:`HeldOut.scenes`) for the others."""
+    groups: dict = {}
+    for c in held.cameras:
+        lit = held.scene_of(c.name, scene)
+        groups.setdefault(lit.light, (dataclasses.replace(problem, scene=lit), []))[1].append(c)
+    return list(groups.values())
+
+
+def _by_light(problem, held: HeldOut, scene, fn) -> tuple:
+    """``fn(problem, cameras)`` (a tuple of dicts by view) on each light group (:func:`light_groups`),
+    the dicts merged."""
+    merged = None
+    for p, cams in light_groups(problem, held, scene):
+        out = fn(p, cams)
+        merged = out if merged is None else tuple({**a, **b} for a, b in zip(merged, out))
+    return merged
 
 
 def holdout_entries(problem, result, held: HeldOut, run_dir: Path | None = None) -> list[dict]:
     """results.json ``holdout``: one entry per held-out view (docs/results.md), with its
     ``floor`` (the same metrics of a prediction at the scene's ``reference`` weights, when every
     weight has one, its variance the noise terms alone); the photograph and the prediction as
-    EXRs under ``images/holdout/`` when ``run_dir`` is given."""
+    EXRs under ``images/holdout/`` when ``run_dir`` is given. A view photographed under another
+    light than the fitted views' is predicted under that light (:attr:`HeldOut.scenes`)."""
     if not held.cameras:
         return []
     floor = _floor(problem, held)
-    problem = dataclasses.replace(problem, scene=estimated_light(problem.scene, result.extras))
     params = list(result.parameters or problem.parameters)
     rho = np.nan_to_num(np.asarray(result.estimate, float)[[p.index for p in params]])
-    preds, mc_var = predict(problem, held.cameras, rho, params)
+    lit = estimated_light(problem.scene, result.extras)
+    preds, mc_var = _by_light(problem, held, lit, lambda p, cams: predict(p, cams, rho, params))
     noise = observation_noise(problem, result, held, mc_var)
-    variances = _variances(problem, result, held, rho, params, mc_var, noise)
+    variances = _variances(problem, result, held, lit, rho, params, mc_var, noise)
     gain = held_out_gain(result.extras, problem.n_channels)
     seg = view_segment_maps(problem.scene, held.cameras)
     paths = image_paths(c.name for c in held.cameras)
@@ -119,7 +143,8 @@ def holdout_entries(problem, result, held: HeldOut, run_dir: Path | None = None)
     for c in held.cameras:
         scale = gain * lens_falloff(problem.scene, c, result.extras)
         compare = _Comparison(problem, held, c, scale, seg[c.name])
-        entry = {**compare.metrics(preds[c.name], variances[c.name]), "gain": [float(g) for g in gain]}
+        entry = {**compare.metrics(preds[c.name], variances[c.name]), "gain": [float(g) for g in gain],
+                 "light": held.scene_of(c.name, problem.scene).light}
         if floor is not None:
             entry["floor"] = compare.metrics(floor[0][c.name], None if noise[c.name] is None else
                                              noise[c.name] + floor[1][c.name])
@@ -151,13 +176,13 @@ class _Comparison:
 
 
 def _floor(problem, held: HeldOut):
-    """Predictions at the scene's ``reference`` weights under its light as declared (None when
-    some weight has none)."""
+    """Predictions at the scene's ``reference`` weights, each view under its light as declared
+    (None when some weight has none)."""
     params = problem.parameters
     ref = problem.scene.reference(params)
     if ref is None or np.isnan(ref).any():
         return None
-    return predict(problem, held.cameras, ref, params)
+    return _by_light(problem, held, problem.scene, lambda p, cams: predict(p, cams, ref, params))
 
 
 def _write(run_dir: Path, base: str, observed, predicted, channels) -> dict:

@@ -6,7 +6,7 @@ builders use (:mod:`.write`), checked image input (:mod:`.exr`) and the field ph
 The format is documented in ``docs/scene-format.md``.
 """
 from framework.scene.load import image_file, load_scene
-from framework.scene.model import CHANNELS, Camera, Emitter, Mesh, Parameter, Photometry, Scene, Segment
+from framework.scene.model import CHANNELS, Camera, Emitter, Light, Mesh, Parameter, Photometry, Scene, Segment
 
-__all__ = ["CHANNELS", "Camera", "Emitter", "Mesh", "Parameter", "Photometry", "Scene", "Segment", "image_file",
+__all__ = ["CHANNELS", "Camera", "Emitter", "Light", "Mesh", "Parameter", "Photometry", "Scene", "Segment", "image_file",
            "load_scene"]

@@ -74,8 +74,10 @@ class EmitterSpec:
     sunsky: SunskySpec | None = None         # sunsky
 
 
-def read_emitter(e: object, i: int, path: Path, channels: tuple[str, ...]) -> EmitterSpec:
-    where = f"{path}: emitter {i}"
+def read_emitter(e: object, i: int, path: Path, channels: tuple[str, ...], *, within: str = "") -> EmitterSpec:
+    """Emitter ``i`` of scene.yaml ``path``'s ``emitters`` (or of a light's: ``within`` is then
+    ``"light 'name' "``, which the messages name)."""
+    where = f"{path}: {within}emitter {i}"
     if not isinstance(e, dict):
         raise SceneError(f"{where} must be a mapping with a type, e.g. {{type: constant, radiance: 1.0}}; "
                          f"got {shown(e)}")

@@ -25,7 +25,7 @@ from framework.errors import SceneError
 from framework.render import sunsky
 from framework.scene.colmap import read_model
 from framework.scene.exr import read_exr_checked
-from framework.scene.model import Emitter, Mesh, Scene
+from framework.scene.model import Emitter, Light, Mesh, Scene
 from framework.scene.photos import image_file, read_photos
 from framework.scene.emitter_schema import EmitterSpec
 from framework.scene.schema import SceneSpec, read_scene_yaml
@@ -70,6 +70,7 @@ def load_scene(directory: str | os.PathLike, *, observations: bool = True) -> Sc
     emitters = tuple(part for i, e in enumerate(spec.emitters) for part in _emitter(root, e, i, spec))
     model = read_model(root)
     _check_reference_view(spec, model)
+    lights = _lights(root, spec, [c.name for c in model.cameras], model.files["images"])
     photos = read_photos(root, model.cameras, spec.channels, spec.photometry)
     # a known weight is its own reference (Scene.reference)
     if observations and photos is None and not all(set(s.reference or {}) | set(s.known or {}) == set(s.kernels)
@@ -83,7 +84,7 @@ def load_scene(directory: str | os.PathLike, *, observations: bool = True) -> Sc
                  pose_source=model.pose_source, weights=None if photos is None else photos.weights,
                  noise=None if photos is None else photos.noise, photometry=spec.photometry,
                  excluded=None if photos is None else photos.excluded,
-                 origin=spec.origin)
+                 origin=spec.origin, lights=lights)
 
 
 def _check_reference_view(spec: SceneSpec, model) -> None:
@@ -94,6 +95,26 @@ def _check_reference_view(spec: SceneSpec, model) -> None:
         shown = ", ".join(names[:8]) + (f", ... ({len(names)} images)" if len(names) > 8 else "")
         raise SceneError(f"{spec.path}: photometry reference_view '{view}' is not an image of "
                          f"{model.files['images']}; name one of: {shown}")
+
+
+def _lights(root: Path, spec: SceneSpec, names: list[str], images: Path) -> tuple[Light, ...]:
+    """scene.yaml ``lights`` with their emitters read; every view they name an image of the
+    model, and some view left to ``emitters``."""
+    for light in spec.lights:
+        for v in light.views:
+            if v not in names:
+                shown = ", ".join(names[:8]) + (f", ... ({len(names)} images)" if len(names) > 8 else "")
+                raise SceneError(f"{spec.path}: light '{light.name}' views names {v}, which is not an image of "
+                                 f"{images}; name one of: {shown}")
+    named = {v for light in spec.lights for v in light.views}
+    if spec.lights and named >= set(names):
+        raise SceneError(f"{spec.path}: lights name every image of {images}, so emitters light no view; "
+                         "emitters are the light of the views no light names: move one light's emitters there "
+                         "and its entry out of lights")
+    return tuple(Light(light.name, light.views,
+                       tuple(part for i, e in enumerate(light.emitters)
+                             for part in _emitter(root, e, i, spec, label=f"light '{light.name}' emitter {i}")))
+                 for light in spec.lights)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -184,12 +205,14 @@ def _check_surfaces(spec: SceneSpec, meshes: tuple[Mesh, ...]) -> None:
                              f"triangles of {', '.join(m.path for m in own)} have zero area; fix the mesh")
 
 
-def _emitter(root: Path, e: EmitterSpec, i: int, spec: SceneSpec) -> tuple[Emitter, ...]:
-    """The model's emitter(s) of scene.yaml's emitter ``i``: one, or a sunsky's sky and sun. A
-    number ``scale`` is applied (see :class:`Emitter`)."""
+def _emitter(root: Path, e: EmitterSpec, i: int, spec: SceneSpec, *, label: str | None = None
+             ) -> tuple[Emitter, ...]:
+    """The model's emitter(s) of scene.yaml's emitter ``i`` (of ``emitters``, or of a light:
+    ``label`` names it in messages): one, or a sunsky's sky and sun. A number ``scale`` is applied
+    (see :class:`Emitter`)."""
     tag = {"source": i, "scale_unknown": e.scale_unknown}
     if e.type == "sunsky":
-        return _sunsky_parts(e.sunsky, i, spec)
+        return _sunsky_parts(e.sunsky, i, spec, label or f"emitter {i}")
     if e.type == "envmap":
         image = read_exr_checked(root / e.file, channels=spec.channels)
         return (Emitter(e.type, image=image, scale=e.scale, file=e.file, **tag),)
@@ -200,7 +223,7 @@ def _emitter(root: Path, e: EmitterSpec, i: int, spec: SceneSpec) -> tuple[Emitt
     return (Emitter(e.type, direction=e.direction, irradiance=e.irradiance * e.scale, **tag),)
 
 
-def _sunsky_parts(s, i: int, spec: SceneSpec) -> tuple[Emitter, Emitter]:
+def _sunsky_parts(s, i: int, spec: SceneSpec, label: str) -> tuple[Emitter, Emitter]:
     """A ``sunsky``'s sky (``envmap``, baked by :mod:`framework.render.sunsky`, never written
     anywhere) and sun (``directional``); the sun placed from place and time in the world with
     the scene's ``north``, or given."""
@@ -210,7 +233,7 @@ def _sunsky_parts(s, i: int, spec: SceneSpec) -> tuple[Emitter, Emitter]:
     else:
         elevation, azimuth = sunsky.sun_position(s.latitude, s.longitude, s.time)
         if elevation <= 0:
-            raise SceneError(f"{spec.path}: emitter {i} (sunsky): the sun is {-elevation:.1f} deg below the "
+            raise SceneError(f"{spec.path}: {label} (sunsky): the sun is {-elevation:.1f} deg below the "
                              f"horizon at latitude {s.latitude:g}, longitude {s.longitude:g} on "
                              f"{s.time.isoformat()}; check the date, the time and its UTC offset (the sky "
                              "model needs a sun above the horizon)")
@@ -232,7 +255,8 @@ def _inputs(root: Path, spec: SceneSpec, meshes, model_files: dict[str, Path], p
     observed images and masks (``photos``, the files read)."""
     inputs = {"scene.yaml": spec.path}
     inputs.update({m.path: root / m.path for m in meshes})
-    inputs.update({e.file: root / e.file for e in spec.emitters if e.type == "envmap"})
+    for emitters in (spec.emitters, *(light.emitters for light in spec.lights)):
+        inputs.update({e.file: root / e.file for e in emitters if e.type == "envmap"})
     inputs.update({path.relative_to(root).as_posix(): path for path in model_files.values()})
     inputs.update({path.relative_to(root).as_posix(): path for path in photos})
     return inputs

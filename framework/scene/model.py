@@ -3,6 +3,8 @@ own Mitsuba scenes). :func:`framework.scene.load.load_scene` builds it from a sc
 (``docs/scene-format.md``)."""
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -79,6 +81,16 @@ class Emitter:
     scale_unknown: bool = False
     source: int | None = None                # index of the emitter in scene.yaml's ``emitters``
     part: str | None = None                  # "sun" | "sky" for the parts of a ``sunsky``, else None
+
+
+@dataclass(frozen=True)
+class Light:
+    """A light of scene.yaml ``lights``: the photographs of ``views`` were taken under
+    ``emitters`` instead of the scene's ``emitters`` (another hour, another day)."""
+
+    name: str
+    views: tuple[str, ...]
+    emitters: tuple[Emitter, ...]
 
 
 #: Why a pixel is left out of a fit, by code (the index): the scene's (``mask``, ``saturated``: an
@@ -183,6 +195,35 @@ class Scene:
     #: scene.yaml ``origin``: the survey coordinates (a national grid, CityJSON's) of the local
     #: (0, 0, 0) the meshes and cameras are given in; None when the scene names none
     origin: tuple[float, float, float] | None = field(default=None, compare=False)
+    #: scene.yaml ``lights``: the other lights, each with the views photographed under it; every
+    #: view they do not name is lit by ``emitters`` (:meth:`light_of`)
+    lights: tuple[Light, ...] = field(default=(), compare=False)
+    #: the light ``emitters`` are: None for scene.yaml's ``emitters``, a name of ``lights`` for a
+    #: scene from :meth:`under`
+    light: str | None = field(default=None, compare=False)
+
+    def light_of(self, view: str) -> str | None:
+        """The name of the light view ``view`` was photographed under: a name of ``lights``, or
+        None for scene.yaml's ``emitters``."""
+        return next((light.name for light in self.lights if view in light.views), None)
+
+    def lit_by(self, light: str | None) -> list[Camera]:
+        """The cameras of the views photographed under ``light`` (:meth:`light_of`), by name."""
+        return [c for c in self.cameras if self.light_of(c.name) == light]
+
+    def under(self, light: str | None) -> Scene:
+        """This scene lit by ``light``: its emitters in place of ``emitters`` (``light`` set, the
+        content hash changed with it); None or the scene's own light: the scene itself."""
+        if light == self.light:
+            return self
+        if self.light is not None:
+            raise ValueError(f"scene under light '{self.light}': relight the scene as loaded")
+        found = next((x for x in self.lights if x.name == light), None)
+        if found is None:
+            raise ValueError(f"scene {self.name} has no light '{light}' (its lights: "
+                             f"{', '.join(x.name for x in self.lights) or 'none'})")
+        digest = hashlib.sha256(f"{self.content_hash}/light/{light}".encode()).hexdigest()[:16]
+        return dataclasses.replace(self, emitters=found.emitters, light=light, content_hash=digest)
 
     def parameters(self, *, kernels: tuple[str, ...] | None = None):
         """The unknowns (segment, kernel) in segment order; ``kernels`` (canonical names,

@@ -22,7 +22,11 @@ from framework.scene.values import (one_line, quoted, read_channels, read_list, 
 
 # The keys of each mapping, in the order the docs list them: True for a required key.
 TOP_KEYS = {"name": False, "channels": False, "origin": False, "segments": True, "emitters": True,
-            "photometry": False}
+            "lights": False, "photometry": False}
+LIGHT_KEYS = {"name": True, "views": True, "emitters": True}
+#: emitter types a light of ``lights`` may hold: an ``area`` emitter's meshes are geometry, the
+#: same under every light
+LIGHT_TYPES = ("constant", "directional", "envmap", "sunsky")
 SEGMENT_KEYS = {"name": True, "meshes": True, "kernels": False, "reference": False, "known": False}
 PHOTOMETRY_KEYS = {"encoding": False, "exposure": False, "reference_view": False, "saturation": False,
                    "vignetting": False, "resampling": False}
@@ -47,6 +51,16 @@ class SceneSpec:
     emitters: tuple[EmitterSpec, ...]
     photometry: Photometry = field(default_factory=Photometry)
     origin: tuple[float, float, float] | None = None   # where the local frame's (0, 0, 0) lies in the survey's
+    lights: tuple[LightSpec, ...] = ()       # ``lights``: the views photographed under other emitters
+
+
+@dataclass(frozen=True)
+class LightSpec:
+    """One checked entry of ``lights``: the views photographed under ``emitters``."""
+
+    name: str
+    views: tuple[str, ...]
+    emitters: tuple[EmitterSpec, ...]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -85,7 +99,8 @@ def read_scene_yaml(root: Path) -> SceneSpec:
     name = read_text(desc["name"], f"{path}: name") if "name" in desc else None
     photometry = _photometry(desc["photometry"], f"{path}: photometry") if "photometry" in desc else Photometry()
     origin = _origin(desc["origin"], f"{path}: origin") if "origin" in desc else None
-    return SceneSpec(path, name, channels, segments, emitters, photometry, origin)
+    lights = _lights(desc["lights"], path, channels) if "lights" in desc else ()
+    return SceneSpec(path, name, channels, segments, emitters, photometry, origin, lights)
 
 
 class _StrictLoader(yaml.SafeLoader):
@@ -141,6 +156,45 @@ def _segment(s: object, i: int, path: Path, channels: tuple[str, ...]) -> Segmen
     reference = _reference(s["reference"], kernels, channels, f"{where} reference") if "reference" in s else None
     known = _known(s["known"], kernels, reference, channels, f"{where} known") if "known" in s else None
     return Segment(name, meshes, kernels, reference, known)
+
+
+def _lights(value: object, path: Path, channels: tuple[str, ...]) -> tuple[LightSpec, ...]:
+    """``lights``: a non-empty list of ``{name, views, emitters}``, the names unique, each view in
+    one light at most, the emitters read as ``emitters`` is (``area`` refused)."""
+    example = "{name: morning, views: [morning_000.png], emitters: [{type: constant, radiance: 0.5}]}"
+    items = read_list(value, f"{path}: lights", example)
+    if not items:
+        raise SceneError(f"{path}: lights is empty; list the views photographed under other emitters, "
+                         f"e.g. [{example}], or leave the key out (every view is lit by emitters)")
+    out: list[LightSpec] = []
+    for i, x in enumerate(items):
+        named = isinstance(x, dict) and isinstance(x.get("name"), str) and x["name"].strip()
+        where = f"{path}: light '{x['name']}'" if named else f"{path}: light {i}"
+        x = read_mapping(x, LIGHT_KEYS, where)
+        name = read_text(x["name"], f"{where} name")
+        if any(o.name == name for o in out):
+            raise SceneError(f"{path}: lights {[o.name for o in out].index(name)} and {i} are both named "
+                             f"'{name}'; give each light its own name (it names the views' light in the results)")
+        views = read_names(x["views"], f"{where} views", "morning_000.png",
+                           empty=f"{where} views is empty; list the images (names of images.txt) photographed "
+                                 "under this light")
+        for v in views:
+            other = next((o.name for o in out if v in o.views), None)
+            if other is not None or views.count(v) > 1:
+                again = f"lights '{other}' and '{name}'" if other is not None else f"light '{name}' twice"
+                raise SceneError(f"{where} views: {v} is in {again}; a photograph was taken under one light: "
+                                 "list it once")
+        emitters = tuple(read_emitter(e, j, path, channels, within=f"light '{name}' ") for j, e in enumerate(
+            read_list(x["emitters"], f"{where} emitters", "{type: constant, radiance: 1.0}")))
+        if not emitters:
+            raise SceneError(f"{where} emitters is empty; list the emitters of this light (at least one)")
+        for j, e in enumerate(emitters):
+            if e.type not in LIGHT_TYPES:
+                raise SceneError(f"{where} emitter {j} ({e.type}): an area emitter's meshes are geometry, the "
+                                 f"same under every light, so a light takes only {', '.join(LIGHT_TYPES)}; "
+                                 "list area emitters under emitters")
+        out.append(LightSpec(name, views, emitters))
+    return tuple(out)
 
 
 def _kernels(value: object, where: str) -> tuple[str, ...]:
