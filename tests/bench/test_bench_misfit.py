@@ -80,15 +80,16 @@ def test_rows_and_targets_match_the_brief():
 @pytest.mark.slow
 def test_quick_section_runs(tmp_path):
     """``python -m bench --quick --sections misfit``'s code path: the scene built at 40 pixels,
-    four runs at 4 spp with one refinement pass; every row finishes with gains, the two that
-    align (a and d: the default aligns photographs) report a pose error, the others none. Their
+    four runs at 4 spp with one refinement pass, then the car scene's row (e) the same way; every
+    row finishes with gains, the three that align (a, d and e: the default aligns photographs)
+    report a pose error, the others none. Their
     accuracy at this size is not the point: at 4 spp most weights are ill-determined (measured:
     11 of 12 in rows b-d, all 12 in row a, whose worst errors are then n/a)."""
     rows = misfit.run(QUICK, tmp_path, log=lambda *a: None)
-    assert [r["row"] for r in rows] == list(misfit.ROWS)
+    assert [r["row"] for r in rows] == list(misfit.ROWS) + list(misfit.CAR_ROWS)
     for r in rows:
         assert r["rc"] == 0 and r["gain_error"] is not None and r["ill_determined"] >= 1
-        assert (r["pose_error"] is not None) == (r["row"] in ("a", "d"))
+        assert (r["pose_error"] is not None) == (r["row"] in ("a", "d", "e"))
     assert any(r["worst_diffuse"] is not None for r in rows)
     text = "\n".join(misfit.markdown(rows))
-    assert "## 11. Misfit" in text and text.count("| (") == len(misfit.ROWS)
+    assert "## 11. Misfit" in text and text.count("| (") == len(misfit.ROWS) + len(misfit.CAR_ROWS)
