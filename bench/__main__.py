@@ -6,7 +6,9 @@ learning-rate sweep), ``paper`` (4, Tables 1 and 2), ``materials`` (5), ``defaul
 accurate by default), ``field`` (7, field photographs), ``glossy`` (8, glossy kernels), ``geometry``
 (9, geometry as a survey delivers it), ``survey`` (10, unknown sun and sky scales, vignetting and a
 calibration panel on ``urban_canyon_survey``), ``misfit`` (11, what the model lacks: an unmasked car,
-rotated poses, a facade off its mesh and textured walls on ``urban_canyon_misfit``). ``--variant``
+rotated poses, a facade off its mesh and textured walls on ``urban_canyon_misfit``), ``holdout`` (12,
+every method's prediction of photographs it never fitted against the floor: a street view of
+``urban_canyon_field``, the morning of ``urban_canyon_survey``). ``--variant``
 (default ``auto``: CUDA when usable, else LLVM) is the Mitsuba backend of every run; each stored
 section records its variant and device. Each
 section's numbers are stored in ``bench/results/<section>.json`` (with the date, the commit and
@@ -26,8 +28,8 @@ import sys
 import time
 from pathlib import Path
 
-from bench import (accuracy, compare, field, geometry, glossy, materials, megapixel, memory, misfit, paper,
-                   render_ratio, survey)
+from bench import (accuracy, compare, field, geometry, glossy, holdout, materials, megapixel, memory, misfit,
+                   paper, render_ratio, survey)
 from bench.common import ROOT
 from framework.render import backend
 from bench.machine import describe
@@ -36,7 +38,7 @@ from bench.sizes import DEFAULT, QUICK
 from reports import write_comparison
 
 SECTIONS = ("ratio", "megapixel", "memory", "compare", "paper", "materials", "defaults", "field", "glossy",
-            "geometry", "survey", "misfit")
+            "geometry", "survey", "misfit", "holdout")
 RESULTS = ROOT / "bench" / "results"
 
 
@@ -110,6 +112,8 @@ def measure(name: str, sizes, root: Path, resume: bool = False):
         return survey.run(sizes, root / "survey", log)
     if name == "misfit":
         return misfit.run(sizes, root / "misfit", log)
+    if name == "holdout":
+        return holdout.run(sizes, root / "holdout", log)
     return glossy.run(sizes, root / "glossy", log)
 
 

@@ -2,14 +2,14 @@
 as its own module draws it (``markdown`` of :mod:`bench.render_ratio`, :mod:`bench.megapixel`,
 :mod:`bench.memory`, :mod:`bench.compare`, :mod:`bench.paper`, :mod:`bench.materials`,
 :mod:`bench.accuracy`, :mod:`bench.field`, :mod:`bench.glossy`, :mod:`bench.geometry`,
-:mod:`bench.survey`, :mod:`bench.misfit`), through
+:mod:`bench.survey`, :mod:`bench.misfit`, :mod:`bench.holdout`), through
 :mod:`bench.tables`."""
 from __future__ import annotations
 
 import dataclasses
 
-from bench import (accuracy, compare, field, geometry, glossy, materials, megapixel, memory, misfit, paper,
-                   render_ratio, survey)
+from bench import (accuracy, compare, field, geometry, glossy, holdout, materials, megapixel, memory, misfit,
+                   paper, render_ratio, survey)
 from bench.tables import stamped, table
 
 
@@ -65,6 +65,7 @@ def render(machine: dict, command: str, sizes, stored: dict) -> str:
         "geometry": lambda: geometry.markdown(data["geometry"]),
         "survey": lambda: survey.markdown(data["survey"]),
         "misfit": lambda: misfit.markdown(data["misfit"]),
+        "holdout": lambda: holdout.markdown(data["holdout"]),
     }
     for name, part in parts.items():
         if name in data:

@@ -103,6 +103,14 @@ class Sizes:
     misfit_extra : tuple of str
         Overrides added to the "misfit" section's runs (the real one runs the shipped settings;
         its alignment rows need ``method.refine`` >= 1).
+    holdout_image : int or None
+        Width of the "holdout" section's views (the field scene built at that size, the survey's
+        photographs box-averaged; None: their own 200).
+    holdout_budget_cut : int
+        The "holdout" section divides the comparison's budgets on all views of the iterative and
+        the differentiable baselines by this.
+    holdout_extra : tuple of str
+        Overrides added to the "holdout" section's runs (the real one runs the shipped settings).
     """
 
     name: str = "default"
@@ -151,6 +159,9 @@ class Sizes:
     misfit_image: int | None = None
     misfit_photo_spp: int = 16
     misfit_extra: tuple = field(default_factory=tuple)
+    holdout_image: int | None = 40
+    holdout_budget_cut: int = 8
+    holdout_extra: tuple = field(default_factory=tuple)
     variant: str = "llvm"
 
 
@@ -166,4 +177,7 @@ QUICK = Sizes(name="quick", ratio_spps=(4,), ratio_reps=1, mem_views=(1, 2), mem
               survey_image=40, survey_turbidity_image=None, survey_photo_spp=4,
               survey_extra=("render.spp=4", "method.refine=0", "render.tail_bounces=0"),
               misfit_image=40, misfit_photo_spp=8,
-              misfit_extra=("render.spp=4", "method.refine=1", "render.tail_bounces=0", "method.irls.iterations=2"))
+              misfit_extra=("render.spp=4", "method.refine=1", "render.tail_bounces=0", "method.irls.iterations=2"),
+              holdout_image=20,
+              holdout_extra=("method.refine=0", "render.tail_bounces=0", "method.robust=none", "method.bias=none",
+                             "method.align=none"))

@@ -97,8 +97,8 @@ def no_panel_variant(base: Path, dest: Path) -> Path:
 
 
 def turbidity_variant(base: Path, dest: Path, *, spp: int, seed: int = 1) -> Path:
-    """Row (d): the light three sunskies of turbidity :data:`BASIS`, the photographs rendered
-    again under turbidity :data:`HAZY` (true scales and lens as the bundled scene)."""
+    """Row (d): the light three sunskies of turbidity :data:`BASIS`, the afternoon's photographs
+    rendered again under turbidity :data:`HAZY` (true scales and lens as the bundled scene)."""
     from framework.scene import load_scene
 
     desc = yaml.safe_load((base / "scene.yaml").read_text())
@@ -106,7 +106,7 @@ def turbidity_variant(base: Path, dest: Path, *, spp: int, seed: int = 1) -> Pat
                                       sun_scale="unknown" if t == SUN_BASIS else 0.0) for t in BASIS]
     folder = _edit(base, dest, desc)
     truth = survey.true_light(load_scene(base), turbidity=HAZY)
-    shutil.rmtree(folder / "images")
+    # the afternoon's photographs rendered again (the morning's, scene.yaml lights, kept: no row fits them)
     survey.render_photographs(truth, folder / "images", spp=spp, seed=seed)
     return folder
 

@@ -45,7 +45,8 @@ def section_holdout(doc: Doc, ctx) -> None:
     doc.heading("Held-out views")
     for i, entry in enumerate(entries):
         name = str(entry.get("view", f"held-out {i}"))
-        doc.heading(f"Held-out view {name}", level=3)
+        light = f" (under light {entry['light']}: relit)" if entry.get("light") else ""
+        doc.heading(f"Held-out view {name}{light}", level=3)
         _metrics_table(doc, entry)
         paths = entry.get("images") or {}
         obs = ctx.load_image(paths.get("observed"), doc, "held-out photograph")

@@ -55,11 +55,18 @@ def segment_ids(folder: Path, cam: Camera) -> np.ndarray:
 
 
 def write_preview(folder: Path, views: list[str] | None = None, size: int = 64, spp: int = 32) -> Path:
-    """Render the given views (default: all, by name) side by side into ``folder/preview.png``."""
+    """Render the given views (default: all, by name) side by side into ``folder/preview.png``,
+    each under the light it was photographed under (scene.yaml ``lights``)."""
     folder = Path(folder)
     scene = load(folder)
     cams = scene.cameras if views is None else [scene.camera(v) for v in views]
-    tiles = render_references(scene, [resized(c, size) for c in cams], spp=spp, max_depth=4, seed=0)
+    by_light: dict = {}
+    for c in cams:
+        by_light.setdefault(scene.light_of(c.name), []).append(c)
+    rendered = {c.name: tile for light, group in by_light.items()
+                for c, tile in zip(group, render_references(scene.under(light), [resized(c, size) for c in group],
+                                                            spp=spp, max_depth=4, seed=0))}
+    tiles = [rendered[c.name] for c in cams]
     h = max(t.shape[0] for t in tiles)
     row = np.concatenate([np.pad(t, ((0, h - t.shape[0]), (0, 2), (0, 0))) for t in tiles], axis=1)
     write_png(folder / "preview.png", tonemap(row))

@@ -115,7 +115,7 @@ def test_quick_section_runs(tmp_path):
     assert by["d"]["rc"] == 0 and [(x["emitter"], x["part"]) for x in by["d"]["scales"]] == [
         (0, "sky"), (1, "sky"), (1, "sun"), (2, "sky")]
     assert len(by["d"]["sky_irradiance_error"]) == 3 and np.all(np.isfinite(by["d"]["sky_rms_error"]))
-    assert len(list((tmp_path / "scenes" / "d_turbidity" / "images").glob("*.exr"))) == 9
+    assert len(list((tmp_path / "scenes" / "d_turbidity" / "images").glob("*.exr"))) == 11     # 9 + the morning's 2
     text = "\n".join(survey.markdown(rows))
     assert "## 10. Survey unknowns" in text and "refused (exit 2)" in text
 

@@ -69,7 +69,8 @@ def test_generator_reproduces_folder(rebuilt, tmp_path):
 
 def test_declared_model():
     """scene.yaml: urban_canyon's segments and the known panel, one sunsky with both scales
-    unknown, the vignetting estimated; the nine views share COLMAP camera 1."""
+    unknown, the vignetting estimated; the nine afternoon views and the two of the morning
+    share COLMAP camera 1."""
     desc = yaml.safe_load((FOLDER / "scene.yaml").read_text())
     assert [s["name"] for s in desc["segments"]] == [*uc.REFERENCES, "panel"]
     panel = desc["segments"][-1]
@@ -78,9 +79,26 @@ def test_declared_model():
     assert sky["type"] == "sunsky" and sky["sun_scale"] == "unknown" and sky["sky_scale"] == "unknown"
     assert desc["photometry"] == {"vignetting": "estimate"}
     scene = load_scene(FOLDER)
-    assert len(scene.cameras) == 9 and {c.camera_id for c in scene.cameras} == {1}
+    assert len(scene.cameras) == 11 and {c.camera_id for c in scene.cameras} == {1}
+    assert [c.name for c in scene.lit_by(None)] == sorted(c.name for c in uc.cameras(8, 200))
     assert [(e.part, e.scale_unknown) for e in scene.emitters] == [("sky", True), ("sun", True)]
     assert scene.segments[-1].known["diffuse"].tolist() == [0.5, 0.5, 0.5]
+
+
+def test_morning_light():
+    """The morning (scene.yaml ``lights``): three views in the poses of three afternoon ones,
+    under the same sunsky at 08:00, its scales known; the sun low and north of east, lighting the
+    south facade (normal +y) that the afternoon's sun leaves in shade."""
+    scene = load_scene(FOLDER)
+    (light,) = scene.lights
+    assert light.name == survey.MORNING and list(light.views) == sorted(survey.MORNING_POSES)
+    for name, pose in survey.MORNING_POSES.items():
+        np.testing.assert_array_equal(scene.camera(name).cam_from_world, scene.camera(pose).cam_from_world)
+    morning = scene.under(survey.MORNING)
+    assert [(e.part, e.scale_unknown) for e in morning.emitters] == [("sky", False), ("sun", False)]
+    to_sun = {s.light: -s.emitters[1].direction for s in (scene, morning)}
+    assert 15 < np.degrees(np.arcsin(to_sun[survey.MORNING][2])) < 18
+    assert to_sun[survey.MORNING][1] > 0 > to_sun[None][1]          # north facade lit p.m., south a.m.
 
 
 def test_sun_close_to_urban_canyons():
