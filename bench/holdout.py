@@ -254,7 +254,7 @@ def markdown(data: dict) -> list[str]:
     lines = ["## 12. Held-out views: predicting photographs no method fitted", "",
              "Each method fits some photographs and predicts others it never saw (`holdout=[...]`): a street view "
              "of `urban_canyon_field`, and the two morning photographs of `urban_canyon_survey` (scene.yaml "
-             "`lights`: the sun low in the east-north-east, where the fitted afternoon's is in the west-south-west; "
+             "`lights`: the sun low, just north of east, where the fitted afternoon's is in the west-south-west; "
              "the prediction relights the street). The prediction is a `path` render at the estimate "
              f"({st['observe_spp']} spp), each view under its own light; the floor is the same prediction at the "
              "true reflectance, the residual no reflectance removes (the photographs' noise, the renderer's). "
