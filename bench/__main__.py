@@ -6,9 +6,10 @@ learning-rate sweep), ``paper`` (4, Tables 1 and 2), ``materials`` (5), ``defaul
 accurate by default), ``field`` (7, field photographs), ``glossy`` (8, glossy kernels), ``geometry``
 (9, geometry as a survey delivers it), ``survey`` (10, unknown sun and sky scales, vignetting and a
 calibration panel on ``urban_canyon_survey``), ``misfit`` (11, what the model lacks: an unmasked car,
-rotated poses, a facade off its mesh and textured walls on ``urban_canyon_misfit``), ``holdout`` (12,
-every method's prediction of photographs it never fitted against the floor: a street view of
-``urban_canyon_field``, the morning of ``urban_canyon_survey``). ``--variant``
+rotated poses, a facade off its mesh and textured walls on ``urban_canyon_misfit``; a red car in every
+street view on ``urban_canyon_car``), ``holdout`` (12, every method's prediction of photographs it
+never fitted against the floor: a street view of ``urban_canyon_field``, the morning of
+``urban_canyon_survey``). ``--variant``
 (default ``auto``: CUDA when usable, else LLVM) is the Mitsuba backend of every run; each stored
 section records its variant and device. Each
 section's numbers are stored in ``bench/results/<section>.json`` (with the date, the commit and

@@ -7,7 +7,7 @@ unmasked pedestrian: :func:`scenes.urban_canyon_misfit.photographed`) whose phot
 place of the misfit scene's dark car in two views, the same box-ish car (4.2 x 1.8 x 1.5 m) painted
 a saturated red (:data:`PAINT`), unmasked, parked twice: once at each curb (:data:`CARS`). The
 street views alternate facades (even: north), and no one place of the street is in all of them,
-so the north car stands where every north-facing view sees it over 17-27 % of its asphalt and the
+so the north car stands where every north-facing view sees it over 18-27 % of its asphalt and the
 south car where every south-facing one does (:func:`scenes.urban_canyon_misfit.car_shares`; the
 bundled size's shares in ``truth.yaml``). The aerial view sees no street asphalt (the buildings
 hide it) and so neither car. Every street view therefore shows a red car on the asphalt that the

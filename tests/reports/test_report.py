@@ -236,11 +236,17 @@ def test_fit_quality_table(tmp_path):
     assert "How well the model explains each material" not in md
     res = json.loads((run / "results.json").read_text())
     res["fit_quality"] = {"ground": {"pixels": 120, "dropped": 0.49, "chi2": 2.14, "poor": True,
-                                     "why": "the robust weights left out 49 % of its pixels", "views": {}},
+                                     "why": "the robust weights left out 49 % of its pixels", "views": {},
+                                     "pull": {"diffuse": [0.0433, 0.0349, 0.0271]},
+                                     "pull_std": {"diffuse": [9.8, 10.0, 10.5]}},
                           "block": {"pixels": 80, "dropped": 0.063, "chi2": 0.756, "poor": False, "why": None,
-                                    "views": {}}}
+                                    "views": {}, "pull": {"diffuse": [0.017, None, 0.0101]},
+                                    "pull_std": {"diffuse": [1.1, None, -1.3]}},
+                          "sky": {"pixels": 10, "dropped": 0.0, "chi2": 1.0, "poor": False, "why": None, "views": {}}}
     (run / "results.json").write_text(json.dumps(res))
     md = write_run_report(run)[0].read_text()
     assert "### How well the model explains each material" in md
-    assert "| ground | 120 | 49 % | 2.14 | **poor**: the robust weights left out 49 % of its pixels |" in md
-    assert "| block | 80 | 6 % | 0.76 | explained |" in md
+    assert ("| ground | 120 | 49 % | 2.14 | +0.027 (10.5 std, diffuse B) | **poor**: the robust weights left out "
+            "49 % of its pixels |") in md
+    assert "| block | 80 | 6 % | 0.76 | +0.010 (1.3 std, diffuse B) | explained |" in md
+    assert "| sky | 10 | 0 % | 1.00 | – | explained |" in md

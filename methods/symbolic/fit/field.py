@@ -316,7 +316,8 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
     with clock("fit_quality"):        # how well the model explains each material (no ground truth)
         from framework.render.mitsuba_scene import segment_maps
         mu = np.stack([basis.evaluate(fit.evaluated_at[:, c]) for c in range(C)])
-        quality = material_fit(problem, views, mu, system.codes, segment_maps(problem.scene, problem.cameras))
+        quality = material_fit(problem, views, mu, system.codes, segment_maps(problem.scene, problem.cameras),
+                               at=(basis, fit.evaluated_at, params, fit.std))
     with clock("field_outputs"):
         out = _field_outputs(fit, views, used, basis, system, gains, P, C, round_ + 1, stopped, iterates)
         out = out.replace(pixel_reasons=exclusion_reasons(problem, options, views), stages_s=clock.seconds,
