@@ -8,7 +8,7 @@ group into one; :func:`framework.executor.make_executor` takes it.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 from framework.errors import ConfigError
 from framework.options import Check, build, nullable, number, option
@@ -91,4 +91,11 @@ def executor_options(cfg) -> SerialOptions | DaskOptions:
     name = str(cfg.get("name", "serial"))
     if name not in EXECUTORS:
         raise ConfigError(f"executor={name} is not an executor: use {' or '.join(EXECUTORS)}")
-    return build(EXECUTORS[name], cfg, section="executor", ignore=("name",))
+    cls = EXECUTORS[name]
+
+    def unknown(key: str) -> str:
+        own = ", ".join(f.name for f in fields(cls)) or "none"
+        having = [n for n, c in EXECUTORS.items() if key.split(".")[-1] in {f.name for f in fields(c)}]
+        where = f"; executor={having[0]} has it" if having else ""
+        return f"{key} is not an option of executor={name} (its options: {own}){where}: drop it, or choose the executor"
+    return build(cls, cfg, section="executor", ignore=("name",), unknown_hint=unknown)
