@@ -120,8 +120,11 @@ def resolved(options: SymbolicOptions, facts: Facts) -> Resolved:
            "disagreement" if compare else f"robust {robust}, {facts.views} view(s): no views to compare")
     field = field_path(facts, boundary=boundary, robust=robust)
     ok = facts.spp % 4 == 0 and options.gram == "cross"
+    parts = [w for w, on in (("pixel weights", facts.weights or boundary > 0), ("per-view gains", facts.per_view),
+                             ("robust rounds", robust != "none"), ("a lens to estimate or apply", facts.vignetting != "none"),
+                             ("unknown light scales", facts.scales > 0)) if on]
     decide("bias", "richardson" if field and ok else "none",
-           ("the field path's solve is non-linear in the pass's noisy coefficients" if field
+           (f"the field path ({', '.join(parts)}): its solve is non-linear in the pass's noisy coefficients" if field
             else "a plain L2 solve, near linear in the pass's coefficients")
            + ("" if ok or not field else f"; but render.spp={facts.spp} is not a multiple of 4 or gram is not cross"))
     if options.solver.starts == "auto":
