@@ -61,7 +61,8 @@ def _pass_fn(problem, method, spp: int, cache_dir=None):
     key = {"bench": "pass", "scene": problem.scene.content_hash, "view": problem.cameras[0].name, "spp": spp,
            "tile_pixels": tile, "tail_bounces": T}
     task = view_task(problem, params, x0, N, 0, spp=spp, seed=int(problem.seed), prob_floor=method.options.prob_floor,
-        tile_pixels=tile, tail_bounces=T, cache_dir=cache_dir, key=key)
+                     tile_pixels=tile, cross_gram=method.options.gram == "cross", tail_bounces=T, cache_dir=cache_dir,
+                     key=key)
     variant = problem.settings.variant
     calls = iter(range(1 << 30))
 
@@ -70,7 +71,8 @@ def _pass_fn(problem, method, spp: int, cache_dir=None):
         # exists made the filesystem flush it first: 1.4 s of the 1920x1080 pass)
         if cache_dir is None:
             return render_view_task(task, variant=variant)
-        return render_view_task({**task, "cache_dir": str(Path(cache_dir) / f"call{next(calls)}")}, variant=variant)
+        return render_view_task(dataclasses.replace(task, cache_dir=str(Path(cache_dir) / f"call{next(calls)}")),
+                                variant=variant)
     return run, x0
 
 

@@ -21,6 +21,7 @@ from hydra.core.global_hydra import GlobalHydra
 from omegaconf import DictConfig, OmegaConf
 
 from framework.errors import ConfigError
+from framework.executor_options import DaskOptions, SerialOptions, executor_options
 
 #: The bundled scene folders ship beside the framework, in ``scenes/<name>/`` (data only: the
 #: framework never imports the ``scenes`` package, whose builders write these folders).
@@ -201,8 +202,8 @@ class RunSettings:
     variant : str
         The Mitsuba variant in use (``variant=auto``, ``cuda`` or ``llvm`` resolved from the machine and
         the scene's channels once the scene is read; ``auto`` before).
-    executor : dict
-        ``executor.*``: ``name`` (serial | dask) and the Dask options.
+    executor : SerialOptions or DaskOptions
+        ``executor.*`` (:mod:`framework.executor_options`).
     cache_dir : str or None
         ``cache.dir``: where observations and polynomial passes are cached (None: no cache).
     observe : ObserveSettings
@@ -215,7 +216,7 @@ class RunSettings:
     seed: int = 0
     budget_renders: int = 400
     variant: str = "auto"
-    executor: dict = field(default_factory=lambda: {"name": "serial"})
+    executor: SerialOptions | DaskOptions = field(default_factory=SerialOptions)
     cache_dir: str | None = None
     observe: ObserveSettings = field(default_factory=ObserveSettings)
 
@@ -228,7 +229,6 @@ class RunSettings:
                    seed=_integer("seed", cfg.seed, 0),
                    budget_renders=_integer("budget.renders", cfg.budget.renders, 1),
                    variant=variant or _variant(cfg.variant),
-                   executor=OmegaConf.to_container(cfg.executor, resolve=True) if cfg.get("executor") else
-                   {"name": "serial"},
+                   executor=executor_options(cfg.get("executor")),
                    cache_dir=str(cfg.cache.dir) if cfg.cache.get("dir") else None,
                    observe=ObserveSettings.from_config(cfg.observe))

@@ -1,16 +1,9 @@
 """Where per-view work runs: in this process (``executor=serial``) or in Dask workers (``dask``).
 
-Configuration (``framework/conf/executor/*.yaml``, ``docs/cli.md``):
-
-``serial``
-    Everything in the driver process (the default).
-``dask``
-    ``address: null`` starts a ``distributed.LocalCluster(n_workers, threads_per_worker,
-    processes=True)`` for the run and closes it afterwards; ``address: tcp://host:port`` joins
-    an existing scheduler (``Client(address)``), whose workers must be able to import this
-    repository (same code, same Python environment). ``connect_timeout_s`` (default
-    :data:`CONNECT_TIMEOUT_S`) bounds the wait for that scheduler (distributed's own default,
-    30 s, made a wrong address look like a hang). Each task receives plain picklable data
+Options: :mod:`framework.executor_options` (``serial``: everything in the driver process, the
+default; ``dask``: a ``distributed.LocalCluster(n_workers, threads_per_worker, processes=True)``
+started for the run and closed afterwards, or the existing scheduler at ``address``, whose workers
+must be able to import this repository). Each task receives plain picklable data
     (the numpy :class:`~framework.scene.Scene` model, arrays, seeds), selects the Mitsuba variant
     itself and limits Dr.Jit to ``threads_per_worker`` threads (:func:`init_worker`), so the
     workers do not oversubscribe the cores.
@@ -24,11 +17,11 @@ from __future__ import annotations
 import logging
 from typing import Callable
 
-from framework.errors import ConfigError, EnvironmentSetupError
+from framework.errors import EnvironmentSetupError
+from framework.executor_options import DaskOptions, executor_options
 from framework.render import backend
 
 log = logging.getLogger(__name__)
-CONNECT_TIMEOUT_S = 5.0
 
 
 def init_worker(variant: str, threads: int | None) -> None:
@@ -118,8 +111,9 @@ class DaskExecutor(SerialExecutor):
 
     name = "dask"
 
-    def __init__(self, address: str | None = None, *, n_workers: int = 2, threads_per_worker: int = 1,
-                 connect_timeout_s: float = CONNECT_TIMEOUT_S):
+    def __init__(self, address: str | None = DaskOptions.address, *, n_workers: int = DaskOptions.n_workers,
+                 threads_per_worker: int = DaskOptions.threads_per_worker,
+                 connect_timeout_s: float = DaskOptions.connect_timeout_s):
         from distributed import Client, LocalCluster
         self.threads_per_worker = int(threads_per_worker)
         self._cluster = None
@@ -161,58 +155,19 @@ def _connect(address: str, timeout_s: float):
                                     ) from None
 
 
-#: the schemes of a scheduler address the run accepts (distributed's TCP and TLS comms)
-ADDRESS_SCHEMES = ("tcp", "tls")
-
-
-def check_address(address) -> None:
-    """``executor.address`` is ``null`` or ``tcp://host:port`` (``tls://`` too), port 1-65535.
-
-    Checked before anything starts: distributed raises ``ValueError: missing port number`` or
-    an unknown-scheme error only once the run is under way.
+def make_executor(options) -> SerialExecutor:
+    """The executor of the run's ``executor`` options (:func:`executor_options`: a built
+    :class:`~framework.executor_options.DaskOptions`, or the config group, None or missing: serial).
 
     Raises
     ------
     framework.errors.ConfigError
-        Naming the address and the form to write.
-    """
-    if address is None:
-        return
-    text = str(address)
-    form = "write tcp://host:port (the scheduler's address, port 8786 by default), or executor.address=null"
-    scheme, sep, rest = text.partition("://")
-    if not sep:
-        raise ConfigError(f"executor.address={text} is not a scheduler address: {form}")
-    if scheme not in ADDRESS_SCHEMES:
-        raise ConfigError(f"executor.address={text}: the scheme {scheme}:// is not one a Dask scheduler "
-                          f"listens on ({', '.join(s + '://' for s in ADDRESS_SCHEMES)}): {form}")
-    host, colon, port = rest.rstrip("/").rpartition(":")
-    if not colon or not host or not port.isdigit() or not 1 <= int(port) <= 65535:
-        raise ConfigError(f"executor.address={text} lacks a host and a port number (1-65535): {form}")
-
-
-def make_executor(cfg) -> SerialExecutor:
-    """The executor of the run's ``executor`` config group (None or missing: serial).
-
-    Raises
-    ------
-    framework.errors.ConfigError
-        For an unknown ``executor.name``, bad worker counts or connection timeout.
+        For an unknown ``executor.name`` or a bad option (:func:`executor_options`).
     framework.errors.EnvironmentSetupError
         When the scheduler at ``executor.address`` does not answer.
     """
-    name = "serial" if cfg is None else str(cfg.get("name", "serial"))
-    if name == "serial":
+    options = executor_options(options)
+    if options.name == "serial":
         return SerialExecutor()
-    if name != "dask":
-        raise ConfigError(f"executor={name} is not an executor: use serial or dask")
-    n_workers, threads = cfg.get("n_workers", 2), cfg.get("threads_per_worker", 1)
-    for key, value in (("n_workers", n_workers), ("threads_per_worker", threads)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ConfigError(f"executor.{key}={value} is out of range: use an integer >= 1")
-    timeout = cfg.get("connect_timeout_s", CONNECT_TIMEOUT_S)
-    if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not timeout > 0:
-        raise ConfigError(f"executor.connect_timeout_s={timeout} is out of range: use a number of seconds > 0")
-    check_address(cfg.get("address"))
-    return DaskExecutor(cfg.get("address"), n_workers=n_workers, threads_per_worker=threads,
-                        connect_timeout_s=timeout)
+    return DaskExecutor(options.address, n_workers=options.n_workers, threads_per_worker=options.threads_per_worker,
+                        connect_timeout_s=options.connect_timeout_s)

@@ -17,7 +17,6 @@ from omegaconf import DictConfig, OmegaConf
 from framework.cache import Cache
 from framework.config import RunSettings, requested_views, scene_dir
 from framework.errors import ConfigError
-from framework.executor import check_address
 from framework.holdout import HeldOut, check_held_out, fitted_light, held_out_scenes, holdout_names, split_holdout
 from framework.holdout_run import holdout_entries
 from framework.brdf_kernels import canonical
@@ -55,7 +54,6 @@ def check_config(cfg: DictConfig) -> RunSettings:
     get_method(str(cfg.method.name)).options_from(cfg.method)
     requested_views(cfg)
     holdout_names(cfg)
-    check_address((settings.executor or {}).get("address"))
     cache, root = Cache(settings.cache_dir), scene_dir(cfg).resolve()
     if cache.dir is not None and cache.dir.is_relative_to(root):
         raise ConfigError(f"cache.dir={cache.dir} is inside the scene folder {root}, "
@@ -221,7 +219,7 @@ def _write_run(cfg, run_dir: Path, problem: Problem, result, segment_maps: dict,
                "variant": settings.variant, "device": backend.device_name(settings.variant),
                "seed": settings.seed, "spp": settings.spp, "max_bounces": settings.max_bounces,
                "tail_bounces": settings.tail_bounces,
-               "budget_renders": settings.budget_renders, "executor": str(settings.executor.get("name")),
+               "budget_renders": settings.budget_renders, "executor": settings.executor.name,
                "observe": OmegaConf.to_container(cfg.observe),
                "method_settings": OmegaConf.to_container(cfg.method, resolve=True)}
     views = write_view_images(run_dir, problem, result, segment_maps)

@@ -2,10 +2,11 @@
 
 A method declares its options as a frozen dataclass whose fields are made by :func:`option`:
 the field's ``doc`` is the one description of the option (``docs/cli.md``'s tables are generated
-from it, :func:`option_rows`), its ``check`` validates and converts the value. The defaults live
-in the method's YAML (``framework/conf/method/<name>.yaml``) and nowhere else: the dataclass has
-none, so a key missing from the YAML is an error, not a silent fallback. A nested dataclass is a
-nested mapping (``method.solver.*``).
+from it, :func:`option_rows`), its ``check`` validates and converts the value, its ``default`` is
+the option's one default. A method's YAML (``framework/conf/method/<name>.yaml``) is generated
+from the fields (:func:`defaults_of`, ``python -m framework.cli_docs``; the test suite checks it
+is current), so Hydra composes the defaults and the presets override them in their own YAML; no
+code repeats a default. A nested dataclass is a nested mapping (``method.solver.*``).
 
 :func:`build` turns the method's config group into the dataclass: every key checked in field
 order, an unknown key refused with the list of options, the first bad value refused with one
@@ -104,14 +105,33 @@ def nullable(other: Check) -> Check:
 ANY = Check("see meaning", lambda key, value: _plain(value))
 
 
-def option(doc: str, check: Check = ANY):
-    """A field of an options dataclass: its description and its check (no default: the YAML has it)."""
-    return dataclasses.field(metadata={"doc": " ".join(doc.split()), "check": check})
+def option(doc: str, check: Check = ANY, *, default=dataclasses.MISSING, default_factory=dataclasses.MISSING):
+    """A field of an options dataclass: its description, its check and its default, written as a
+    user gives it (``"all"``, a list), which :func:`build` checks and converts like a given value;
+    a nested options dataclass takes ``default_factory`` (its class)."""
+    if default is dataclasses.MISSING and default_factory is dataclasses.MISSING:
+        raise TypeError(f"option {doc[:40]!r}... has no default: give default= or default_factory=")
+    return dataclasses.field(default=default, default_factory=default_factory,
+                             metadata={"doc": " ".join(doc.split()), "check": check})
+
+
+def defaults_of(cls) -> dict:
+    """The defaults of the options dataclass ``cls`` as a nested mapping in field order, as a
+    user writes them (lists for tuples): what the method's YAML holds."""
+    out = {}
+    for f in dataclasses.fields(cls):
+        sub = _resolved(cls, f)
+        if dataclasses.is_dataclass(sub):
+            out[f.name] = defaults_of(sub)
+        else:
+            out[f.name] = list(f.default) if isinstance(f.default, tuple) else f.default
+    return out
 
 
 def build(cls, cfg: Mapping, *, section: str = "method", ignore: tuple[str, ...] = FRAMEWORK_KEYS,
           unknown_hint: Callable[[str], str] | None = None):
-    """``cls`` from the config mapping ``cfg``, every field checked (module docstring).
+    """``cls`` from the config mapping ``cfg``, every field checked (module docstring); a key
+    ``cfg`` lacks takes the field's default, so ``build(cls, {})`` is the defaults.
 
     Parameters
     ----------
@@ -130,7 +150,7 @@ def build(cls, cfg: Mapping, *, section: str = "method", ignore: tuple[str, ...]
     Raises
     ------
     ConfigError
-        For a missing or unknown key, or the first value its check refuses.
+        For an unknown key, or the first value its check refuses.
     """
     fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = [str(k) for k in cfg if k not in fields and k not in ignore]
@@ -143,16 +163,15 @@ def build(cls, cfg: Mapping, *, section: str = "method", ignore: tuple[str, ...]
     values = {}
     for name, f in fields.items():
         key = f"{section}.{name}"
-        if name not in cfg:
-            raise ConfigError(f"{key} is missing: give it a value (docs/cli.md lists the options)")
         if dataclasses.is_dataclass(f.type) or dataclasses.is_dataclass(_resolved(cls, f)):
-            sub = cfg[name]
+            sub = cfg.get(name, {})
             if not isinstance(sub, Mapping):
                 raise ConfigError(f"{key}={sub} is not a mapping: give its keys as {key}.<key>=value")
             values[name] = build(_resolved(cls, f), sub, section=key, ignore=(), unknown_hint=unknown_hint)
-        else:
-            _refuse_non_finite(key, _plain(cfg[name]))
-            values[name] = f.metadata["check"](key, cfg[name])
+        else:   # a key the config lacks takes the field's default, checked like a given value
+            value = cfg[name] if name in cfg else f.default
+            _refuse_non_finite(key, _plain(value))
+            values[name] = f.metadata["check"](key, value)
     return cls(**values)
 
 

@@ -2,9 +2,11 @@
 
 A method is one folder ``methods/<name>/`` whose ``__init__.py`` defines a :class:`Method`
 subclass decorated with :func:`register`, plus one YAML ``framework/conf/method/<name>.yaml``
-(its ``name`` key is the registry key, its other keys the defaults of the method's options).
-The method's ``Options`` is a frozen dataclass (:mod:`framework.options`): built once from the
-config group, checked as it is built, and kept as ``self.options``.
+(its ``name`` key is the registry key, its other keys the defaults of the method's options,
+generated from their fields by :mod:`framework.method_yaml`, or a preset's Hydra defaults list
+and the defaults it changes). The method's ``Options`` is a frozen dataclass
+(:mod:`framework.options`) whose fields hold each option's default and description: built once
+from the config group, checked as it is built, and kept as ``self.options``.
 """
 from __future__ import annotations
 
@@ -95,6 +97,10 @@ class Method(ABC):
     #: ``"known"`` (a segment's ``known`` weights), ``"vignetting"`` (``photometry vignetting``
     #: other than ``none``); the symbolic family treats all three, the baselines none yet
     survey: ClassVar[frozenset[str]] = frozenset()
+    #: ``method.tail_bounces``, what ``render.tail_bounces=auto`` resolves to (:mod:`framework.config`):
+    #: reflections traced beyond N_max; written into the method's generated YAML
+    #: (:mod:`framework.method_yaml`), which a preset overrides (``symbolic_paper``: 0)
+    tail_bounces: ClassVar[int] = 4
 
     def __init__(self, options):
         self.options = options if isinstance(options, self.Options) else self.options_from(options)

@@ -111,17 +111,18 @@ class RelightOptions:
     """``method.relight.*``: images under other illumination with the estimated weights."""
 
     enabled: bool = option("after the inversion, render relit and reflectance images (not counted in "
-                           "`renders`, timed as `timings_s.relight`)", flag())
+                           "`renders`, timed as `timings_s.relight`)", flag(), default=False)
     sun_direction: tuple | None = option("direction the new sunlight travels; `null` keeps the scene's "
-                                         "directional emitters", nullable(ANY))
+                                         "directional emitters", nullable(ANY), default=None)
     sun_irradiance: float | tuple | None = option("the new sun's irradiance (a number or one per channel); "
-                                                  "`null`: the scene's first sun's, else 1", nullable(ANY))
+                                                  "`null`: the scene's first sun's, else 1", nullable(ANY),
+                                                          default=None)
     sky_radiance: float | tuple | None = option("a constant sky (a number or one per channel) replacing the "
                                                 "scene's `constant`/`envmap` skies; `null` keeps them",
-                                                nullable(ANY))
-    spp: int = option("samples per pixel of the relit images", number(1, integer=True))
+                                                nullable(ANY), default=None)
+    spp: int = option("samples per pixel of the relit images", number(1, integer=True), default=64)
     reflectance: str = option("the shadow-free reflectance image: each pixel's segment ρ_d (`diffuse`), or "
-                              "Σρ over its kernels (`total`)", choice("diffuse", "total"))
+                              "Σρ over its kernels (`total`)", choice("diffuse", "total"), default="diffuse")
 
 
 def relight_outputs(problem, parameters, estimate: np.ndarray, opt: RelightOptions) -> dict[str, np.ndarray]:

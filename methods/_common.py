@@ -33,11 +33,12 @@ class StartOptions:
     init: str = option(
         "start point: `guess`, or the diffuse estimates of a `lambertian_prior` run with its shipped "
         "options but one pass and the joint cost, the cost of the fits it starts (its pass counts as a "
-        "render against the budget; the other kernels keep `guess`)", choice("guess", "lambertian_prior"))
+        "render against the budget; the other kernels keep `guess`)", choice("guess", "lambertian_prior"),
+                default="guess")
     guess: float | dict = option(
         "initial weights: a number in [0, 1], or a mapping kernel → number with one entry per kernel "
         "of the scene, e.g. `{diffuse: 0.5, specular: 0.1}`; projected onto Σρ ≤ 1. For `symbolic` "
-        "they also drive the kernel selection of the pass", ANY)
+        "they also drive the kernel selection of the pass", ANY, default=0.5)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -45,8 +45,9 @@ class DifferentiableMethod(C.RenderingBaseline):
     ``budget.renders``. The estimate is the last iterate (Adam's iterates are noisy; the
     recorded cost of each iteration is the Monte-Carlo cost of its primal render).
 
-    Options: :class:`~methods.differentiable.options.DifferentiableOptions` (defaults in
-    ``framework/conf/method/differentiable.yaml``; docs/cli.md's table is generated from it).
+    Options: :class:`~methods.differentiable.options.DifferentiableOptions` (each option's
+    default on its field; ``framework/conf/method/differentiable.yaml`` and docs/cli.md's table are generated
+    from them).
     The learning rate's default is the best of the benchmark's sweep (BENCHMARKS.md, the
     comparison section); on diffuse-only scenes a smaller rate has the smaller noise ball.
 

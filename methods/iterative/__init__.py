@@ -42,8 +42,9 @@ class IterativeMethod(C.RenderingBaseline):
     at most ``evaluations × (D + 1) + 1`` renders (the ``+ 1`` is the final reconstruction;
     evaluations nlopt asks for without a gradient cost one render).
 
-    Options: :class:`~methods.iterative.options.IterativeOptions` (defaults in
-    ``framework/conf/method/iterative.yaml``; docs/cli.md's table is generated from it).
+    Options: :class:`~methods.iterative.options.IterativeOptions` (each option's
+    default on its field; ``framework/conf/method/iterative.yaml`` and docs/cli.md's table are generated
+    from them).
 
     Limitations
     -----------

@@ -14,7 +14,6 @@ options (:mod:`methods.symbolic.options`) are below them all; this module regist
 from __future__ import annotations
 
 import dataclasses
-import functools
 import time
 
 import numpy as np
@@ -28,6 +27,7 @@ from methods.symbolic.fit.field import FieldOptions
 from methods.symbolic.fit.fit import images_at
 from methods.symbolic.loop.outputs import method_result
 from methods.symbolic.loop.refinement import render_pass, run_passes
+from methods.symbolic.loop.resolved import resolve
 from methods.symbolic.options import SolverOptions, SymbolicOptions
 from methods.symbolic.survey.illumination import check_gauge, nominal, pass_basis
 from methods.symbolic.survey.known import known_guess, warn_unseen
@@ -52,8 +52,9 @@ class SymbolicMethod(Method):
     (:mod:`methods.symbolic.survey.illumination`; refused when every emitter is unknown and no segment
     is ``known``, and with ``method.cost=per_segment``).
 
-    Options: :class:`~methods.symbolic.options.SymbolicOptions` (defaults in
-    ``framework/conf/method/symbolic.yaml``; docs/cli.md's table is generated from it). Uses
+    Options: :class:`~methods.symbolic.options.SymbolicOptions` (each option's
+    default on its field; ``framework/conf/method/symbolic.yaml`` and docs/cli.md's table are generated
+    from them). Uses
     ``render.spp``, ``render.max_bounces`` (N_max), ``render.tail_bounces``, ``seed``,
     ``executor`` and ``cache.dir`` of the run.
 
@@ -103,7 +104,8 @@ class SymbolicMethod(Method):
         return problem.scene.parameters(kernels=self.kernels or self.options.kernels)
 
     def check_problem(self, problem) -> None:
-        FieldOptions.resolve(self.options, problem, boundaries=False)   # a reference view outside the views
+        # a reference view outside the views
+        FieldOptions.resolve(resolve(self.options, problem).options, problem, boundaries=False)
         if self.options.bias == "richardson" and problem.settings.spp % 4:
             raise ConfigError(f"render.spp={problem.settings.spp}: method.bias=richardson splits each pixel's samples "
                               "in four quarters; give a multiple of 4")
@@ -144,10 +146,9 @@ class SymbolicMethod(Method):
 JOINT_SOLVER_ONLY = ("algorithm", "starts", "max_eval", "ftol_rel", "precondition")
 
 
-@functools.lru_cache(maxsize=1)
 def _shipped_solver() -> SolverOptions:
-    """``method.solver`` as symbolic.yaml ships it (every symbolic preset derives from it)."""
-    return build(SolverOptions, method_defaults("symbolic").solver, section="method.solver")
+    """``method.solver`` as shipped (its fields' defaults; every symbolic preset keeps them)."""
+    return build(SolverOptions, {}, section="method.solver")
 
 
 def _lambertian_prior(problem) -> MethodResult:
@@ -157,7 +158,7 @@ def _lambertian_prior(problem) -> MethodResult:
     return SymbolicMethod(prior_config()).run(problem)
 
 
-def prior_config():
+def prior_config() -> SymbolicOptions:
     """The ``lambertian_prior`` method's shipped options with ``refine: 0`` and ``cost: joint``:
     the one-pass prior that ``method.init=lambertian_prior`` starts from
     (:func:`methods._common.initial_guess`). Joint, because the fits it starts minimise the joint
@@ -165,9 +166,5 @@ def prior_config():
     kernel solve from the joint prior took 30, 30, 25, 45 evaluations, from the per-segment
     prior 62, 33, 27, 34 (flat guess: 31, 29, 28, 59), with the same errors (mean 0.0166 and
     0.0167)."""
-    from omegaconf import open_dict
-    cfg = method_defaults("lambertian_prior")
-    with open_dict(cfg):
-        cfg.refine = 0
-        cfg.cost = "joint"
-    return cfg
+    shipped = build(SymbolicOptions, method_defaults("lambertian_prior"))
+    return dataclasses.replace(shipped, refine=0, cost="joint")

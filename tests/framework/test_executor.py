@@ -60,3 +60,20 @@ def test_tree_sum_association_and_memory():
         t.add(v)
         assert len(t._partial) <= int(np.log2(v)) + 1
     assert t.total() == 5050
+
+
+def test_executor_options_errors():
+    """One line each, naming the key and the fix (:mod:`framework.executor_options`)."""
+    from framework.executor_options import DaskOptions, SerialOptions, executor_options
+    assert executor_options(None) == SerialOptions() and executor_options({"name": "dask"}) == DaskOptions()
+    with pytest.raises(ConfigError, match=r"executor.n_workers is not an option of executor=serial \(its options: "
+                                          r"none\); executor=dask has it"):
+        executor_options({"name": "serial", "n_workers": 2})
+    with pytest.raises(ConfigError, match=r"executor.workers is not an option of executor=dask"):
+        executor_options({"name": "dask", "workers": 2})
+    with pytest.raises(ConfigError, match=r"executor.threads_per_worker=0 is out of range"):
+        executor_options({"name": "dask", "threads_per_worker": 0})
+    with pytest.raises(ConfigError, match=r"executor.address=localhost:8786 is not a scheduler address"):
+        executor_options({"name": "dask", "address": "localhost:8786"})
+    with pytest.raises(ConfigError, match=r"executor=3 is not a mapping"):
+        executor_options(3)

@@ -171,7 +171,7 @@ def test_failed_render_leaves_whole_cache_entries(tmp_path, monkeypatch):
     render = pp.render_view_task
 
     def fail_on_second_view(task, **kwargs):
-        if task["view"] == 1:
+        if task.view == 1:
             raise RuntimeError("renderer died")
         return render(task, **kwargs)
 

@@ -14,6 +14,7 @@ registrations, 0.003-0.053 px, were within their noise; the test allows 0.05 px)
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 import pytest
@@ -22,8 +23,11 @@ from factory import make_tiny_scene, method_config, run_symbolic
 from framework.errors import ConfigError
 from framework.scene.model import Camera
 from methods.symbolic.misfit.alignment import Alignment
-from methods.symbolic.misfit.registration import register
+from methods.symbolic.misfit import registration
 from methods.symbolic.misfit.turned_camera import correction, rotated
+
+#: the registration with no floor (its bounds are required arguments; the method passes its options')
+register = functools.partial(registration.register, max_px=3.0, min_px=0.0)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -167,7 +171,7 @@ def test_registration_checks_the_bound():
 
 def test_alignment_checks_its_mode():
     with pytest.raises(ValueError, match="shift or rotation"):
-        Alignment([_camera()], mode="tilt", max_px=3.0)
+        Alignment([_camera()], mode="tilt", max_px=3.0, min_px=0.0)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -95,7 +95,7 @@ def test_a_task_storing_its_tiles_returns_their_loaders(problem, tmp_path):
     x0 = np.full((len(problem.parameters), 3), 0.5)
     tile = tile_pixels_for(TINY_MEMORY_MB, 16, 3, 3, 2)
     task = lambda **kw: view_task(problem, problem.parameters, x0, 3, 0, spp=16, seed=0, prob_floor=0.1,
-                                  tile_pixels=tile, tail_bounces=2, **kw)
+                                  tile_pixels=tile, cross_gram=True, tail_bounces=2, **kw)
     variant = problem.settings.variant
     _, held = render_view_task(task(), variant=variant)
     _, stored = render_view_task(task(cache_dir=tmp_path, key={"view": "v", "test": 1}), variant=variant)

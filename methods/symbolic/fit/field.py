@@ -96,16 +96,17 @@ class FieldOptions:
 
     @property
     def active(self) -> bool:
+        """The field path (as :func:`methods.symbolic.loop.resolved.field_path` decides ahead)."""
         return (self.weights is not None or self.reference is not None or self.robust != "none"
                 or self.vignetting != "none" or self.scales > 0)
 
     @classmethod
     def resolve(cls, options: SymbolicOptions, problem, *, boundaries: bool = True) -> "FieldOptions":
-        """Resolve ``method.exposure`` (``scene``: as scene.yaml says | ``known``),
-        ``method.weights`` (``scene`` | ``none``), ``method.robust`` (``auto``: Cauchy for
-        photographs, i.e. images decoded from 8/16-bit files, pixel weights or per-view exposure;
-        none for linear radiance), ``method.boundary`` and ``method.irls`` against ``problem``;
-        ``boundaries=False`` skips the segment maps the boundary needs (the checks before a run)."""
+        """Apply ``method.exposure`` (``scene``: as scene.yaml says | ``known``),
+        ``method.weights`` (``scene`` | ``none``), ``method.robust``, ``method.boundary`` and
+        ``method.irls`` to ``problem``; ``options`` has its ``auto`` values decided
+        (:func:`methods.symbolic.loop.resolved.resolve`). ``boundaries=False`` skips the segment maps
+        the boundary needs (the checks before a run)."""
         from framework.errors import ConfigError
         scene = problem.scene
         photometry = getattr(scene, "photometry", None)
@@ -124,7 +125,9 @@ class FieldOptions:
                               f"({', '.join(names)}): add it to views, or set method.exposure=known")
         use = options.weights == "scene" and problem.weights is not None
         weights = {n: np.asarray(w, np.float64).ravel() for n, w in problem.weights.items()} if use else None
-        boundary = _boundary_width(options.boundary, problem) if boundaries else 0
+        if "auto" in (options.robust, options.boundary):
+            raise ValueError("FieldOptions.resolve takes resolved options (methods.symbolic.loop.resolved)")
+        boundary = int(options.boundary) if boundaries else 0
         edges = segment_boundaries(problem, boundary) if boundary else None
         if edges is not None:
             weights = {n: (1.0 if weights is None else weights[n]) * ~edges[n] for n in names}
@@ -132,8 +135,6 @@ class FieldOptions:
         floors = {n: np.median(np.asarray(noise[n], float).reshape(-1, noise[n].shape[-1]), axis=0)
                   for n in names if n in noise}
         robust = options.robust
-        if robust == "auto":
-            robust = "cauchy" if (weights is not None or per_view or noise) else "none"
         iterations = options.irls.iterations if robust != "none" else 1
         vignetting = photometry.vignetting if photometry is not None else "none"
         compare = robust != "none" and options.consistency == "auto" and len(names) > MIN_OTHERS
@@ -148,16 +149,6 @@ class FieldOptions:
                 "scene_weights": self.weights is not None, "irls_rounds": fit.irls_rounds,
                 "irls_stopped": fit.irls_stopped, "vignetting": self.vignetting, "unknown_scales": self.scales,
                 "consistency": self.consistency is not None}
-
-
-def _boundary_width(value: int | str, problem) -> int:
-    """``method.boundary`` in pixels: ``auto`` is 1 when some view was resampled from a distorted
-    camera, else 0. The pass renders such a view's pixels over the interpolation's footprint, so
-    both sides of an edge are mixed as in the photograph; leaving the edge's pixels out still
-    helped, measured (the field scene's window ρ_d error 0.011 against 0.016 without)."""
-    if value != "auto":
-        return int(value)
-    return int(any(getattr(c, "distortion", None) is not None for c in problem.cameras))
 
 
 def segment_boundaries(problem, width: int) -> dict[str, np.ndarray]:

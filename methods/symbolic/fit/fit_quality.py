@@ -30,8 +30,8 @@ pixels out but the fit still follows them: a Cauchy weight is 0.19 at five scale
 is the view's, which the sunlit facades set, so an object in the shade keeps many pixels at
 weights of 0.1-0.5 and some above. On ``urban_canyon_car`` (a red car over 18-27 % of the asphalt
 in every street view, 100 px) the robust weights left out 19 % of the asphalt, its kept pixels'
-chi2 was 0.96, and its ρ_d G, B came out 0.015 and 0.017 low at std 0.003: under the former
-25 % threshold, nothing flagged it. Its kept pixels' step said 0.009-0.010 (3.1 std), two thirds
+chi2 was 0.96, and its ρ_d G, B came out 0.015 and 0.017 low at std 0.003: a threshold on the
+share left out at 25 % would flag nothing. Its kept pixels' step said 0.009-0.010 (3.1 std), two thirds
 of it; the share left out is the firmer sign (:data:`DROP_MAX`).
 
 A material whose robust weights left out more than :data:`DROP_MAX` of its pixels over all

@@ -97,9 +97,9 @@ def fit_joint(system, basis, params, x0: np.ndarray, problem, options: SymbolicO
     return point.replace(deferred_std=with_uncertainty) if defer_std else with_uncertainty()
 
 
-def _block_executor(executor: dict):
+def _block_executor(executor):
     """``executor=dask``: a function starting the executor the solve puts independent parameter
     blocks on (only when there are several); serial: None (the blocks in turn, in process)."""
-    if executor is None or str(executor.get("name", "serial")) == "serial":
+    if executor.name == "serial":
         return None
     return lambda: make_executor(executor)

@@ -25,6 +25,7 @@ from framework.render.checks import check_memory
 from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.system.cost import ChannelCost
 from methods.symbolic.system.gram import GramSystem
+from methods.symbolic.options import SolverOptions
 
 
 @dataclass
@@ -113,9 +114,10 @@ def _random_start(rng, D, segments_params) -> np.ndarray:
 
 
 def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_params: list[list[int]],
-                     x0: np.ndarray, algorithm: str = "SQP", starts: int | str = "auto",
-                     max_eval: int = 2000, xtol_rel: float = 1e-8, ftol_rel: float = 1e-12,
-                     precondition: bool = True, seed: int = 0, executor=None) -> SolveResult:
+                     x0: np.ndarray, algorithm: str = SolverOptions.algorithm,
+                     starts: int | str = SolverOptions.starts, max_eval: int = SolverOptions.max_eval,
+                     xtol_rel: float = SolverOptions.xtol_rel, ftol_rel: float = SolverOptions.ftol_rel,
+                     precondition: bool = SolverOptions.precondition, seed: int = 0, executor=None) -> SolveResult:
     """Minimise the cost of every channel over ρ (SQP or nlopt), one independent parameter block at a
     time (:func:`parameter_blocks`: the cost is a sum of one term per block plus a constant, so
     the blocks' minimisers together are the joint minimiser).

@@ -28,9 +28,9 @@ def method_result(passes: Passes, problem, params, guess: np.ndarray, options: S
               "initial_guess": guess.tolist(), "views_from_cache": passes.from_cache,
               "correlation": fit.correlation, "residual_variance": fit.sigma2, "std_method": fit.std_method,
               "ill_determined": (ill_determined(fit.std, fit.observable) | poor).tolist(),
-              "executor": str(problem.settings.executor.get("name", "serial")),
+              "executor": problem.settings.executor.name,
               "solve_stages_s": stages, "refine_moves": passes.moves, "refine_stopped": passes.stopped,
-              "cost": options.cost}
+              "cost": options.cost, "options_resolved": passes.resolved}
     if fit.spp_bias is not None:
         extras["spp_bias"] = {"method": "richardson", "spp": int(problem.settings.spp),
                               "bias": np.where(np.isfinite(fit.spp_bias), fit.spp_bias, None).tolist(),

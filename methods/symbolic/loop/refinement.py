@@ -25,6 +25,7 @@ from methods.symbolic.fit.fit import Fit, StageClock, images_at
 from methods.symbolic.fit.joint import fit_joint
 from methods.symbolic.fit.per_segment import fit_per_segment
 from methods.symbolic.fit.with_known import fit_with_known
+from methods.symbolic.loop.resolved import resolve
 from methods.symbolic.loop.richardson import extrapolated
 from methods.symbolic.misfit.alignment import Alignment
 from methods.symbolic.options import SymbolicOptions
@@ -45,6 +46,7 @@ class Passes:
     stopped: str
     from_cache: list
     field: FieldOptions
+    resolved: dict                 # results.json options_resolved: each auto option's value and why
     cameras: list                  # those of the last pass: corrected with method.align
     alignment: list | None         # results.json alignment (method.align), else None
 
@@ -55,8 +57,9 @@ def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, ren
     ``problem`` holds ``params`` as its parameters; ``renders``: passes already spent (a prior);
     every solver evaluation is recorded in ``trace``.
     """
+    decided = resolve(options, problem)
+    options = decided.options
     field = FieldOptions.resolve(options, problem)
-    options = resolved(options, field, problem.settings.spp, photographs=problem.scene.images is not None)
     stopped = "single pass" if options.refine == 0 else f"cap of {options.refine} refinement pass(es)"
     render_s = solve_s = 0.0
     moves, fit = [], None
@@ -104,35 +107,8 @@ def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, ren
         solve_s += time.perf_counter() - t_solve
     stages = clock.seconds
     stages["other"] = max(0.0, solve_s - sum(stages.values()))    # what no stage names
-    return Passes(fit, renders, render_s, solve_s, stages, moves, stopped, result.from_cache, field,
+    return Passes(fit, renders, render_s, solve_s, stages, moves, stopped, result.from_cache, field, decided.why,
                   problem.cameras, alignment.report(problem.cameras) if alignment is not None else None)
-
-
-def resolved(options: SymbolicOptions, field: FieldOptions, spp: int, *, photographs: bool) -> SymbolicOptions:
-    """``options`` with ``bias``, ``std`` and ``align`` ``auto`` resolved for a run at ``spp``
-    samples per pixel whose field path is ``field`` and whose observations are ``photographs``
-    (the scene's ``images/``, any encoding) or rendered by the run itself.
-
-    Photographs get ``std`` ``cluster`` (with the joint cost) and ``align`` ``rotation`` (with
-    ``refine`` >= 1): a surveyed camera's pose is off by a fraction of a pixel and photographs'
-    residuals are spatially correlated (resampling, compression, texture, misregistration),
-    whatever their file format; a rendered scene's poses are exact and its residuals independent,
-    so it keeps ``sandwich`` and ``none``. ``bias`` is ``richardson`` on the field path
-    (:attr:`FieldOptions.active`: pixel weights, per-view gains, robust rounds, unknown light or
-    lens; when ``spp`` is a multiple of 4 and ``gram`` is ``cross``), else ``none``.
-    Why (measured, BENCHMARKS.md sections 7 and 11; :mod:`methods.symbolic.loop.richardson`): the field
-    path's solve is non-linear in the pass's noisy coefficients (gains, robust weights and their
-    scale) and its finite-spp bias was 10-20 std on the field scene, while on the small rendered
-    scenes of the tests the correction's own noise outweighs the bias it removes; the plain L2
-    solve of linear photographs is as near linear as a rendered scene's."""
-    bias, std, align = options.bias, options.std, options.align
-    if align == "auto":
-        align = "rotation" if photographs and options.refine >= 1 else "none"
-    if bias == "auto":
-        bias = "richardson" if field.active and spp % 4 == 0 and options.gram == "cross" else "none"
-    if std == "auto":
-        std = "cluster" if photographs and options.cost == "joint" else "sandwich"
-    return dataclasses.replace(options, bias=bias, std=std, align=align)
 
 
 def render_pass(problem, params, x0: np.ndarray, options: SymbolicOptions, *, seed: int):

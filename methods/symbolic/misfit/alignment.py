@@ -64,7 +64,7 @@ class Alignment:
         Smallest correction applied (:func:`~methods.symbolic.misfit.registration.register`).
     """
 
-    def __init__(self, cameras, *, mode: str, max_px: float, min_px: float = 0.0):
+    def __init__(self, cameras, *, mode: str, max_px: float, min_px: float):
         if mode not in ("shift", "rotation"):
             raise ValueError(f"alignment mode '{mode}' unknown; use shift or rotation")
         self.given = {c.name: c for c in cameras}

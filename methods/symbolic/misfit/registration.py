@@ -113,7 +113,7 @@ class Registration:
 
 
 def register(observed: np.ndarray, predicted: np.ndarray, camera: Camera, *, weights: np.ndarray | None = None,
-             max_px: float = 3.0, min_px: float = 0.0, roll: bool = True,
+             max_px: float, min_px: float, roll: bool = True,
              clusters: np.ndarray | None = None) -> Registration:
     """Register ``observed`` to ``predicted`` by a small rotation of ``camera`` (module docstring).
 

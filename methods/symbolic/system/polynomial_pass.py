@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import dataclass
+
 import drjit as dr
 import numpy as np
 
@@ -193,30 +195,60 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
     return PassResult(total.total(GramSystem.zeros(np.zeros(1, np.int64), C)), ordered, render_s, cached)
 
 
+@dataclass(frozen=True)
+class ViewTask:
+    """Everything a worker needs to render one view of a pass: plain picklable data (the numpy
+    Scene model, arrays, seeds), built by :func:`view_task`.
+
+    ``cache_dir``: the worker stores each tile's coefficients there under ``key`` (the view's cache
+    key) as it goes, and keeps none of them; ``footprint``: an interpolation kernel
+    (:func:`footprint_kernel`), each pixel rendered over the source pixels it weighs; ``cross_gram``:
+    each pixel's samples in two independent halves; ``quarters``: and each half's first half too.
+    """
+
+    scene: object
+    cameras: list
+    view: int
+    parameters: list
+    guesses: np.ndarray
+    max_bounces: int
+    spp: int
+    seed: int
+    prob_floor: float
+    tile_pixels: int
+    observed: np.ndarray
+    cross_gram: bool
+    tail_bounces: int
+    cache_dir: str | None
+    key: dict | None
+    footprint: str | None
+    quarters: bool
+
+    @property
+    def camera(self):
+        return self.cameras[self.view]
+
+
 def view_task(problem, parameters, guesses, max_bounces: int, i: int, *, spp: int, seed: int, prob_floor: float,
-              tile_pixels: int, cross_gram: bool = True, tail_bounces: int = 0, cache_dir=None,
-              key: dict | None = None, footprint: str | None = None, quarters: bool = False) -> dict:
-    """Everything a worker needs to render view ``i``: plain picklable data (numpy Scene model).
-    With ``cache_dir`` the worker stores each tile's coefficients there under ``key`` (the view's
-    cache key) as it goes, and keeps none of them; with ``footprint`` (an interpolation kernel,
-    :func:`footprint_kernel`) it renders each pixel over the source pixels that kernel weighs."""
+              tile_pixels: int, cross_gram: bool, tail_bounces: int, cache_dir=None,
+              key: dict | None = None, footprint: str | None = None, quarters: bool = False) -> ViewTask:
+    """The :class:`ViewTask` of view ``i`` of ``problem`` (its seed the view's inversion seed)."""
     cam = problem.cameras[i]
-    return {"scene": problem.scene, "cameras": list(problem.cameras), "view": int(i),
-            "parameters": list(parameters), "guesses": np.asarray(guesses, float),
-            "n_params": len(parameters), "max_bounces": int(max_bounces), "spp": int(spp),
-            "seed": inversion_seed(seed, i), "prob_floor": float(prob_floor), "tile_pixels": int(tile_pixels),
-            "observed": np.asarray(problem.observed[cam.name]), "cross_gram": bool(cross_gram),
-            "tail_bounces": int(tail_bounces), "cache_dir": None if cache_dir is None else str(cache_dir),
-            "key": key, "footprint": footprint, "quarters": bool(quarters)}
+    return ViewTask(scene=problem.scene, cameras=list(problem.cameras), view=int(i), parameters=list(parameters),
+                    guesses=np.asarray(guesses, float), max_bounces=int(max_bounces), spp=int(spp),
+                    seed=inversion_seed(seed, i), prob_floor=float(prob_floor), tile_pixels=int(tile_pixels),
+                    observed=np.asarray(problem.observed[cam.name]), cross_gram=bool(cross_gram),
+                    tail_bounces=int(tail_bounces), cache_dir=None if cache_dir is None else str(cache_dir),
+                    key=key, footprint=footprint, quarters=bool(quarters))
 
 
-def _footprint(task: dict):
+def _footprint(task: ViewTask):
     """The view's :class:`~framework.scene.undistort.Resampling` (kept per camera), or None."""
-    kernel = task.get("footprint")
+    kernel = task.footprint
     if kernel is None:
         return None
     from framework.scene.undistort import Resampling, resampling_key
-    cam = task["cameras"][task["view"]]
+    cam = task.camera
     key = resampling_key(cam, kernel)
     kept = _WORKER_STATE.setdefault("footprints", {})
     if key not in kept:
@@ -228,7 +260,7 @@ def _footprint(task: dict):
 _WORKER_STATE: dict = {}    # per process: the last (MitsubaScene, integrator), reused across views
 
 
-def render_view_task(task: dict, *, variant: str, threads: int | None = None
+def render_view_task(task: ViewTask, *, variant: str, threads: int | None = None
                      ) -> tuple[GramSystem, TiledCoefficients]:
     """Render one view of a :func:`view_task` in this process (driver or Dask worker).
 
@@ -238,14 +270,13 @@ def render_view_task(task: dict, *, variant: str, threads: int | None = None
     """
     init_worker(variant, threads)
     ms, integrator = _scene_and_integrator(task, variant)
-    cam = task["cameras"][task["view"]]
     store = None
-    if task.get("cache_dir") is not None:
-        store = TileWriter(Cache(task["cache_dir"]), task["key"], task["observed"].shape[-1])
+    if task.cache_dir is not None:
+        store = TileWriter(Cache(task.cache_dir), task.key, task.observed.shape[-1])
     try:
-        return _render_view(integrator, ms, task["view"], cam, task["observed"], task["spp"], task["seed"],
-                            cross=task.get("cross_gram", True), store=store, footprint=_footprint(task),
-                            quarters=task.get("quarters", False))
+        return _render_view(integrator, ms, task.view, task.camera, task.observed, task.spp, task.seed,
+                            cross=task.cross_gram, store=store, footprint=_footprint(task),
+                            quarters=task.quarters)
     finally:
         if store is not None:
             store.close()          # every tile on disk before the view is reported done
@@ -255,26 +286,25 @@ def render_view_task(task: dict, *, variant: str, threads: int | None = None
         dr.flush_malloc_cache()
 
 
-def _scene_and_integrator(task: dict, variant: str):
-    scene, params = task["scene"], task["parameters"]
+def _scene_and_integrator(task: ViewTask, variant: str):
+    scene, params = task.scene, task.parameters
     # the cameras by pose too: a corrected camera (methods.symbolic.misfit.alignment) keeps its name
-    key = (variant, scene.content_hash, scene.root, tuple(c.name for c in task["cameras"]),
-           tuple(tuple(camera_key(c)) for c in task["cameras"]), task["spp"],
-           task["guesses"].tobytes(), task["prob_floor"], task["max_bounces"], task["tile_pixels"],
-           task.get("tail_bounces", 0),
+    key = (variant, scene.content_hash, scene.root, tuple(c.name for c in task.cameras),
+           tuple(tuple(camera_key(c)) for c in task.cameras), task.spp,
+           task.guesses.tobytes(), task.prob_floor, task.max_bounces, task.tile_pixels, task.tail_bounces,
            tuple((p.segment, p.kernel) for p in params))
     if _WORKER_STATE.get("key") != key:
         _WORKER_STATE.pop("value", None)
-        ms = MitsubaScene(scene, task["cameras"], spp=task["spp"])
+        ms = MitsubaScene(scene, task.cameras, spp=task.spp)
         segment_kernels = [[(p.kernel, p.index) for p in params if p.segment == s]
                            for s in range(len(scene.segments))]
         group = {j: g + 1 for g, j in enumerate(unknown_emitters(scene))}
         groups = [(em, group[j]) for j in group for em in ms.emitter_objects(j)]
         parts = [(em, group.get(j, 0)) for j, em in ms.environment_parts] if split_environments(scene) else []
         integrator = integrator_class().create(
-            ms.shape_segments, segment_kernels, len(params), task["guesses"],
-            max_bounces=task["max_bounces"], prob_floor=task["prob_floor"], tile_pixels=task["tile_pixels"],
-            tail_bounces=task.get("tail_bounces", 0), emitter_groups=groups, environment=ms.environment,
+            ms.shape_segments, segment_kernels, len(params), task.guesses,
+            max_bounces=task.max_bounces, prob_floor=task.prob_floor, tile_pixels=task.tile_pixels,
+            tail_bounces=task.tail_bounces, emitter_groups=groups, environment=ms.environment,
             environment_parts=parts)
         _WORKER_STATE.update(key=key, value=(ms, integrator))
     return _WORKER_STATE["value"]

@@ -15,6 +15,7 @@ import mitsuba as mi
 
 from framework.errors import ConfigError
 from framework.render.plugin import plugin_class
+from methods.symbolic.options import SymbolicOptions
 from methods.symbolic.trace.camera_rays import mis_weight
 from methods.symbolic.trace.events import event_slots
 from methods.symbolic.trace.integrator_tables import KernelTables
@@ -130,7 +131,7 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
             props = mi.Properties()
         mi.SamplingIntegrator.__init__(self, props)     # no super(): see framework.render.plugin
         max_bounces = props.get("max_bounces", 3)
-        prob_floor = props.get("prob_floor", 0.1)
+        prob_floor = props.get("prob_floor", SymbolicOptions.prob_floor)
         tail_bounces = props.get("tail_bounces", 0)
         self.tile_pixels = int(props.get("tile_pixels", 4096))
         if self.tile_pixels < 1:

@@ -12,6 +12,7 @@ import numpy as np
 
 from framework import brdf_kernels as kernel_registry
 from framework.errors import ConfigError
+from methods.symbolic.options import SymbolicOptions
 from methods.symbolic.trace.monomial_codes import check_key_range
 
 
@@ -63,7 +64,7 @@ class KernelTables:
 
     @classmethod
     def create(cls, shape_segments, segment_kernels, n_params, guesses, *, max_bounces: int = 3,
-               prob_floor: float = 0.1, tile_pixels: int = 4096, tail_bounces: int = 0,
+               prob_floor: float = SymbolicOptions.prob_floor, tile_pixels: int = 4096, tail_bounces: int = 0,
                emitter_groups: Sequence[tuple] = (), environment=None,
                environment_parts: Sequence[tuple] = ()) -> Self:
         """Build and :meth:`configure` an integrator in one call (arguments as there)."""
