@@ -200,7 +200,10 @@ def test_cli_interrupt(tiny_scene, tmp_path):
     run_dir = tmp_path / "run"
     env = dict(os.environ, PYTHONPATH=str(Path(framework.run.__file__).parents[1]), PYTHONUNBUFFERED="1")
     args = [f"scene.dir={tiny_scene}", f"hydra.run.dir={run_dir}", "cache.dir=null", *TINY,
-            "method=iterative", "budget.renders=100000", "method.noise=fixed"]
+            "method=iterative", "budget.renders=100000", "method.noise=fixed",
+            # no tolerance stops it: at 170 renders/s on the tiny scene (its kernels compiled once)
+            # nlopt's tolerances ended the run within the second before the Ctrl-C
+            "method.xtol_rel=0", "method.ftol_rel=0"]
     proc = subprocess.Popen([sys.executable, "-m", "framework.run", *args], cwd=tmp_path, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     for line in proc.stdout:                     # Hydra logs to stdout: wait for the method to start
