@@ -3,10 +3,10 @@
 Options: :mod:`framework.executor_options` (``serial``: everything in the driver process, the
 default; ``dask``: a ``distributed.LocalCluster(n_workers, threads_per_worker, processes=True)``
 started for the run and closed afterwards, or the existing scheduler at ``address``, whose workers
-must be able to import this repository). Each task receives plain picklable data
-    (the numpy :class:`~framework.scene.Scene` model, arrays, seeds), selects the Mitsuba variant
-    itself and limits Dr.Jit to ``threads_per_worker`` threads (:func:`init_worker`), so the
-    workers do not oversubscribe the cores.
+must be able to import this repository). Each task receives plain picklable data (the numpy
+:class:`~framework.scene.Scene` model, arrays, seeds), selects the Mitsuba variant itself and
+limits Dr.Jit to ``threads_per_worker`` threads (:func:`init_worker`), so the workers do not
+oversubscribe the cores.
 
 Both executors expose :meth:`imap`: the values of one task per item, in item order, one at a
 time. The caller reduces them with :class:`TreeSum` in that order, so both executors give the

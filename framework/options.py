@@ -4,7 +4,7 @@ A method declares its options as a frozen dataclass whose fields are made by :fu
 the field's ``doc`` is the one description of the option (``docs/cli.md``'s tables are generated
 from it, :func:`option_rows`), its ``check`` validates and converts the value, its ``default`` is
 the option's one default. A method's YAML (``framework/conf/method/<name>.yaml``) is generated
-from the fields (:func:`defaults_of`, ``python -m framework.cli_docs``; the test suite checks it
+from the fields (:func:`defaults_of`, ``python -m framework.method_yaml``; the test suite checks it
 is current), so Hydra composes the defaults and the presets override them in their own YAML; no
 code repeats a default. A nested dataclass is a nested mapping (``method.solver.*``).
 

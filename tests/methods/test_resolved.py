@@ -8,7 +8,7 @@ import pytest
 
 from factory import method_config
 from framework.options import build
-from methods.symbolic.loop.resolved import Facts, field_path, resolved
+from methods.symbolic.loop.resolved import Facts, field_reasons, resolved
 from methods.symbolic.options import SymbolicOptions
 
 #: a rendered scene of 3 views at 64 spp: no photographs, nothing marked, no lens, known light
@@ -72,7 +72,7 @@ def test_boundary_and_robust(change, boundary, robust):
     out = resolved(_options(), facts)
     assert (out.options.boundary, out.options.robust) == (boundary, robust)
     assert out.why["robust"]["value"] == robust and out.why["boundary"]["value"] == boundary
-    assert field_path(facts, boundary=boundary, robust=robust) == (robust != "none" or "vignetting" in change)
+    assert bool(field_reasons(facts, boundary=boundary, robust=robust)) == (robust != "none" or "vignetting" in change)
 
 
 def test_consistency_only_with_robust_rounds_and_views_to_compare():

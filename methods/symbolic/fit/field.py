@@ -96,7 +96,7 @@ class FieldOptions:
 
     @property
     def active(self) -> bool:
-        """The field path (as :func:`methods.symbolic.loop.resolved.field_path` decides ahead)."""
+        """The field path (as :func:`methods.symbolic.loop.resolved.field_reasons` decides ahead)."""
         return (self.weights is not None or self.reference is not None or self.robust != "none"
                 or self.vignetting != "none" or self.scales > 0)
 

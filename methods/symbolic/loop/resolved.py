@@ -118,11 +118,9 @@ def resolved(options: SymbolicOptions, facts: Facts) -> Resolved:
     decide("consistency", "auto" if compare else "none",
            f"robust reweighting over {facts.views} views: a pixel two other views see is weighed by their "
            "disagreement" if compare else f"robust {robust}, {facts.views} view(s): no views to compare")
-    field = field_path(facts, boundary=boundary, robust=robust)
+    parts = field_reasons(facts, boundary=boundary, robust=robust)
+    field = bool(parts)
     ok = facts.spp % 4 == 0 and options.gram == "cross"
-    parts = [w for w, on in (("pixel weights", facts.weights or boundary > 0), ("per-view gains", facts.per_view),
-                             ("robust rounds", robust != "none"), ("a lens to estimate or apply", facts.vignetting != "none"),
-                             ("unknown light scales", facts.scales > 0)) if on]
     decide("bias", "richardson" if field and ok else "none",
            (f"the field path ({', '.join(parts)}): its solve is non-linear in the pass's noisy coefficients" if field
             else "a plain L2 solve, near linear in the pass's coefficients")
@@ -133,8 +131,11 @@ def resolved(options: SymbolicOptions, facts: Facts) -> Resolved:
     return Resolved(dataclasses.replace(options, **values), why)
 
 
-def field_path(facts: Facts, *, boundary: int, robust: str) -> bool:
-    """Whether the fit takes the field path (pixel weights, gains, robust rounds, a lens or unknown
-    light), as :attr:`~methods.symbolic.fit.field.FieldOptions.active` says once built."""
-    return (facts.weights or boundary > 0 or facts.per_view or robust != "none"
-            or facts.vignetting != "none" or facts.scales > 0)
+def field_reasons(facts: Facts, *, boundary: int, robust: str) -> list[str]:
+    """What puts the fit on the field path (pixel weights, gains, robust rounds, a lens or unknown
+    light); empty when nothing does, as :attr:`~methods.symbolic.fit.field.FieldOptions.active`
+    says once built."""
+    return [why for why, on in (("pixel weights", facts.weights or boundary > 0), ("per-view gains", facts.per_view),
+                                ("robust rounds", robust != "none"),
+                                ("a lens to estimate or apply", facts.vignetting != "none"),
+                                ("unknown light scales", facts.scales > 0)) if on]
