@@ -134,16 +134,12 @@ def try_one(*args, log=print, resume: bool = False) -> dict | None:
         return None
 
 
-#: Adam learning rates of the differentiable baseline's sweep (single view); the default (in
-#: differentiable.yaml) is the comparison's own run
-LR_SWEEP = (0.05, 0.2)
-
-
 def lr_sweep(sizes, root: Path, log=print, resume: bool = False) -> list[dict]:
-    """The differentiable baseline at other learning rates, single view, the comparison's budget."""
+    """The differentiable baseline at the learning rates ``sizes.cmp_lr_sweep`` (the default, in
+    its options, is the comparison's own run), single view, the comparison's budget."""
     rows = [try_one(sizes, root, f"differentiable lr={lr}", "urban_canyon", 1,
                     ["method=differentiable", f"method.lr={lr}", *PAPER_LIGHT], sizes.cmp_budget, log=log,
-                    resume=resume) for lr in LR_SWEEP]
+                    resume=resume) for lr in sizes.cmp_lr_sweep]
     return [r for r in rows if r is not None]
 
 
@@ -285,8 +281,13 @@ def lr_sweep_markdown(rows: list[dict], sweep: list[dict]) -> list[str]:
     single = [r for r in rows if r["views"] == "single"]
     base = next((r for r in single if r["label"] == "symbolic"), None)
     default = next((r for r in single if r["label"] == "differentiable"), None)
-    if base is None or default is None or not sweep:
+    if base is None or default is None:
         return []
+    if not sweep:
+        return ["### Learning rate of the differentiable baseline (single view)", "",
+                "Not run at these sizes (`Sizes.cmp_lr_sweep` is empty: two more baseline runs of the "
+                "comparison's budget, cut for the benchmark's hour). Give it rates, e.g. (0.05, 0.2), to "
+                "sweep Adam's learning rate around the shipped default.", ""]
     keys = observable_keys(base["results"])
     runs = [(r["results"]["settings"]["method_settings"]["lr"], r) for r in sweep + [default]]
     def floor(r):

@@ -145,10 +145,11 @@ def targets_met(s: dict) -> bool:
 
 
 def run(sizes, work: Path, log=print) -> list[dict]:
-    """The rows of :data:`ROWS` on the misfit scene, then those of :data:`CAR_ROWS` on the car
-    scene; a row dict each."""
+    """The rows of :data:`ROWS` that ``sizes.misfit_rows`` keeps, on the misfit scene, then those
+    of :data:`CAR_ROWS` on the car scene; a row dict each."""
     rows = []
-    for folder, table in ((scene_folder(sizes, work), ROWS), (car_folder(sizes, work), CAR_ROWS)):
+    kept = {key: row for key, row in ROWS.items() if key in sizes.misfit_rows}
+    for folder, table in ((scene_folder(sizes, work), kept), (car_folder(sizes, work), CAR_ROWS)):
         gains, shifts = true_gains(folder), true_shifts(folder)
         for key, (label, overrides) in table.items():
             rows.append(_row(sizes, work, folder, key, label, overrides, gains, shifts, log))

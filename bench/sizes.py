@@ -34,9 +34,14 @@ class Sizes:
     cmp_budget_all : int
         ``budget.renders`` of the iterative and differentiable runs on all views.
     cmp_budget_all_differentiable : int
-        ``budget.renders`` of the differentiable runs on all views: its curve levels off later
-        than the iterative ones' (measured on all views at 100 pixels wide: its worst error still
-        fell 11 % per tenth at 400 renders, the iterative ones were flat).
+        ``budget.renders`` of the differentiable runs on all views. Its curve levels off later
+        than the iterative ones' (at 400 renders on all views, 48 px wide, its worst error still
+        fell 12 % per tenth, 2026-12-04), so the floor column says "still falling"; 400 was cut to
+        200 for the benchmark's hour (the 400-render run alone took 6.3 of its minutes).
+    cmp_lr_sweep : tuple of float
+        Adam learning rates of the differentiable baseline's sweep on the single view, beside the
+        shipped default (empty: no sweep). Cut for the benchmark's hour (two runs of the
+        comparison's budget, 2.9 of its minutes, 2026-12-04).
     cmp_single_image, cmp_all_image : int or None
         Image width of every run on the single view / on all views (the cameras scaled, the
         observations rendered at that size); None: the scene's own.
@@ -58,7 +63,9 @@ class Sizes:
     extra : tuple of str
         Overrides added to every in-process run.
     mega_spp, mega_reps : int
-        Samples per pixel and timed repetitions of the 1920x1080 view (section "megapixel").
+        Samples per pixel and timed repetitions of the 1920x1080 view (section "megapixel"): 32
+        spp, cut from 64 for the benchmark's hour (the pass / render ratio at 1920x1080 was 1.38
+        at 64 spp, 2026-12-04; section 1 shows how it varies with spp at 200x200).
     glossy_spp : int
         ``render.spp`` of the glossy section's fits: a ``glossy(0.05)`` window lit by the sun is
         noisy in the pass (fireflies of next-event estimation through a sharp lobe); measured on
@@ -70,7 +77,10 @@ class Sizes:
     field_rows : tuple of str or None
         Labels of :data:`bench.field.VARIANTS` the section runs (None: every one). Cut for the
         hour: the default without the boundary exclusion, and the cubic resampling with the
-        pixel footprint (the cubic row with the default footprint shows the resampling's effect).
+        pixel footprint (the cubic row with the default footprint shows the resampling's effect);
+        then the cubic resampling and each pixel its own box (``footprint=pixel``) too (2026-12-04:
+        109 s and 77 s of the section's 11 minutes; both met the targets, they test the loader's
+        resampling model, which the tests cover).
     glossy_alphas : tuple of float
         The window roughnesses of the glossy section's α sweep (two models, one pass each): the
         truth 0.05, its neighbours 0.03 and 0.1, and 0.3 far off (0.2 and 0.5 were cut for the
@@ -100,6 +110,11 @@ class Sizes:
         else the scene built at that size (its JPEG photographs cannot be box-averaged).
     misfit_photo_spp : int
         Samples per pixel of the photographs of that build (``misfit_image`` not None).
+    misfit_rows : tuple of str
+        Keys of :data:`bench.misfit.ROWS` the section runs (the car row (e) always runs). Row (d),
+        the defaults with ``method.consistency=auto``, was cut for the benchmark's hour (221 s;
+        2026-12-04 at 200 px it met every target as row (a) did: RMS z 0.89 against 0.85, worst
+        diffuse 0.0112 against 0.0084).
     misfit_extra : tuple of str
         Overrides added to the "misfit" section's runs (the real one runs the shipped settings;
         its alignment rows need ``method.refine`` >= 1).
@@ -133,7 +148,8 @@ class Sizes:
     cmp_observe_spp: int = 256
     cmp_budget: int = 300
     cmp_budget_all: int = 200
-    cmp_budget_all_differentiable: int = 400
+    cmp_budget_all_differentiable: int = 200
+    cmp_lr_sweep: tuple = ()
     cmp_single_image: int | None = 100
     cmp_all_image: int | None = 48
     all_views: int = 0
@@ -142,17 +158,16 @@ class Sizes:
     mat_image: int = 200
     mat_timeout_s: float = 1800.0
     extra: tuple = field(default_factory=tuple)
-    mega_spp: int = 64
+    mega_spp: int = 32
     mega_reps: int = 1
     glossy_spp: int = 256
-    glossy_alphas: tuple = (0.03, 0.05, 0.1, 0.3)
+    glossy_alphas: tuple = (0.03, 0.05, 0.1)
     defaults_extra: tuple = field(default_factory=tuple)
     field_extra: tuple = field(default_factory=tuple)
     field_image: int | None = 100
     field_rows: tuple | None = (
         "naive (gains 1, every pixel, L2)", "+ per-view exposure", "+ masks and saturation",
         "default (+ robust Cauchy, cluster std, bias correction, alignment)",
-        "default, each pixel its own box (footprint=pixel)", "default, photographs resampled by cubic convolution",
         "default, pixel sandwich std (method.std=sandwich)", "default without the bias correction (method.bias=none)",
         "default without the alignment (method.align=none)")
     geometry_triangles: tuple = (20_000, 200_000, 2_000_000)
@@ -164,6 +179,7 @@ class Sizes:
     survey_extra: tuple = field(default_factory=tuple)
     misfit_image: int | None = None
     misfit_photo_spp: int = 16
+    misfit_rows: tuple = ("a", "b", "c")
     misfit_extra: tuple = field(default_factory=tuple)
     holdout_image: int | None = 50
     holdout_budget_cut: int = 24
@@ -182,7 +198,7 @@ QUICK = Sizes(name="quick", ratio_spps=(4,), ratio_reps=1, mem_views=(1, 2), mem
               geometry_triangles=(2_000, 20_000), geometry_spp=4, geometry_reps=1,
               survey_image=40, survey_turbidity_image=None, survey_photo_spp=4,
               survey_extra=("render.spp=4", "method.refine=0", "render.tail_bounces=0"),
-              misfit_image=40, misfit_photo_spp=8,
+              misfit_image=40, misfit_photo_spp=8, misfit_rows=("a", "b"),
               misfit_extra=("render.spp=4", "method.refine=1", "render.tail_bounces=0", "method.irls.iterations=2"),
               holdout_image=20,
               holdout_extra=("method.refine=0", "render.tail_bounces=0", "method.robust=none", "method.bias=none",

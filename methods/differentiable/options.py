@@ -11,7 +11,7 @@ from methods._common import StartOptions
 class DifferentiableOptions(StartOptions):
     """``method.*`` of the differentiable-rendering baseline."""
 
-    lr: float = option("Adam learning rate, in ρ units (the sweep in BENCHMARKS.md picks it)",
+    lr: float = option("Adam learning rate, in ρ units (picked by a sweep: docs/design-notes.md)",
                        number(0.0, 1.0, lo_open=True), default=0.1)
     beta1: float = option("Adam first-moment decay, in [0, 1)", number(0.0, 0.999999), default=0.9)
     beta2: float = option("Adam second-moment decay, in [0, 1)", number(0.0, 0.999999), default=0.999)

@@ -51,10 +51,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
 from framework.scene.lens import falloff, pixel_radius
 from methods.symbolic.trace.monomial_codes import code_digits, encode_digits
+from methods.symbolic.system.sparse_rows import interleaved_columns, scale_rows
 
 #: ``segment_name`` of a camera's profile parameters: this prefix, then the camera's key
 VIGNETTING_PREFIX = "vignetting:"
@@ -113,19 +113,20 @@ def with_factors(coeffs, terms, *, n_params: int, max_degree: int):
                 raise ValueError(f"parameter {index} would not be the last digit of every monomial")
             wide[np.arange(len(wide)), degree] = index + 1
         codes.append(encode_digits(wide, n_params))
-        rows = sp.diags(np.asarray(scale, np.float64))
-        parts_a.append([rows @ m for m in coeffs.a])
-        parts_b.append(None if coeffs.b is None else [rows @ m for m in coeffs.b])
+        parts_a.append([scale_rows(m, scale) for m in coeffs.a])
+        parts_b.append(None if coeffs.b is None else [scale_rows(m, scale) for m in coeffs.b])
     codes = np.concatenate(codes)
     order = np.argsort(codes, kind="stable")
     if len(np.unique(codes)) != len(codes):
         raise ValueError("with_factors: two terms give the same monomial (repeated parameter index)")
+    position = np.empty(len(codes), np.int64)
+    position[order] = np.arange(len(codes))                 # term t's column j goes to position[t N + j]
+    columns = np.split(position, len(terms))
 
     def stacked(parts):
         if parts[0] is None:
             return None
-        return [sp.csr_matrix(sp.hstack([p[c] for p in parts], format="csc")[:, order])
-                for c in range(len(parts[0]))]
+        return [interleaved_columns([p[c] for p in parts], columns, len(codes)) for c in range(len(parts[0]))]
     return ViewCoefficients(stacked(parts_a), stacked(parts_b), float(coeffs.split), codes[order])
 
 

@@ -21,6 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
+from framework.threads import run_threads
 from methods.symbolic.system.upper_triangle import principal, spread, triangle, upper
 
 log = logging.getLogger(__name__)
@@ -137,16 +138,18 @@ class GramSystem:
         """:meth:`accumulate` for coefficients given as one sparse ``(n, N)`` matrix per channel
         (``A``, and the independent half ``B``) over this system's ``codes``."""
         observed = np.asarray(observed, dtype=np.float64).reshape(A[0].shape[0], -1)
-        for c in range(self.n_channels):
+
+        def channel(c: int) -> tuple:
             y = observed[:, c]
             if B is None:
-                self.G[c] = (self.G[c] + triangle(A[c].T @ A[c])).tocsr()
-                self.b[c] += A[c].T @ y
-            else:
-                AB = A[c].T @ B[c]
-                self.G[c] = (self.G[c] + triangle(0.5 * (AB + AB.T))).tocsr()
-                self.b[c] += 0.5 * (A[c].T @ y + B[c].T @ y)
-            self.yy[c] += float(y @ y)
+                return triangle(A[c].T @ A[c]), A[c].T @ y
+            AB = A[c].T @ B[c]
+            return triangle(0.5 * (AB + AB.T)), 0.5 * (A[c].T @ y + B[c].T @ y)
+        # one task per channel: scipy's sparse product runs on one core and releases the GIL
+        for c, (g, b) in enumerate(run_threads([lambda c=c: channel(c) for c in range(self.n_channels)])):
+            self.G[c] = (self.G[c] + g).tocsr()
+            self.b[c] += b
+            self.yy[c] += float(observed[:, c] @ observed[:, c])
         self.n_pixels += A[0].shape[0]
         return self
 

@@ -13,9 +13,8 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-import scipy.sparse as sp
-
 from methods.symbolic.system.gram import GramSystem
+from methods.symbolic.system.sparse_rows import scale_rows
 
 
 def weighted_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSystem:
@@ -93,9 +92,9 @@ def row_blocks(coeffs, y: np.ndarray, weights: np.ndarray | None = None):
 def _block_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSystem:
     """:func:`weighted_system` of one block (a :class:`ViewCoefficients`)."""
     C = len(coeffs.a)
-    root = None if weights is None else sp.diags(np.sqrt(weights))
-    scaled = lambda m: m if root is None else (root @ m).tocsr()
-    y = y if weights is None else y * np.sqrt(weights)[:, None]
+    root = None if weights is None else np.sqrt(weights)
+    scaled = lambda m: m if root is None else scale_rows(m, root)
+    y = y if weights is None else y * root[:, None]
     A = [scaled(m) for m in coeffs.a]
     B = None if coeffs.b is None else [scaled(m) for m in coeffs.b]
     return GramSystem.zeros(coeffs.codes, C).accumulate_sparse(A, y, B)
