@@ -24,9 +24,18 @@ def section_machine(m: dict, command: str, sizes, stored: dict) -> list[str]:
              "| section | measured | commit | wall (min) |", "|---|---|---|---|"]
     lines += [f"| {name} | {rec['date']} | {rec['git']} | {rec['wall_s'] / 60:.1f} |" for name, rec in stored.items()]
     commits = {rec["git"] for rec in stored.values()}
-    if len(commits) == 1 and stored:       # one commit: the sections' sum is the benchmark's wall time
-        total = sum(rec["wall_s"] for rec in stored.values()) / 60
+    if len(commits) == 1 and stored:       # one commit: the benchmark's wall time, first start to last end
+        spans = [(rec["start"], rec["end"]) for rec in stored.values() if "start" in rec]
+        total = ((max(e for _, e in spans) - min(s for s, _ in spans)) if len(spans) == len(stored)
+                 else sum(rec["wall_s"] for rec in stored.values())) / 60
         lines.append(f"| all {len(stored)} sections | | {commits.pop()} | {total:.1f} |")
+        spans.sort()
+        if any(later[0] < earlier[1] for earlier, later in zip(spans, spans[1:])):    # side by side
+            lines += ["", "With `--jobs 2` (the default) the sections whose figures are accuracies "
+                      "(survey, misfit, glossy, field, defaults, holdout) run two at a time, each in its own "
+                      "process, after the others have run alone: their wall times (the table's, and those "
+                      "in their sections) are of a machine they shared with each other; the total is the "
+                      "run's, from the first section's start to the last one's end."]
     lines += ["", "## Machine", ""]
     rows = [["CPU", m["cpu"]], ["Cores", m["cores"]], ["RAM", f"{m['ram_gib']:.1f} GiB"],
             ["Mitsuba variant", m["variant"]], ["Device", m.get("device", "CPU")], ["mitsuba / drjit", f"{m['mitsuba']} / {m['drjit']}"],

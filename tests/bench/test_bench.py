@@ -110,3 +110,62 @@ def test_bench_variant_option():
     sizes = on_backend(QUICK, "llvm_ad_rgb")
     assert sizes.variant == "llvm" and sizes.extra[-1] == "variant=llvm"
     assert on_backend(QUICK, "auto").extra == QUICK.extra
+
+
+def test_total_wall_of_sections_run_side_by_side():
+    """The "all sections" row is the run's wall time, first start to last end: sections of 1 min
+    (0-60 s) and two of 2 min side by side (60-180 s, 70-190 s) took 3.2 min, not the 5 min their
+    walls sum to, and the text says they shared the machine; without start and end, the sum."""
+    from bench.markdown import section_machine
+    machine = {"cpu": "c", "cores": 2, "ram_gib": 1.0, "variant": "v", "mitsuba": "m", "drjit": "d",
+               "python": "p", "platform": "x"}
+    spans = {"ratio": (0.0, 60.0), "survey": (60.0, 180.0), "misfit": (70.0, 190.0)}
+    stored = {n: {"date": "today", "git": "g", "wall_s": e - s, "start": s, "end": e} for n, (s, e) in spans.items()}
+    text = "\n".join(section_machine(machine, "python -m bench", QUICK, stored))
+    assert "| all 3 sections | | g | 3.2 |" in text and "two at a time" in text
+    alone = {n: {k: v for k, v in r.items() if k not in ("start", "end")} for n, r in stored.items()}
+    text = "\n".join(section_machine(machine, "python -m bench", QUICK, alone))
+    assert "| all 3 sections | | g | 5.0 |" in text and "two at a time" not in text
+
+
+def test_bench_jobs_errors():
+    from bench.__main__ import parse
+    assert parse([]).jobs == 2 and parse(["--jobs", "1"]).jobs == 1
+    with pytest.raises(SystemExit):
+        parse(["--jobs", "0"])
+
+
+def test_sections_in_processes_run_n_at_a_time(monkeypatch, tmp_path):
+    """in_processes: at most --jobs children at once, each ``python -m bench --sections NAME
+    --store-only --jobs 1`` into the same run folder; a failed child stops the start of the others
+    and the benchmark exits non-zero naming it."""
+    import subprocess
+    import bench.__main__ as main
+    started, alive = [], []
+
+    class Child:
+        def __init__(self, cmd, cwd):
+            self.name = cmd[cmd.index("--sections") + 1]
+            self.cmd, self.polls, self.returncode = cmd, 0, None
+            started.append(self)
+            alive.append(self)
+            assert len(alive) <= 2                       # never more than --jobs at once
+
+        def poll(self):
+            self.polls += 1
+            if self.polls >= 2:
+                self.returncode = 3 if self.name == "field" else 0
+                alive.remove(self) if self in alive else None
+            return self.returncode
+
+    monkeypatch.setattr(subprocess, "Popen", Child)
+    monkeypatch.setattr(main.time, "sleep", lambda s: None)
+    args = main.parse(["--jobs", "2", "--quick"])
+    main.in_processes(["survey", "misfit", "holdout"], args, tmp_path)
+    assert [c.name for c in started] == ["survey", "misfit", "holdout"]
+    assert all(c.cmd[c.cmd.index("--runs") + 1] == str(tmp_path) and "--store-only" in c.cmd and "--quick" in c.cmd
+               and c.cmd[c.cmd.index("--jobs") + 1] == "1" for c in started)
+    started.clear()
+    with pytest.raises(SystemExit, match="field"):
+        main.in_processes(["field", "defaults", "holdout", "glossy"], args, tmp_path)
+    assert "glossy" not in [c.name for c in started]    # nothing starts after the failure is seen

@@ -38,11 +38,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
 from framework.errors import ConfigError
 from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.system.emitter_groups import unknown_emitters
+from methods.symbolic.system.pixel_matrices import scale_columns
 from methods.symbolic.trace.monomial_codes import code_digits
 
 #: ``s = SCALE_MAX · h``, ``h`` in the solver's box [0, 1] (module docstring)
@@ -139,8 +139,8 @@ class Illumination:
             return TiledCoefficients(coeffs.starts, blocks, coeffs.n_rows)
         n = self.first + self.n_parameters
         digits = code_digits(np.asarray(coeffs.codes, np.int64), n, max_degree)
-        factor = sp.diags(np.where((digits > self.first).any(axis=1), SCALE_MAX, 1.0))
-        scale = lambda mats: None if mats is None else [sp.csr_matrix(m @ factor) for m in mats]  # noqa: E731
+        factor = np.where((digits > self.first).any(axis=1), SCALE_MAX, 1.0)
+        scale = lambda mats: None if mats is None else [scale_columns(m, factor) for m in mats]  # noqa: E731
         return ViewCoefficients(scale(coeffs.a), scale(coeffs.b), coeffs.split, coeffs.codes)
 
     def report(self, estimate: np.ndarray, std: np.ndarray) -> list[dict]:

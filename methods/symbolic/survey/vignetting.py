@@ -54,7 +54,7 @@ import numpy as np
 
 from framework.scene.lens import falloff, pixel_radius
 from methods.symbolic.trace.monomial_codes import code_digits, encode_digits
-from methods.symbolic.system.sparse_rows import interleaved_columns, scale_rows
+from methods.symbolic.system.pixel_matrices import expanded_columns
 
 #: ``segment_name`` of a camera's profile parameters: this prefix, then the camera's key
 VIGNETTING_PREFIX = "vignetting:"
@@ -104,8 +104,8 @@ def with_factors(coeffs, terms, *, n_params: int, max_degree: int):
         return TiledCoefficients(coeffs.starts, blocks, coeffs.n_rows)
     digits = code_digits(np.asarray(coeffs.codes, np.int64), n_params, max_degree)
     degree = (digits > 0).sum(axis=1)
-    codes, parts_a, parts_b = [], [], []
-    for scale, index in terms:
+    codes = []
+    for _, index in terms:
         wide = np.zeros((len(digits), max_degree + 1), dtype=np.int64)
         wide[:, :max_degree] = digits
         if index is not None:
@@ -113,21 +113,16 @@ def with_factors(coeffs, terms, *, n_params: int, max_degree: int):
                 raise ValueError(f"parameter {index} would not be the last digit of every monomial")
             wide[np.arange(len(wide)), degree] = index + 1
         codes.append(encode_digits(wide, n_params))
-        parts_a.append([scale_rows(m, scale) for m in coeffs.a])
-        parts_b.append(None if coeffs.b is None else [scale_rows(m, scale) for m in coeffs.b])
     codes = np.concatenate(codes)
     order = np.argsort(codes, kind="stable")
     if len(np.unique(codes)) != len(codes):
         raise ValueError("with_factors: two terms give the same monomial (repeated parameter index)")
     position = np.empty(len(codes), np.int64)
     position[order] = np.arange(len(codes))                 # term t's column j goes to position[t N + j]
-    columns = np.split(position, len(terms))
-
-    def stacked(parts):
-        if parts[0] is None:
-            return None
-        return [interleaved_columns([p[c] for p in parts], columns, len(codes)) for c in range(len(parts[0]))]
-    return ViewCoefficients(stacked(parts_a), stacked(parts_b), float(coeffs.split), codes[order])
+    columns = position.reshape(len(terms), len(digits))
+    scales = np.stack([np.asarray(scale, np.float64) for scale, _ in terms])
+    stacked = lambda mats: None if mats is None else [expanded_columns(m, scales, columns, len(codes)) for m in mats]  # noqa: E731
+    return ViewCoefficients(stacked(coeffs.a), stacked(coeffs.b), float(coeffs.split), codes[order])
 
 
 def lens_key(camera) -> str:

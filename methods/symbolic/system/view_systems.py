@@ -14,7 +14,7 @@ import dataclasses
 
 import numpy as np
 from methods.symbolic.system.gram import GramSystem
-from methods.symbolic.system.sparse_rows import scale_rows
+from methods.symbolic.system.pixel_matrices import scale_rows
 
 
 def weighted_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSystem:

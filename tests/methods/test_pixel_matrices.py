@@ -1,0 +1,58 @@
+"""Row scaling and column interleaving of per-pixel coefficient matrices
+(:mod:`methods.symbolic.system.pixel_matrices`) against scipy's general products, which they replace."""
+import numpy as np
+import scipy.sparse as sp
+
+from methods.symbolic.system.pixel_matrices import expanded_columns, scale_columns, scale_rows
+
+
+def test_scale_rows_by_hand():
+    """[[1, 2], [0, 3]] with rows times (2, 0): [[2, 4], [0, 0]], the zeroed row's entries dropped."""
+    m = sp.csr_matrix(np.array([[1.0, 2.0], [0.0, 3.0]]))
+    out = scale_rows(m, np.array([2.0, 0.0]))
+    assert out.toarray().tolist() == [[2.0, 4.0], [0.0, 0.0]]
+    assert out.nnz == 2 and m.toarray().tolist() == [[1.0, 2.0], [0.0, 3.0]]     # m untouched
+
+
+def test_scale_rows_equals_the_diagonal_product():
+    m = sp.random(60, 40, density=0.15, format="csr", random_state=3)
+    s = np.random.default_rng(3).normal(size=60)
+    s[[4, 9]] = 0.0
+    ref = (sp.diags(s) @ m).tocsr()
+    out = scale_rows(m, s)
+    assert out.nnz == ref.nnz and np.array_equal(out.toarray(), ref.toarray())
+
+
+def test_expanded_columns_equals_scaled_copies_stacked_then_permuted():
+    """Bit for bit the canonical CSR of ``hstack([diag(s_t) m])[:, order]`` (what the vignetting's
+    expansion built before), rows scaled to 0 dropped, indices sorted within each row."""
+    rng = np.random.default_rng(5)
+    m = sp.random(30, 20, density=0.3, format="csr", random_state=5)
+    scales = rng.normal(size=(3, 30))
+    scales[1, 4] = 0.0
+    order = rng.permutation(60)
+    position = np.empty(60, np.int64)
+    position[order] = np.arange(60)
+    ref = sp.csr_matrix(sp.hstack([sp.diags(s) @ m for s in scales], format="csc")[:, order])
+    out = expanded_columns(m, scales, position.reshape(3, 20), 60)
+    assert out.has_sorted_indices
+    for a, b in ((out.indptr, ref.indptr), (out.indices, ref.indices), (out.data, ref.data)):
+        assert np.array_equal(a, b)
+
+
+def test_expanded_columns_by_hand():
+    """m = [[1, 0], [0, 2], [0, 0]], copies scaled by rows (1, 1, 1) and (3, 0, 1) into columns
+    (1, 3) and (2, 0): [[0, 1, 3, 0], [0, 0, 0, 2], [0, 0, 0, 0]]."""
+    m = sp.csr_matrix(np.array([[1.0, 0.0], [0.0, 2.0], [0.0, 0.0]]))
+    out = expanded_columns(m, np.array([[1.0, 1.0, 1.0], [3.0, 0.0, 1.0]]), np.array([[1, 3], [2, 0]]), 4)
+    assert out.toarray().tolist() == [[0.0, 1.0, 3.0, 0.0], [0.0, 0.0, 0.0, 2.0], [0.0, 0.0, 0.0, 0.0]]
+
+
+def test_scale_columns_by_hand():
+    """[[1, 2], [0, 3]] with columns times (0.5, 0): [[0.5, 0], [0, 0]]."""
+    m = sp.csr_matrix(np.array([[1.0, 2.0], [0.0, 3.0]]))
+    out = scale_columns(m, np.array([0.5, 0.0]))
+    assert out.toarray().tolist() == [[0.5, 0.0], [0.0, 0.0]] and out.nnz == 1
+    big = sp.random(40, 25, density=0.2, format="csr", random_state=2)
+    f = np.random.default_rng(2).normal(size=25)
+    assert np.array_equal(scale_columns(big, f).toarray(), (big @ sp.diags(f)).toarray())
