@@ -96,9 +96,9 @@ class FieldOptions:
 
     @property
     def active(self) -> bool:
-        """The field path (as :func:`methods.symbolic.loop.resolved.field_reasons` decides ahead)."""
-        return (self.weights is not None or self.reference is not None or self.robust != "none"
-                or self.vignetting != "none" or self.scales > 0)
+        """Whether the fit takes the field path (:func:`field_path_reasons`)."""
+        return bool(field_path_reasons(weights=self.weights is not None, gains=self.reference is not None,
+                                       robust=self.robust, vignetting=self.vignetting, scales=self.scales))
 
     @classmethod
     def resolve(cls, options: SymbolicOptions, problem, *, boundaries: bool = True) -> "FieldOptions":
@@ -190,6 +190,17 @@ class _View:
         if self.robust_w is None:
             return self.scene_w
         return self.robust_w if self.scene_w is None else self.scene_w * self.robust_w
+
+
+def field_path_reasons(*, weights: bool, gains: bool, robust: str, vignetting: str, scales: int) -> list[str]:
+    """What puts a fit on the field path, each a short phrase; empty when nothing does (the pass's
+    own system is then solved). ``weights``: pixel weights (scene or material-boundary ones);
+    ``gains``: per-view gains estimated; ``robust``: ``method.robust``; ``vignetting``: scene.yaml's
+    ``photometry: vignetting``; ``scales``: emitters of unknown scale."""
+    return [why for why, on in (("pixel weights", weights), ("per-view gains", gains),
+                                ("robust rounds", robust != "none"),
+                                ("a lens to estimate or apply", vignetting != "none"),
+                                ("unknown light scales", scales > 0)) if on]
 
 
 def field_views(result, problem, params, x0: np.ndarray, options: FieldOptions

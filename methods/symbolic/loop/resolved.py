@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from methods.symbolic.fit.field import field_path_reasons
 from methods.symbolic.fit.solve import AUTO_STARTS, AUTO_STARTS_MAX_PARAMS
 from methods.symbolic.misfit.consistency import MIN_OTHERS
 from methods.symbolic.options import SymbolicOptions
@@ -132,10 +133,7 @@ def resolved(options: SymbolicOptions, facts: Facts) -> Resolved:
 
 
 def field_reasons(facts: Facts, *, boundary: int, robust: str) -> list[str]:
-    """What puts the fit on the field path (pixel weights, gains, robust rounds, a lens or unknown
-    light); empty when nothing does, as :attr:`~methods.symbolic.fit.field.FieldOptions.active`
-    says once built."""
-    return [why for why, on in (("pixel weights", facts.weights or boundary > 0), ("per-view gains", facts.per_view),
-                                ("robust rounds", robust != "none"),
-                                ("a lens to estimate or apply", facts.vignetting != "none"),
-                                ("unknown light scales", facts.scales > 0)) if on]
+    """What puts the fit on the field path (:func:`~methods.symbolic.fit.field.field_path_reasons`
+    of these facts, ahead of the :class:`~methods.symbolic.fit.field.FieldOptions` they build)."""
+    return field_path_reasons(weights=bool(facts.weights or boundary > 0), gains=facts.per_view, robust=robust,
+                              vignetting=facts.vignetting, scales=facts.scales)
