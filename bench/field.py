@@ -144,16 +144,17 @@ def markdown(rows: list[dict]) -> list[str]:
              "(`photometry: resampling: cubic`), with and without the footprint; the pixel sandwich std instead of "
              "the cluster-robust one; no finite-spp bias correction (`method.bias=none`: the estimate as solved, "
              "not extrapolated from the pass's half-spp refits); no alignment of the views between the passes "
-             "(`method.align=none`; this scene's poses are right). On photographs the cluster std, the bias "
+             "(`method.align=none`; this scene's poses are right). Only the rows in the table were run at these sizes "
+             "(`Sizes.field_rows`). On photographs the cluster std, the bias "
              "correction and the alignment are the defaults (`auto`), so they are on from the row with per-view "
              "exposure. "
              "Errors over the parameters the run "
              "calls determined; gain error relative to the truth; RMS z and the count beyond 3 std + 0.005 over the "
              "determined weights' channels. Targets (default row): 0.03 diffuse, 0.05 specular, gains 3 %."
              + (f" The scene is built by its generator (`scenes.urban_canyon_field.build`, same seed) at {image} "
-                "pixels wide instead of the bundled 200, and only the rows above are run: at the bundled size "
-                "the section's 11 rows took 40 min on this 2-core machine (2026-12-04), beyond the hour the "
-                "whole benchmark has; errors and z are those of the smaller photographs." if image else ""), ""]
+                "pixels wide instead of the bundled 200: at the bundled size the section's 11 rows took 40 min "
+                "on this 2-core machine (2026-12-04), beyond the hour the whole benchmark has; errors and z "
+                "are those of the smaller photographs." if image else ""), ""]
     body = [[r["label"], f(r.get("worst_diffuse"), 4), f(r.get("worst_specular"), 4), f(r.get("median"), 4),
              f(100 * r["gain_error"], 2) if r.get("gain_error") is not None else "n/a (gains 1)",
              r.get("ill_determined"), f(r.get("image_rmse"), 5), f(r.get("rms_z"), 2),

@@ -1,7 +1,7 @@
 """Section "megapixel": one 1920x1080 street view, the paper's pass against a plain render.
 
 The default street view of urban_canyon (same pose, 65 degree horizontal field of view) at
-1920x1080 pixels, 64 spp: the polynomial pass of ``method=symbolic_paper`` (tiles of
+1920x1080 pixels, ``sizes.mega_spp`` spp: the polynomial pass of ``method=symbolic_paper`` (tiles of
 ``method.memory_mb``) against Mitsuba ``path`` at max_depth N_max + 1, timed as section 1 does
 (:func:`bench.render_ratio.measure_spp`, one warm-up, median of ``reps``), in a fresh
 subprocess whose peak RSS is reported. The pass stores each tile's coefficients in the cache as
