@@ -291,7 +291,7 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
     iterates, stopped, fit = [], "single solve", None
     for round_ in range(options.iterations):
         with clock("weighted_systems"):
-            system = reduce(operator.iadd, (weighted_system(v.coeffs, v.y, v.weights) for v in views))
+            system = reduce(operator.iadd, (weighted_system(v.coeffs, v.y, v.weights, threads=True) for v in views))
         basis = MonomialBasis(len(every), degree, system.codes)
         used = [v.weights for v in views]
         # late binding: the deferred std reads the last round's ``used``, the weights of its solve

@@ -29,6 +29,12 @@ log = logging.getLogger(__name__)
 
 #: components of G with more used monomials than this are not PSD-projected (dense eigh: O(n³))
 PSD_BLOCK_LIMIT = 4000
+#: with ``threads``, the channels of a Gram accumulation after the first are formed side by side
+#: only when the first one's triangle took at most this many bytes. Measured 2026-12-04 on the
+#: 296-weight street (bench section 5, K = 21, default method, its pass's systems): peak RSS 1906 MiB
+#: one channel at a time, 2111 with all three side by side, 2033 with this bound; the field path's
+#: view systems on the bundled survey and misfit scenes are below it
+PARALLEL_CHANNEL_BYTES = 64 * 2**20
 
 
 @dataclass
@@ -134,9 +140,13 @@ class GramSystem:
         as_csr = lambda g: [sp.csr_matrix(np.asarray(g[:, :, c], dtype=np.float64)) for c in range(C)]
         return self.accumulate_sparse(as_csr(coeffs), observed, as_csr(coeffs_b) if coeffs_b is not None else None)
 
-    def accumulate_sparse(self, A: list, observed: np.ndarray, B: list | None = None) -> "GramSystem":
+    def accumulate_sparse(self, A: list, observed: np.ndarray, B: list | None = None, *,
+                          threads: bool = False) -> "GramSystem":
         """:meth:`accumulate` for coefficients given as one sparse ``(n, N)`` matrix per channel
-        (``A``, and the independent half ``B``) over this system's ``codes``."""
+        (``A``, and the independent half ``B``) over this system's ``codes``; ``threads``: the
+        channels after the first formed side by side when the first one's product was small
+        (:data:`PARALLEL_CHANNEL_BYTES`), for systems formed again and again (the field path's
+        robust rounds), not for the pass's, which is formed once beside the render."""
         observed = np.asarray(observed, dtype=np.float64).reshape(A[0].shape[0], -1)
 
         def channel(c: int) -> tuple:
@@ -145,11 +155,25 @@ class GramSystem:
                 return triangle(A[c].T @ A[c]), A[c].T @ y
             AB = A[c].T @ B[c]
             return triangle(0.5 * (AB + AB.T)), 0.5 * (A[c].T @ y + B[c].T @ y)
-        # one task per channel: scipy's sparse product runs on one core and releases the GIL
-        for c, (g, b) in enumerate(run_threads([lambda c=c: channel(c) for c in range(self.n_channels)])):
-            self.G[c] = (self.G[c] + g).tocsr()
-            self.b[c] += b
+        # scipy's sparse product runs on one core and releases the GIL: after the first channel,
+        # the others side by side when its triangle was small (each product in flight holds its
+        # temporaries, and the threads' malloc arenas keep some: a long street's view system is
+        # hundreds of MB a channel)
+        def add(c: int, part: tuple) -> None:
+            self.G[c] = (self.G[c] + part[0]).tocsr()
+            self.b[c] += part[1]
             self.yy[c] += float(observed[:, c] @ observed[:, c])
+        first = channel(0)
+        add(0, first)
+        small = _bytes(first[0]) <= PARALLEL_CHANNEL_BYTES
+        del first
+        rest = range(1, self.n_channels)
+        if threads and small:
+            for c, part in zip(rest, run_threads([lambda c=c: channel(c) for c in rest])):
+                add(c, part)
+        else:                           # in turn, each product released once added
+            for c in rest:
+                add(c, channel(c))
         self.n_pixels += A[0].shape[0]
         return self
 
@@ -293,3 +317,8 @@ def _psd_components(g: sp.csr_matrix, limit: int) -> tuple[sp.csr_matrix, list[i
     out = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=g.shape)
     out.eliminate_zeros()
     return out, skipped
+
+
+def _bytes(g: sp.csr_matrix) -> int:
+    """Bytes of a CSR matrix's arrays."""
+    return g.data.nbytes + g.indices.nbytes + g.indptr.nbytes

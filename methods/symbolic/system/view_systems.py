@@ -17,7 +17,7 @@ from methods.symbolic.system.gram import GramSystem
 from methods.symbolic.system.pixel_matrices import scale_rows
 
 
-def weighted_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSystem:
+def weighted_system(coeffs, y: np.ndarray, weights: np.ndarray | None, *, threads: bool = False) -> GramSystem:
     """The Gram system of one view from its coefficients, pixel ``p`` weighted by ``w_p``.
 
     With the two half-sample estimates ``a`` and ``b``, the cross Gram ½(AᵀWB + BᵀWA)
@@ -33,10 +33,13 @@ def weighted_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSy
         ``(n, C)`` observed pixels.
     weights : numpy.ndarray or None
         ``(n,)`` weights >= 0 (None: all 1).
+    threads : bool
+        Channels side by side (:meth:`GramSystem.accumulate_sparse`): for a system formed again
+        each robust round.
     """
     total = None
     for block, y_rows, w_rows in row_blocks(coeffs, y, weights):
-        total = summed(total, _block_system(block, y_rows, w_rows))
+        total = summed(total, _block_system(block, y_rows, w_rows, threads=threads))
     return total
 
 
@@ -89,7 +92,7 @@ def row_blocks(coeffs, y: np.ndarray, weights: np.ndarray | None = None):
         yield block, y[rows], None if w is None else w[rows]
 
 
-def _block_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSystem:
+def _block_system(coeffs, y: np.ndarray, weights: np.ndarray | None, *, threads: bool = False) -> GramSystem:
     """:func:`weighted_system` of one block (a :class:`ViewCoefficients`)."""
     C = len(coeffs.a)
     root = None if weights is None else np.sqrt(weights)
@@ -97,4 +100,4 @@ def _block_system(coeffs, y: np.ndarray, weights: np.ndarray | None) -> GramSyst
     y = y if weights is None else y * root[:, None]
     A = [scaled(m) for m in coeffs.a]
     B = None if coeffs.b is None else [scaled(m) for m in coeffs.b]
-    return GramSystem.zeros(coeffs.codes, C).accumulate_sparse(A, y, B)
+    return GramSystem.zeros(coeffs.codes, C).accumulate_sparse(A, y, B, threads=threads)
