@@ -9,7 +9,7 @@ calibration panel on ``urban_canyon_survey``), ``misfit`` (11, what the model la
 rotated poses, a facade off its mesh and textured walls on ``urban_canyon_misfit``; a red car in every
 street view on ``urban_canyon_car``), ``holdout`` (12, every method's prediction of photographs it
 never fitted against the floor: a street view of ``urban_canyon_field``, the morning of
-``urban_canyon_survey``). ``--jobs N`` (default 2) runs the accuracy sections (:data:`SHARED`) N at a
+``urban_canyon_survey``). ``--jobs N`` (default 2) runs the accuracy sections (:data:`bench.common.SHARED`) N at a
 time, each in its own process, after the timed ones have run alone. ``--variant``
 (default ``auto``: CUDA when usable, else LLVM) is the Mitsuba backend of every run; each stored
 section records its variant and device. Each
@@ -32,7 +32,7 @@ from pathlib import Path
 
 from bench import (accuracy, compare, field, geometry, glossy, holdout, materials, megapixel, memory, misfit,
                    paper, render_ratio, survey)
-from bench.common import ROOT
+from bench.common import ROOT, SHARED
 from framework.render import backend
 from bench.machine import describe
 from bench.markdown import README, readme_block, render, with_readme_block
@@ -41,11 +41,6 @@ from reports import write_comparison
 
 SECTIONS = ("ratio", "megapixel", "memory", "compare", "paper", "materials", "defaults", "field", "glossy",
             "geometry", "survey", "misfit", "holdout")
-#: sections whose figures are accuracies, not times (their wall times are shown, never a target):
-#: with ``--jobs N`` > 1 they run N at a time, after the others, which run alone; longest first
-#: (2026-12-04, one at a time: survey 13.4, misfit 15.4, glossy 9.4, field 11.2, defaults 4.5,
-#: holdout 3.5 min)
-SHARED = ("survey", "misfit", "glossy", "field", "defaults", "holdout")
 RESULTS = ROOT / "bench" / "results"
 
 

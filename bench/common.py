@@ -12,6 +12,12 @@ from framework.scene import load_scene
 from framework.scene.write import write_colmap, write_scene_yaml
 from scenes.cameras import resized
 
+#: sections whose figures are accuracies, not times (their wall times are shown, never a target):
+#: with ``python -m bench --jobs N`` > 1 they run N at a time, after the others, which run alone;
+#: longest first (2026-12-04, one at a time: survey 13.4, misfit 15.4, glossy 9.4, field 11.2,
+#: defaults 4.5, holdout 3.5 min)
+SHARED = ("survey", "misfit", "glossy", "field", "defaults", "holdout")
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

@@ -10,6 +10,7 @@ import dataclasses
 
 from bench import (accuracy, compare, field, geometry, glossy, holdout, materials, megapixel, memory, misfit,
                    paper, render_ratio, survey)
+from bench.common import SHARED
 from bench.tables import stamped, table
 
 
@@ -32,7 +33,7 @@ def section_machine(m: dict, command: str, sizes, stored: dict) -> list[str]:
         spans.sort()
         if any(later[0] < earlier[1] for earlier, later in zip(spans, spans[1:])):    # side by side
             lines += ["", "With `--jobs 2` (the default) the sections whose figures are accuracies "
-                      "(survey, misfit, glossy, field, defaults, holdout) run two at a time, each in its own "
+                      f"({', '.join(SHARED)}) run two at a time, each in its own "
                       "process, after the others have run alone: their wall times (the table's, and those "
                       "in their sections) are of a machine they shared with each other; the total is the "
                       "run's, from the first section's start to the last one's end."]

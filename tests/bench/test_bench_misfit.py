@@ -110,8 +110,8 @@ def test_quick_section_runs(tmp_path):
     """``python -m bench --quick --sections misfit``'s code path: the misfit scene built at 40
     pixels and the car scene at 20, the rows ``QUICK.misfit_rows`` keeps (a, b) and the car row at
     4 spp with one refinement pass; every row finishes with gains, those that align (a, e: the
-    default aligns photographs) report a pose error, the others none. Their accuracy at this size is not the point: at 4 spp most
-    weights are ill-determined (measured: 11 of 12 in rows b-d, all 12 in row a, whose worst
+    default aligns photographs) report a pose error, the others none. Their accuracy at this size
+    is not the point: at 4 spp most weights are ill-determined (measured: 11 of 12 in rows b-d, all 12 in row a, whose worst
     errors are then n/a)."""
     rows = misfit.run(QUICK, tmp_path, log=lambda *a: None)
     assert [r["row"] for r in rows] == list(QUICK.misfit_rows) + list(misfit.CAR_ROWS)

@@ -53,8 +53,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from framework.scene.lens import falloff, pixel_radius
-from methods.symbolic.trace.monomial_codes import code_digits, encode_digits
 from methods.symbolic.system.pixel_matrices import expanded_columns
+from methods.symbolic.trace.monomial_codes import code_digits, encode_digits
 
 #: ``segment_name`` of a camera's profile parameters: this prefix, then the camera's key
 VIGNETTING_PREFIX = "vignetting:"

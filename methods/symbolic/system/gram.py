@@ -155,20 +155,20 @@ class GramSystem:
                 return triangle(A[c].T @ A[c]), A[c].T @ y
             AB = A[c].T @ B[c]
             return triangle(0.5 * (AB + AB.T)), 0.5 * (A[c].T @ y + B[c].T @ y)
-        # scipy's sparse product runs on one core and releases the GIL: after the first channel,
-        # the others side by side when its triangle was small (each product in flight holds its
-        # temporaries, and the threads' malloc arenas keep some: a long street's view system is
-        # hundreds of MB a channel)
         def add(c: int, part: tuple) -> None:
             self.G[c] = (self.G[c] + part[0]).tocsr()
             self.b[c] += part[1]
             self.yy[c] += float(observed[:, c] @ observed[:, c])
         first = channel(0)
         add(0, first)
-        small = _bytes(first[0]) <= PARALLEL_CHANNEL_BYTES
+        # scipy's sparse product runs on one core and releases the GIL: after the first channel,
+        # the others side by side when its triangle was small (each product in flight holds its
+        # temporaries, and the threads' malloc arenas keep some: a long street's view system is
+        # hundreds of MB a channel)
+        side_by_side = threads and _bytes(first[0]) <= PARALLEL_CHANNEL_BYTES
         del first
         rest = range(1, self.n_channels)
-        if threads and small:
+        if side_by_side:
             for c, part in zip(rest, run_threads([lambda c=c: channel(c) for c in rest])):
                 add(c, part)
         else:                           # in turn, each product released once added

@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+
 from methods.symbolic.system.gram import GramSystem
 from methods.symbolic.system.pixel_matrices import scale_rows
 
