@@ -22,15 +22,17 @@ def section_fit_quality(doc: Doc, res: dict) -> None:
         dropped = q.get("dropped")
         rows.append((name, fmt_num(q.get("pixels"), digits=0),
                      "–" if not isinstance(dropped, (int, float)) else f"{100 * dropped:.0f} %",
-                     fmt_num(q.get("chi2"), digits=2), _largest_pull(q), verdict))
+                     fmt_num(q.get("chi2"), digits=2), _largest_pull(q), _largest_scale(q), verdict))
     doc.table(["Material", "Pixels", "Left out by the robust weights", "chi2 of the kept pixels",
-               "Step of its kept pixels", "Verdict"], rows)
+               "Step of its kept pixels", "Std raised", "Verdict"], rows)
     doc.para("chi2: the mean of (residual / the noise the fit expects there)² over the material's kept pixels "
              "and channels, about 1 where the model explains them. Step of its kept pixels: the largest change "
              "of one of its weights (channel, std) that its own kept pixels alone would make to the estimate. A "
              "material whose robust weights left out more than a tenth of its pixels, whose chi2 exceeds 4, or "
              "whose kept pixels' step exceeds 3 std + 0.005 has its weights flagged ill-determined: its estimate "
-             "may follow something the model lacks. The views' pixel-weight images below show which pixels were "
+             "may follow something the model lacks. Short of that, a weight's std is raised to its step / 1.5 where "
+             "that is larger (Std raised: the largest factor): its own pixels and the rest of the data disagree "
+             "beyond their noise. The views' pixel-weight images below show which pixels were "
              "left out.", note=True)
 
 
@@ -49,3 +51,11 @@ def _largest_pull(q: dict) -> str:
     kernel, c, step, z = best
     channel = "RGB"[c] if c < 3 else str(c)
     return f"{step:+.3f} ({abs(z):.1f} std, {kernel} {channel})"
+
+
+def _largest_scale(q: dict) -> str:
+    """The largest factor the pull's floor raised one of the material's std by: ``x2.4``; – where
+    none was raised."""
+    scales = [x for row in (q.get("std_scale") or {}).values() for x in (row or [])
+              if isinstance(x, (int, float)) and x > 1.0]
+    return f"x{max(scales):.1f}" if scales else "–"

@@ -108,17 +108,19 @@ def test_rows_and_targets_match_the_brief():
 @pytest.mark.slow
 def test_quick_section_runs(tmp_path):
     """``python -m bench --quick --sections misfit``'s code path: the misfit scene built at 40
-    pixels and the car scene at 20, the rows ``QUICK.misfit_rows`` keeps (a, b) and the car row at
-    4 spp with one refinement pass; every row finishes with gains, those that align (a, e: the
-    default aligns photographs) report a pose error, the others none. Their accuracy at this size
-    is not the point: at 4 spp most weights are ill-determined (measured: 11 of 12 in rows b-d, all 12 in row a, whose worst
-    errors are then n/a)."""
+    pixels and the car scene at 20, the row ``QUICK.misfit_rows`` keeps (a, the defaults) and the
+    car row at 4 spp with one refinement pass; both align (the default aligns photographs) and
+    report a pose error and gains.
+
+    What the section exists for that this size can show: no confident wrong number. Every weight
+    is either determined and within 3 std + 0.005 of the truth, or flagged ill-determined (at 4 spp and 40 pixels most are flagged, and the gains are far from
+    their truth: seeds 0-4, rows a, b and e, 2026-12-05: 11 or 12 of 12 weights flagged in each,
+    none beyond, gain errors 15-75 %)."""
     rows = misfit.run(QUICK, tmp_path, log=lambda *a: None)
     assert [r["row"] for r in rows] == list(QUICK.misfit_rows) + list(misfit.CAR_ROWS)
     for r in rows:
-        assert r["rc"] == 0 and r["gain_error"] is not None and r["ill_determined"] >= 1
-        assert (r["pose_error"] is not None) == (r["row"] in ("a", "d", "e"))
-    assert any(r["worst_diffuse"] is not None for r in rows)
+        assert r["rc"] == 0 and r["gain_error"] is not None and r["pose_error"] is not None
+        assert r["beyond"] == 0 and r["ill_determined"] >= 1, r
     assert len(rows[-1]["weights"]) == 12 and rows[-1]["scene"] == "urban_canyon_car_20"
     text = "\n".join(misfit.markdown(rows))
     assert "## 11. Misfit" in text and text.count("| (") == len(QUICK.misfit_rows) + len(misfit.CAR_ROWS)

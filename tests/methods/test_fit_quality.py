@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 
 from factory import run_symbolic, tiny_problem
-from methods.symbolic.fit.fit_quality import CHI2_MAX, DROP_MAX, PULL_FLOOR, PULL_MAX, _Pulls, _verdict, poor_parameters
+from methods.symbolic.fit.fit_quality import (CHI2_MAX, DROP_MAX, PULL_FLOOR, PULL_MAX, PULL_NOISE, _Pulls, _verdict,
+                                              floored_std, poor_parameters)
 
 
 @pytest.fixture(scope="module")
@@ -124,6 +125,25 @@ def test_pull_verdict():
     assert not _verdict({"pixels": 10, "dropped": 0.02, "chi2": 0.62}, views, None)["poor"]
     assert "robust weights left out 19 %" in _verdict({"pixels": 10, "dropped": 0.19, "chi2": 0.96}, views,
                                                        ("diffuse", 0, 0.1, 9.0))["why"]
+
+
+def test_floored_std_by_hand():
+    """A weight's std is raised to |pull| / PULL_NOISE (1.5) where that is larger: the wall's ρ_d
+    pull 0.003, -0.0006 and none (null) at std 0.001, 0.001, 0.002 gives std 0.002 (x2), 0.001
+    (0.0004 < 0.001: kept), 0.002 (no pull: kept); a material without a pull (the sky) and a weight
+    with a NaN std keep theirs."""
+    P = lambda seg, kernel: type("P", (), {"segment_name": seg, "kernel": kernel})()
+    params = [P("wall", "diffuse"), P("wall", "specular"), P("sky", "diffuse")]
+    quality = {"wall": {"pull": {"diffuse": [0.003, -0.0006, None], "specular": [0.01, 0.0, 0.0]}},
+               "sky": {"pixels": 3}}
+    std = np.array([[0.001, 0.001, 0.002], [np.nan, 0.004, 0.004], [0.1, 0.1, 0.1]])
+    out, scale = floored_std(quality, params, std)
+    assert PULL_NOISE == 1.5
+    np.testing.assert_allclose(out[0], [0.002, 0.001, 0.002])
+    assert np.isnan(out[1, 0]) and np.allclose(out[1, 1:], 0.004) and np.allclose(out[2], 0.1)
+    np.testing.assert_allclose(scale["wall"]["diffuse"], [2.0, 1.0, 1.0])
+    assert scale["wall"]["specular"] == [1.0, 1.0, 1.0] and "sky" not in scale
+    assert np.isnan(std[1, 0]) and std[0, 0] == 0.001              # the input is not modified
 
 
 #: issue 44's target: a weight further than this from the truth is wrong (diffuse, specular)

@@ -230,7 +230,8 @@ def test_where_the_time_went(tmp_path):
 
 def test_fit_quality_table(tmp_path):
     """results.json ``fit_quality`` (numbers by hand) becomes a table, one row per material with
-    its verdict; a run without it (rendered observations) has no such table."""
+    its verdict and the largest factor its std was raised by (the pull's floor); a run without it
+    (rendered observations) has no such table."""
     run = make_fake_run(tmp_path / "run", correlation=False)
     md = write_run_report(run)[0].read_text()
     assert "How well the model explains each material" not in md
@@ -241,12 +242,18 @@ def test_fit_quality_table(tmp_path):
                                      "pull_std": {"diffuse": [9.8, 10.0, 10.5]}},
                           "block": {"pixels": 80, "dropped": 0.063, "chi2": 0.756, "poor": False, "why": None,
                                     "views": {}, "pull": {"diffuse": [0.017, None, 0.0101]},
-                                    "pull_std": {"diffuse": [1.1, None, -1.3]}},
+                                    "pull_std": {"diffuse": [1.1, None, -1.3]},
+                                    "std_scale": {"diffuse": [1.0, 1.0, 1.0]}},
+                          "wall": {"pixels": 900, "dropped": 0.02, "chi2": 0.9, "poor": False, "why": None,
+                                   "views": {}, "pull": {"diffuse": [0.003, 0.0032, 0.0031]},
+                                   "pull_std": {"diffuse": [2.3, 3.0, 3.6]},
+                                   "std_scale": {"diffuse": [1.53, 2.0, 2.4]}},
                           "sky": {"pixels": 10, "dropped": 0.0, "chi2": 1.0, "poor": False, "why": None, "views": {}}}
     (run / "results.json").write_text(json.dumps(res))
     md = write_run_report(run)[0].read_text()
     assert "### How well the model explains each material" in md
-    assert ("| ground | 120 | 49 % | 2.14 | +0.027 (10.5 std, diffuse B) | **poor**: the robust weights left out "
-            "49 % of its pixels |") in md
-    assert "| block | 80 | 6 % | 0.76 | +0.010 (1.3 std, diffuse B) | explained |" in md
-    assert "| sky | 10 | 0 % | 1.00 | – | explained |" in md
+    assert ("| ground | 120 | 49 % | 2.14 | +0.027 (10.5 std, diffuse B) | – | **poor**: the robust weights left "
+            "out 49 % of its pixels |") in md
+    assert "| block | 80 | 6 % | 0.76 | +0.010 (1.3 std, diffuse B) | – | explained |" in md
+    assert "| wall | 900 | 2 % | 0.90 | +0.003 (3.6 std, diffuse B) | x2.4 | explained |" in md
+    assert "| sky | 10 | 0 % | 1.00 | – | – | explained |" in md

@@ -10,7 +10,7 @@ import numpy as np
 from framework.registry import MethodResult
 from framework.relight import relight_outputs
 from methods._common import Trace
-from methods.symbolic.fit.fit_quality import poor_parameters
+from methods.symbolic.fit.fit_quality import floored_std, poor_parameters
 from methods.symbolic.loop.refinement import Passes
 from methods.symbolic.options import SymbolicOptions
 from methods.symbolic.uncertainty.standard_errors import ill_determined
@@ -20,6 +20,8 @@ def method_result(passes: Passes, problem, params, guess: np.ndarray, options: S
     """The run's result from its passes; relit images when ``options.relight.enabled``."""
     fit, sol = passes.fit, passes.fit.solve
     poor, why = poor_parameters(fit.fit_quality, params)        # a material the model does not explain
+    # a material whose own pixels pull its weights beyond their noise: the std covers the pull
+    std, floors = floored_std(fit.fit_quality, params, fit.std) if fit.fit_quality is not None and fit.std is not None else (fit.std, {})
     stages = dict(passes.stages_s)
     extras = {"n_monomials": fit.n_monomials, "gram_nnz": fit.gram_nnz,
               "parameter_blocks": len(sol.blocks) if sol else 0, "psd_skipped_components": list(fit.psd_skipped),
@@ -27,7 +29,7 @@ def method_result(passes: Passes, problem, params, guess: np.ndarray, options: S
               "solver_evaluations_from_guess": sol.guess_evals if sol else 0,
               "initial_guess": guess.tolist(), "views_from_cache": passes.from_cache,
               "correlation": fit.correlation, "residual_variance": fit.sigma2, "std_method": fit.std_method,
-              "ill_determined": (ill_determined(fit.std, fit.observable) | poor).tolist(),
+              "ill_determined": (ill_determined(std, fit.observable) | poor).tolist(),
               "executor": problem.settings.executor.name,
               "solve_stages_s": stages, "refine_moves": passes.moves, "refine_stopped": passes.stopped,
               "cost": options.cost, "options_resolved": passes.resolved}
@@ -36,7 +38,8 @@ def method_result(passes: Passes, problem, params, guess: np.ndarray, options: S
                               "bias": np.where(np.isfinite(fit.spp_bias), fit.spp_bias, None).tolist(),
                               "correction": fit.spp_bias_actions.tolist()}
     if fit.fit_quality is not None:
-        extras["fit_quality"] = fit.fit_quality
+        extras["fit_quality"] = {name: {**entry, **({"std_scale": floors[name]} if name in floors else {})}
+                                 for name, entry in fit.fit_quality.items()}
         extras["ill_determined_why"] = why
     if fit.clusters is not None:
         extras["std_clusters"] = fit.clusters
@@ -61,7 +64,7 @@ def method_result(passes: Passes, problem, params, guess: np.ndarray, options: S
     timings["method"] = time.perf_counter() - started
     return MethodResult(
         estimate=fit.estimate, renders=passes.renders, parameters=params, reconstructions=fit.images(),
-        pixel_weights=fit.pixel_weights, pixel_reasons=fit.pixel_reasons, timings_s=timings, std=fit.std, observable=fit.observable,
+        pixel_weights=fit.pixel_weights, pixel_reasons=fit.pixel_reasons, timings_s=timings, std=std, observable=fit.observable,
         cost_history=list(sol.cost_history) if sol else [],
         cost_times_s=[at - started for at, _ in sol.iterates] if sol else [], trace=trace.entries(),
         extras=extras)
