@@ -113,9 +113,8 @@ class SymbolicOptions(StartOptions):
         "precision is that of the pass's prediction (about 0.03 px on a 64x64 view at 256 spp, 0.15 px "
         "at 16 spp). results.json `alignment`. `auto`: `rotation` for photographs (a scene's "
         "`images/`, any encoding) when `refine` >= 1, else `none` (on the bundled misfit scene, poses 0.5-1 px off, it took the "
-        "RMS z from 1.90 to 0.86; on the field scene, whose poses are right, it turned two cameras' roll "
-        "and the RMS z went from 1.20 to 2.30 at seed 0, 1.77 to 1.78 at seed 1: the price of aligning "
-        "right cameras; BENCHMARKS.md sections 7 and 11)", choice("auto", "none", "shift", "rotation"),
+        "RMS z from 1.90 to 0.86; on the field scene, whose poses are right, it moved one camera of nine, by "
+        "0.03-0.1 px, at 200 px and seeds 0 and 1; BENCHMARKS.md sections 7 and 11)", choice("auto", "none", "shift", "rotation"),
                 default="auto")
     align_max_px: float = option(
         "largest correction `align` accepts, in pixels of image motion (at the principal point; the "
