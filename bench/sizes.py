@@ -189,11 +189,13 @@ class Sizes:
 
 DEFAULT = Sizes()
 #: the tests' sizes (``--quick``): every code path of a section, in seconds. The survey's quick
-#: runs take no bias correction and two robust rounds: each round and each half refit projects the
-#: 2,048-monomial component of G (the scales, the lens and the gains raise the degree; its size
-#: does not shrink with the image), which made row (d) 91 of the section's 122 s (measured
-#: 2026-12-05, loaded machine; 19 s without). The misfit's quick run keeps row (a), the defaults;
-#: row (b) is the same path with three options off.
+#: runs trace two bounces, take no bias correction and two robust rounds: each solve projects the
+#: largest connected component of G (of 3,624 monomials at three bounces: the scales, the lens and the
+#: gains raise the degree; its size does not shrink with the image), once per round and per half
+#: refit, which made row (d) 91 of the section's 122 s (measured 2026-12-05, loaded machine; 19 s
+#: with one round's worth, 4-5 s at two bounces). At two bounces every weight is ill-determined;
+#: the light's scales and the lens, what the section measures, are not. The misfit's quick run
+#: keeps row (a), the defaults; row (b) is the same path with three options off.
 QUICK = Sizes(name="quick", ratio_spps=(4,), ratio_reps=1, mem_views=(1, 2), mem_images=(32,),
               mem_dask_views=(2,), mem_dask_image=32,
               mem_spp=4, mem_observe_spp=8, cmp_spp=4, cmp_observe_spp=16, cmp_budget=20,
@@ -203,8 +205,8 @@ QUICK = Sizes(name="quick", ratio_spps=(4,), ratio_reps=1, mem_views=(1, 2), mem
               field_extra=("render.spp=4", "method.refine=0", "method.irls.iterations=2"), field_image=40,
               geometry_triangles=(2_000, 20_000), geometry_spp=4, geometry_reps=1,
               survey_image=40, survey_turbidity_image=None, survey_photo_spp=4,
-              survey_extra=("render.spp=4", "method.refine=0", "render.tail_bounces=0", "method.bias=none",
-                            "method.irls.iterations=2"),
+              survey_extra=("render.spp=4", "method.refine=0", "render.tail_bounces=0", "render.max_bounces=2",
+                            "method.bias=none", "method.irls.iterations=2"),
               misfit_image=40, misfit_photo_spp=8, misfit_rows=("a",),
               misfit_extra=("render.spp=4", "method.refine=1", "render.tail_bounces=0", "method.irls.iterations=2"),
               holdout_image=20,

@@ -98,18 +98,19 @@ def test_markdown_with_a_refusal():
 @pytest.mark.slow
 def test_quick_section_runs(tmp_path):
     """``python -m bench --quick --sections survey``'s code path: the scene at 40 pixels, four
-    runs at 4 spp (no bias correction, two robust rounds: :data:`bench.sizes.QUICK`). (c) is
-    refused in one line (exit 2, nothing written, the line recorded with no machine's folder in
-    it); (a) estimates no scale and no lens, (b) both scales and the lens, (d) four scales (the
+    runs at 4 spp and two bounces (no bias correction, two robust rounds: :data:`bench.sizes.QUICK`).
+    (c) is refused in one line (exit 2, nothing written, the line recorded with no machine's folder
+    in it); (a) estimates no scale and no lens, (b) both scales and the lens, (d) four scales (the
     three basis skies and the one sun) and the sky measure per channel: Mitsuba renders the three
     skies as their sum, the pass splits it.
 
     The numbers the section exists for, at this size: (b)'s scales and corner within their std
-    (no weight, scale or corner beyond 3 std + 0.005, RMS z at most :data:`QUICK_RMS_Z`) and
-    (d)'s sky irradiance within :data:`QUICK_SKY` of the truth's, every channel. Tolerances from
-    seeds 0-4 at these sizes (2026-12-05): (b) RMS z 0.39-1.31 over 7-13 values, nothing beyond;
-    sun 0.92-1.46 (truth 1.12), sky 0.77-0.92 (0.90) with std 0.05-0.26; (d) RMS z 0.55-0.81,
-    nothing beyond, sky irradiance errors -0.19 to +0.07."""
+    (none beyond 3 std + 0.005, RMS z at most :data:`QUICK_RMS_Z`) and (d)'s sky irradiance within
+    :data:`QUICK_SKY` of the truth's, every channel. At two bounces and 4 spp every weight is
+    ill-determined; the scales and the corner are not. Tolerances from seeds 0-4 at these sizes
+    (2026-12-05): (b) RMS z 0.32-0.64 over its 7 values (two scales in three channels and the
+    corner), nothing beyond; (d) RMS z 0.23-0.73, nothing beyond, sky irradiance errors -0.23 to
+    +0.17."""
     rows = survey.run(QUICK, tmp_path, log=lambda *a: None)
     by = {r["row"]: r for r in rows}
     assert [r["row"] for r in rows] == list(survey.ROWS)
@@ -128,10 +129,10 @@ def test_quick_section_runs(tmp_path):
     assert "## 10. Survey unknowns" in text and "refused (exit 2)" in text
 
 
-#: largest RMS of error / std of rows (b) and (d) at the quick sizes (seeds 0-4: at most 1.31)
-QUICK_RMS_Z = 2.0
-#: largest |relative error| of row (d)'s fitted sky irradiance at the quick sizes (seeds 0-4: 0.19)
-QUICK_SKY = 0.3
+#: largest RMS of error / std of rows (b) and (d) at the quick sizes (seeds 0-4: at most 0.73)
+QUICK_RMS_Z = 1.5
+#: largest |relative error| of row (d)'s fitted sky irradiance at the quick sizes (seeds 0-4: 0.23)
+QUICK_SKY = 0.35
 
 
 def test_failure_line():
