@@ -146,12 +146,20 @@ def targets_met(s: dict) -> bool:
 
 def run(sizes, work: Path, log=print) -> list[dict]:
     """The rows of :data:`ROWS` that ``sizes.misfit_rows`` keeps, on the misfit scene, then those
-    of :data:`CAR_ROWS` on the car scene; a row dict each."""
+    of :data:`CAR_ROWS` it keeps, on the car scene (a scene no kept row uses is not built); a row
+    dict each."""
+    unknown = set(sizes.misfit_rows) - set(ROWS) - set(CAR_ROWS)
+    if unknown:
+        raise ValueError(f"misfit_rows {sorted(unknown)} unknown; use keys of ROWS {list(ROWS)} or "
+                         f"CAR_ROWS {list(CAR_ROWS)}")
     rows = []
-    kept = {key: row for key, row in ROWS.items() if key in sizes.misfit_rows}
-    for folder, table in ((scene_folder(sizes, work), kept), (car_folder(sizes, work), CAR_ROWS)):
+    for build, table in ((scene_folder, ROWS), (car_folder, CAR_ROWS)):
+        kept = {key: row for key, row in table.items() if key in sizes.misfit_rows}
+        if not kept:
+            continue
+        folder = build(sizes, work)
         gains, shifts = true_gains(folder), true_shifts(folder)
-        for key, (label, overrides) in table.items():
+        for key, (label, overrides) in kept.items():
             rows.append(_row(sizes, work, folder, key, label, overrides, gains, shifts, log))
     return rows
 

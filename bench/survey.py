@@ -205,14 +205,17 @@ def sky_match(scales: list[dict]) -> dict:
 # ----------------------------------------------------------------------------------------------
 
 def run(sizes, work: Path, log=print) -> list[dict]:
-    """The rows of :data:`ROWS`; a row dict each."""
+    """The rows of :data:`ROWS` that ``sizes.survey_rows`` keeps; a row dict each."""
+    unknown = set(sizes.survey_rows) - set(ROWS)
+    if unknown:
+        raise ValueError(f"survey_rows {sorted(unknown)} unknown; use keys of ROWS {list(ROWS)}")
     base = base_folder(sizes, work)
     folders = {"a": lambda: declared_variant(base, work / "scenes" / "a_declared"), "b": lambda: base,
                "c": lambda: no_panel_variant(base, work / "scenes" / "c_no_panel"),
                "d": lambda: turbidity_variant(base_folder(sizes, work, sizes.survey_turbidity_image),
                                               work / "scenes" / "d_turbidity", spp=sizes.survey_photo_spp)}
     rows = {}
-    for key in RUN_ORDER:
+    for key in (k for k in RUN_ORDER if k in sizes.survey_rows):
         folder = folders[key]()
         run_dir = work / "runs" / key
         shutil.rmtree(run_dir, ignore_errors=True)
@@ -232,7 +235,7 @@ def run(sizes, work: Path, log=print) -> list[dict]:
         log(f"[survey] {key}: rc {out['rc']}, worst diffuse {row.get('worst_diffuse')}, specular "
             f"{row.get('worst_specular')}, beyond {row.get('beyond')}, {out['wall_s']:.0f} s"
             + (f", refused: {row['refusal']}" if "refusal" in row else ""))
-    return [rows[k] for k in ROWS]
+    return [rows[k] for k in ROWS if k in rows]
 
 
 # ----------------------------------------------------------------------------------------------

@@ -97,12 +97,12 @@ def test_markdown_with_a_refusal():
 
 @pytest.mark.slow
 def test_quick_section_runs(tmp_path):
-    """``python -m bench --quick --sections survey``'s code path: the scene at 40 pixels, four
-    runs at 4 spp and two bounces (no bias correction, two robust rounds: :data:`bench.sizes.QUICK`).
-    (c) is refused in one line (exit 2, nothing written, the line recorded with no machine's folder
-    in it); (a) estimates no scale and no lens, (b) both scales and the lens, (d) four scales (the
-    three basis skies and the one sun) and the sky measure per channel: Mitsuba renders the three
-    skies as their sum, the pass splits it.
+    """``python -m bench --quick --sections survey``'s code path: the scene at 40 pixels, the rows
+    ``QUICK.survey_rows`` keeps (b, c, d; (a)'s variant is :func:`test_variants`'), at 4 spp and two
+    bounces (no bias correction, two robust rounds: :data:`bench.sizes.QUICK`). (c) is refused in
+    one line (exit 2, nothing written, the line recorded with no machine's folder in it); (b)
+    estimates both scales and the lens, (d) four scales (the three basis skies and the one sun) and
+    the sky measure per channel: Mitsuba renders the three skies as their sum, the pass splits it.
 
     The numbers the section exists for, at this size: (b)'s scales and corner within their std
     (none beyond 3 std + 0.005, RMS z at most :data:`QUICK_RMS_Z`) and (d)'s sky irradiance within
@@ -113,10 +113,9 @@ def test_quick_section_runs(tmp_path):
     +0.17."""
     rows = survey.run(QUICK, tmp_path, log=lambda *a: None)
     by = {r["row"]: r for r in rows}
-    assert [r["row"] for r in rows] == list(survey.ROWS)
+    assert QUICK.survey_rows == ("b", "c", "d") and [r["row"] for r in rows] == ["b", "c", "d"]
     assert by["c"]["rc"] == 2 and by["c"]["refusal"].startswith("error: <work>/") and "known" in by["c"]["refusal"]
     assert not (tmp_path / "runs" / "c" / "results.json").exists()
-    assert by["a"]["rc"] == 0 and by["a"]["scales"] == [] and by["a"]["corner"] is None
     assert [(x["part"]) for x in by["b"]["scales"]] == ["sky", "sun"] and by["b"]["corner"]["camera"] == 1
     assert by["b"]["rc"] == 0 and by["b"]["beyond"] == 0 and by["b"]["n_z"] >= 7, by["b"]
     assert by["b"]["rms_z"] <= QUICK_RMS_Z, by["b"]
@@ -133,6 +132,13 @@ def test_quick_section_runs(tmp_path):
 QUICK_RMS_Z = 1.5
 #: largest |relative error| of row (d)'s fitted sky irradiance at the quick sizes (seeds 0-4: 0.23)
 QUICK_SKY = 0.35
+
+
+def test_survey_rows_errors():
+    """A row key not in ROWS is refused before anything is built."""
+    import dataclasses
+    with pytest.raises(ValueError, match=r"survey_rows \['e'\] unknown"):
+        survey.run(dataclasses.replace(QUICK, survey_rows=("b", "e")), Path("/nonexistent"), log=lambda *a: None)
 
 
 def test_failure_line():
