@@ -48,8 +48,8 @@ would count the spread twice and miss the direction). The reported std is then f
 pull over :data:`PULL_NOISE` (:func:`floored_std`), a scale factor of the Particle Data Group's
 kind: where two estimates disagree beyond their noise, the std grows to cover the disagreement.
 Measured (RMS of error / std over the determined weights, without the floor and with it): bundled
-``urban_canyon_field``, all views, 200 px, defaults, seed 0: 2.28 and 1.28; seed 1 (alignment
-off): 1.77 and 1.23; the wall's ρ_d, ρ_s 0.003-0.008 off at std 0.0008-0.0018, 3-7 std, its pull
+``urban_canyon_field``, all views, 200 px, defaults, seed 0: 2.28 and 1.28; seed 1: 1.74 and 1.19
+(1.77 and 1.23 without the alignment); the wall's ρ_d, ρ_s 0.003-0.008 off at std 0.0008-0.0018, 3-7 std, its pull
 2.3-3.6 std toward the same side. ``urban_canyon_misfit`` row (a), bench section 11: 0.85 and
 0.75; row (c) 1.95 and 1.40; ``urban_canyon_car`` 1.40 and 1.10. A floor at the pull itself
 (``PULL_NOISE = 1``) left row (a) at 0.67, over-covered (the pull carries its own noise, about the

@@ -21,7 +21,7 @@ def method_result(passes: Passes, problem, params, guess: np.ndarray, options: S
     fit, sol = passes.fit, passes.fit.solve
     poor, why = poor_parameters(fit.fit_quality, params)        # a material the model does not explain
     # a material whose own pixels pull its weights beyond their noise: the std covers the pull
-    std, floors = floored_std(fit.fit_quality, params, fit.std) if fit.fit_quality is not None and fit.std is not None else (fit.std, {})
+    std, floors = (fit.std, {}) if fit.std is None else floored_std(fit.fit_quality, params, fit.std)
     stages = dict(passes.stages_s)
     extras = {"n_monomials": fit.n_monomials, "gram_nnz": fit.gram_nnz,
               "parameter_blocks": len(sol.blocks) if sol else 0, "psd_skipped_components": list(fit.psd_skipped),
