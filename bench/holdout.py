@@ -36,6 +36,7 @@ robust reweighting round and refinement pass, with them: minutes of CPU at any i
 from __future__ import annotations
 
 import dataclasses
+import functools
 import shutil
 import time
 from pathlib import Path
@@ -164,14 +165,16 @@ def applicable(overrides, method: str) -> list[str]:
     """The ``method.*`` overrides of ``overrides`` that ``method``'s configuration has (the
     others unchanged): the quick sizes' solver and refinement settings reach the methods that
     have them."""
+    keys = _method_keys(method)
+    return [o for o in overrides if not o.startswith("method.") or o.split("=", 1)[0].split(".")[1] in keys]
+
+
+@functools.lru_cache(maxsize=None)
+def _method_keys(method: str) -> frozenset:
+    """The top-level keys of ``method``'s composed configuration (composed once per method: a
+    Hydra compose takes 0.2 s, and the section asks for each method on both cases)."""
     cfg = compose([f"method={method}"]).method
-    out = []
-    for o in overrides:
-        key = o.split("=", 1)[0]
-        if key.startswith("method.") and cfg.get(key.split(".")[1]) is None:
-            continue
-        out.append(o)
-    return out
+    return frozenset(k for k, v in cfg.items() if v is not None)
 
 
 def run_one(sizes, work: Path, case: str, method: str, folder: Path, held: list[str], log=print) -> dict:
