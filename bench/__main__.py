@@ -42,6 +42,14 @@ from reports import write_comparison
 SECTIONS = ("ratio", "megapixel", "memory", "compare", "paper", "materials", "defaults", "field", "glossy",
             "geometry", "survey", "misfit", "holdout")
 RESULTS = ROOT / "bench" / "results"
+#: each section's pass caches under the run folder, removed once its record is stored (a whole
+#: benchmark's came to 13-20 GB, 2026-12-05, and filled the disk; nothing reads them after their
+#: section: ``--resume`` reads finished runs' results). The comparison and the paper sections share
+#: the run folder's own ``cache`` (their observations): kept, as is an interrupted section's.
+CACHES = {"ratio": "cache/ratio", "megapixel": "megapixel/cache", "memory": "memory/cache",
+          "materials": "materials/cache", "defaults": "defaults/cache", "field": "field/cache",
+          "geometry": "geometry/cache", "survey": "survey/cache", "misfit": "misfit/cache",
+          "holdout": "holdout/cache", "glossy": "glossy/cache"}
 
 
 def parse(argv=None) -> argparse.Namespace:
@@ -142,6 +150,7 @@ def main(argv=None) -> int:
     for name in (n for n in names if n not in shared):
         record = measured(name, sizes, root, machine, args.resume)
         (store / f"{name}.json").write_text(json.dumps(_relative(_light(record)), indent=1, default=str))
+        drop_cache(root, name)
         log(f"[{name}] done in {record['wall_s'] / 60:.1f} min")
     if shared:
         in_processes(shared, args, root)
@@ -158,6 +167,13 @@ def main(argv=None) -> int:
         readme.write_text(with_readme_block(readme.read_text(encoding="utf-8"), block), encoding="utf-8")
         log(f"wrote {readme}'s results table")
     return 0
+
+
+def drop_cache(root: Path, name: str) -> None:
+    """Remove section ``name``'s pass caches under the run folder ``root`` (:data:`CACHES`)."""
+    import shutil
+    if name in CACHES:
+        shutil.rmtree(root / CACHES[name], ignore_errors=True)
 
 
 def measured(name: str, sizes, root: Path, machine: dict, resume: bool) -> dict:
