@@ -42,15 +42,13 @@ from reports import write_comparison
 SECTIONS = ("ratio", "megapixel", "memory", "compare", "paper", "materials", "defaults", "field", "glossy",
             "geometry", "survey", "misfit", "holdout")
 RESULTS = ROOT / "bench" / "results"
-#: each section's pass caches under the run folder, removed once its record is stored (a whole
+#: sections that work in a folder of their own under the run folder, ``<run>/<section>/``, with
+#: their pass caches in its ``cache/``, removed once the section's record is stored (a whole
 #: benchmark's came to 13-20 GB, 2026-12-05, and filled the disk; nothing reads them after their
-#: section: ``--resume`` reads finished runs' results). The comparison and the paper sections share
-#: the run folder's own ``cache`` (their observations): kept, as is an interrupted section's.
-CACHES = {"ratio": "cache/ratio", "megapixel": "megapixel/cache", "memory": "memory/cache",
-          "materials": "materials/cache", "defaults": "defaults/cache", "field": "field/cache",
-          "geometry": "geometry/cache", "survey": "survey/cache", "misfit": "misfit/cache",
-          "holdout": "holdout/cache", "glossy": "glossy/cache"}
-
+#: section: ``--resume`` reads finished runs' results). The comparison and the paper sections work
+#: in the run folder itself and share its ``cache/`` (their observations): kept, as is an
+#: interrupted section's.
+OWN_FOLDER = tuple(n for n in SECTIONS if n not in ("compare", "paper"))
 
 def parse(argv=None) -> argparse.Namespace:
     """Command-line arguments."""
@@ -105,7 +103,7 @@ def measure(name: str, sizes, root: Path, resume: bool = False):
     """Run one section; its JSON-able data (``resume``: the comparison and materials sections
     reuse finished runs)."""
     if name == "ratio":
-        return render_ratio.run(sizes, root / "cache" / "ratio", log)
+        return render_ratio.run(sizes, root / "ratio" / "cache", log)
     if name == "megapixel":
         return megapixel.run(sizes, root / "megapixel", log)
     if name == "memory":
@@ -170,10 +168,10 @@ def main(argv=None) -> int:
 
 
 def drop_cache(root: Path, name: str) -> None:
-    """Remove section ``name``'s pass caches under the run folder ``root`` (:data:`CACHES`)."""
+    """Remove section ``name``'s pass caches under the run folder ``root`` (:data:`OWN_FOLDER`)."""
     import shutil
-    if name in CACHES:
-        shutil.rmtree(root / CACHES[name], ignore_errors=True)
+    if name in OWN_FOLDER:
+        shutil.rmtree(root / name / "cache", ignore_errors=True)
 
 
 def measured(name: str, sizes, root: Path, machine: dict, resume: bool) -> dict:

@@ -171,20 +171,27 @@ def test_sections_in_processes_run_n_at_a_time(monkeypatch, tmp_path):
     assert "glossy" not in [c.name for c in started]    # nothing starts after the failure is seen
 
 
-def test_a_stored_section_leaves_no_pass_cache(tmp_path):
+def test_a_stored_section_leaves_no_pass_cache(tmp_path, monkeypatch):
     """Once a section's record is stored its pass caches go (a whole benchmark's filled 13-20 GB),
-    its runs stay; the comparison's and the paper's shared cache stays; every other section has
-    its cache folder named, so a new section cannot leave one behind unnoticed."""
-    from bench.__main__ import CACHES, SECTIONS, drop_cache
-    assert set(CACHES) == set(SECTIONS) - {"compare", "paper"}
+    its runs stay; the comparison's and the paper's shared cache stays. Every section but those two
+    is given ``<run>/<section>/`` to work in (the ratio section its ``cache/``), so a new section
+    cannot leave a cache behind unnoticed."""
+    import bench.__main__ as main
+    assert set(main.OWN_FOLDER) == set(main.SECTIONS) - {"compare", "paper"}
+    modules = {"ratio": main.render_ratio, "defaults": main.accuracy}
+    for name in main.OWN_FOLDER:
+        module = modules.get(name) or getattr(main, name)
+        monkeypatch.setattr(module, "run", lambda sizes, work, log, **kw: work)
+        given = main.measure(name, QUICK, tmp_path)
+        assert given == tmp_path / name / ("cache" if name == "ratio" else ""), name
     for rel in ("survey/cache/x/tile_0.npz", "survey/runs/b/results.json", "cache/observed/o.npz",
-                "cache/ratio/call0/t.npz"):
+                "ratio/cache/call0/t.npz"):
         (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / rel).write_text("x")
-    drop_cache(tmp_path, "survey")
-    drop_cache(tmp_path, "ratio")
-    drop_cache(tmp_path, "compare")
-    drop_cache(tmp_path, "glossy")                   # no cache of its own: nothing to remove
-    assert not (tmp_path / "survey" / "cache").exists() and not (tmp_path / "cache" / "ratio").exists()
+    main.drop_cache(tmp_path, "survey")
+    main.drop_cache(tmp_path, "ratio")
+    main.drop_cache(tmp_path, "compare")
+    main.drop_cache(tmp_path, "glossy")              # no cache of its own: nothing to remove
+    assert not (tmp_path / "survey" / "cache").exists() and not (tmp_path / "ratio" / "cache").exists()
     assert (tmp_path / "survey" / "runs" / "b" / "results.json").is_file()
     assert (tmp_path / "cache" / "observed" / "o.npz").is_file()
