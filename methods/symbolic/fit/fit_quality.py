@@ -306,8 +306,8 @@ def floored_std(quality: dict | None, parameters, std: np.ndarray) -> tuple[np.n
             continue
         floor = np.array([np.nan if x is None else abs(x) / PULL_NOISE for x in pull], float)
         with np.errstate(invalid="ignore"):
-            raise_ = np.isfinite(floor) & np.isfinite(std[i]) & (floor > std[i])
-            out[i] = np.where(raise_, floor, std[i])
-            scale = np.where(raise_, floor / np.where(std[i] > 0, std[i], 1.0), 1.0)
+            raised = np.isfinite(floor) & np.isfinite(std[i]) & (floor > std[i])
+            out[i] = np.where(raised, floor, std[i])
+            scale = np.where(raised, floor / np.where(std[i] > 0, std[i], 1.0), 1.0)
         floors.setdefault(p.segment_name, {})[p.kernel] = [float(x) for x in scale]
     return out, floors

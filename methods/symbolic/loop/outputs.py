@@ -20,7 +20,9 @@ def method_result(passes: Passes, problem, params, guess: np.ndarray, options: S
     """The run's result from its passes; relit images when ``options.relight.enabled``."""
     fit, sol = passes.fit, passes.fit.solve
     poor, why = poor_parameters(fit.fit_quality, params)        # a material the model does not explain
-    # a material whose own pixels pull its weights beyond their noise: the std covers the pull
+    # a material whose own pixels pull its weights beyond their noise: the reported std covers the
+    # pull. Here, not in the passes: their stop test compares two passes' Monte Carlo noise, which
+    # the sandwich std measures and the pull does not
     std, floors = (fit.std, {}) if fit.std is None else floored_std(fit.fit_quality, params, fit.std)
     stages = dict(passes.stages_s)
     extras = {"n_monomials": fit.n_monomials, "gram_nnz": fit.gram_nnz,
