@@ -542,8 +542,9 @@ def _assert_same_matrices(device, host):
 def test_device_sums_equal_host_sums(quarters, monkeypatch):
     """Coefficients summed per pixel and monomial on the device (methods.symbolic.trace.pixel_sums) and
     on the host (events.tile_matrices) from the same render: same codes and sparsity, values to
-    float32 rounding, for the halves (and quarters) over several tiles and for the plain pass; the
-    device sums of one render are the same bits every time (no atomic adds)."""
+    float32 rounding, for the halves (and quarters) over several tiles, for halves of unequal
+    sample counts and for the plain pass; the device sums of one render are the same bits every
+    time (each cell summed by one lane, in order)."""
     rho = np.full((5, 3), 0.3)
     scene, ss = cornell(rho, res=16)
     integ = PolynomialPathIntegrator.create(ss, SEGMENTS, 5, rho, max_bounces=3, tile_pixels=100)
@@ -557,6 +558,8 @@ def test_device_sums_equal_host_sums(quarters, monkeypatch):
             assert abs(d[c] - a[c]).max() == 0
     plain = lambda: integ.coefficients_sparse(scene, spp=4, seed=5)
     _assert_same_matrices(*_both_sums(integ, plain, monkeypatch))
+    odd = lambda: integ.coefficients_halves(scene, spp=7, seed=5)      # halves of 3 and 4 samples
+    _assert_same_matrices(*_both_sums(integ, odd, monkeypatch))
 
 
 def test_device_sums_with_emitter_groups_and_wide_keys(monkeypatch):

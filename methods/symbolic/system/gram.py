@@ -200,6 +200,10 @@ class GramSystem:
                         len(skipped), sorted(set(skipped)), limit)
         return GramSystem(G, self.b.copy(), self.yy.copy(), self.n_pixels, self.codes, tuple(skipped))
 
+    def nbytes(self) -> int:
+        """Bytes of the system's arrays (its matrices, ``b`` and ``yy``)."""
+        return sum(_bytes(g) for g in self.G) + self.b.nbytes + self.yy.nbytes
+
     def used_monomials(self) -> np.ndarray:
         """Indices of the monomials some pixel depends on (a non-zero row of G or entry of b, any
         channel). The others do not change the cost: a solver may leave them out."""

@@ -191,6 +191,7 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
             del system, coeffs
             release_freed_memory()                # the view's buffers and Gram products
     render_s = time.perf_counter() - t0
+    dr.flush_malloc_cache()                       # the solve follows: the tiles' buffers are done
     ordered = {c.name: views[c.name] for c in problem.cameras}
     return PassResult(total.total(GramSystem.zeros(np.zeros(1, np.int64), C)), ordered, render_s, cached)
 
@@ -273,17 +274,25 @@ def render_view_task(task: ViewTask, *, variant: str, threads: int | None = None
     store = None
     if task.cache_dir is not None:
         store = TileWriter(Cache(task.cache_dir), task.key, task.observed.shape[-1])
+    system = None
     try:
-        return _render_view(integrator, ms, task.view, task.camera, task.observed, task.spp, task.seed,
-                            cross=task.cross_gram, store=store, footprint=_footprint(task),
-                            quarters=task.quarters)
+        system, coeffs = _render_view(integrator, ms, task.view, task.camera, task.observed, task.spp, task.seed,
+                                      cross=task.cross_gram, store=store, footprint=_footprint(task),
+                                      quarters=task.quarters)
+        return system, coeffs
     finally:
         if store is not None:
             store.close()          # every tile on disk before the view is reported done
-        # Dr.Jit keeps freed buffers for reuse: the sum of the Gram systems and the solve that
-        # follow would sit on a view's tile buffers (measured: flushing here took a 70-material
-        # street's peak from 2.3 to 2.0 GB), and their sizes change with the view anyway.
-        dr.flush_malloc_cache()
+        if system is None or system.nbytes() >= FLUSH_SYSTEM_BYTES:
+            dr.flush_malloc_cache()
+
+
+# Dr.Jit keeps a view's freed tile buffers for the next view's tiles. Handing them back costs the
+# next view their allocation again (page faults: 0.1 s of a 0.9 s pass at 200², 64 spp), and pays
+# only where the views' Gram systems are large: the systems summed beside the buffers then set the
+# peak (measured: flushing after every view took a 70-material street's peak from 2.3 to 2.0 GB;
+# its views' systems are 100-600 MB). The pass flushes once more at its end, before the solve.
+FLUSH_SYSTEM_BYTES = 64 * MiB
 
 
 def _scene_and_integrator(task: ViewTask, variant: str):
@@ -335,7 +344,8 @@ def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True, store=
         stop = min(n_pix, start + integrator.tile_pixels)
         tile = dict(spp=spp, seed=seed, pixel_range=(start, stop), footprint=footprint)
         if halves:
-            codes, a, b, _, *firsts = integrator.coefficients_halves(ms.scene, i, quarters=quarters, **tile)
+            codes, a, b, _, *firsts = integrator.coefficients_halves(ms.scene, i, quarters=quarters, mean=False,
+                                                                     **tile)
             block = ViewCoefficients(a, b, split, codes, *firsts)
         else:
             codes, gamma = integrator.coefficients_sparse(ms.scene, i, **tile)

@@ -57,19 +57,17 @@ class EventBuffer:
         self._lane_base = dr.arange(mi.UInt32, lanes) * slots
 
     def store(self, slot, mono, value, active):
-        """Write ``value`` (a Spectrum) with path key ``mono`` in slot ``slot`` of each active lane."""
+        """Write ``value`` (a Spectrum) with path key ``mono`` in slot ``slot`` of each active lane
+        where it is not zero (an occluded next-event estimate, a miss: most of the slots)."""
         at = self._lane_base + slot
+        active = active & dr.any(value != 0)
         dr.scatter(self.mono, mono, at, active)
         for c, v in enumerate(self.values):
             dr.scatter(v, value[c], at, active)
 
     def nonempty(self):
-        """Slots that hold a contribution: a key, and a non-zero value in some channel (the values
-        of a slot without a key are never written, so they are read only behind the key test)."""
-        nonzero = self.values[0] != 0
-        for v in self.values[1:]:
-            nonzero |= v != 0
-        return (self.mono != EMPTY) & nonzero
+        """Slots that hold a contribution (a key; its value is not zero in some channel)."""
+        return self.mono != EMPTY
 
     def compact(self, n: int, spp: int, split: int, *, samples: bool = False) -> tuple:
         """The non-empty, non-zero events, in lane order, on the host.
@@ -135,11 +133,11 @@ def csr(rows, cols, vals, shape, weight: float = 1.0) -> list:
 def tile_matrices(events: tuple, first_b: int, shape: tuple[int, int], spp: int, split: int,
                   sample: np.ndarray | None = None) -> tuple:
     """A tile's events (values already divided by ``spp``) as sparse matrices of ``shape``:
-    ``(Γ,)`` when ``split = spp``, else ``(A, B, Γ)``, and with ``sample`` (each event's sample
-    number in its block, :meth:`EventBuffer.compact`) ``(A, B, Γ, A₁, B₁)``.
+    ``(Γ,)`` when ``split = spp``, else ``(A, B)``, and with ``sample`` (each event's sample
+    number in its block, :meth:`EventBuffer.compact`) ``(A, B, A₁, B₁)``.
 
     ``A`` holds the ``split`` first samples of each pixel, ``B`` the others, each reweighted to
-    a full estimate; ``Γ`` is their sample-count-weighted mean, i.e. the estimate from all samples.
+    a full estimate (:func:`halves_mean` is the estimate from all samples).
     ``A₁`` holds the first half of ``A``'s samples, ``B₁`` that of ``B``'s (``spp`` a multiple of
     4, ``split = spp / 2``): the four quarters are ``A₁``, ``2A - A₁``, ``B₁``, ``2B - B₁``.
     """
@@ -156,13 +154,21 @@ def tile_matrices(events: tuple, first_b: int, shape: tuple[int, int], spp: int,
         firsts = tuple(csr(rows[k], cols[k], [v[k] for v in vals], shape, weight=spp / quarter) for k in keeps)
     A = csr(rows[in_a], cols[in_a], [v[in_a] for v in vals], shape, weight=spp / split)
     B = csr(rows[in_b], cols[in_b], [v[in_b] for v in vals], shape, weight=spp / (spp - split))
+    return (A, B) + firsts
+
+
+def halves_mean(A: list, B: list, spp: int, split: int) -> list:
+    """``Γ``, the estimate from all ``spp`` samples: the sample-count-weighted mean of the half
+    estimates ``A`` (``split`` samples) and ``B`` (the others), per channel."""
     wa, wb = split / spp, (spp - split) / spp
-    return (A, B, [(a + b) * 0.5 if wa == wb else a * wa + b * wb for a, b in zip(A, B)]) + firsts
+    return [(a + b) * 0.5 if wa == wb else a * wa + b * wb for a, b in zip(A, B)]
 
 
 def reindex_columns(mats: tuple, positions: np.ndarray, n_cols: int) -> tuple:
     """Per-channel matrix lists ``mats`` with column ``j`` moved to ``positions[j]`` of ``n_cols``
     (increasing ``positions``: the indices stay sorted, the format canonical)."""
+    if len(positions) == n_cols:                # every column kept where it is (a view of one tile)
+        return mats
     def move(m):
         out = sp.csr_matrix((m.data, positions[m.indices], m.indptr), shape=(m.shape[0], n_cols))
         out.has_canonical_format = True

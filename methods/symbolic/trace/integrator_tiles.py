@@ -9,7 +9,8 @@ import numpy as np
 
 from framework.errors import ConfigError
 from methods.symbolic.trace.camera_rays import TileFootprint, camera_rays, pixel_window, tile_sampler
-from methods.symbolic.trace.events import EventBuffer, lane_pixel, reindex_columns, stack_tiles, tile_matrices
+from methods.symbolic.trace.events import (EventBuffer, halves_mean, lane_pixel, reindex_columns, stack_tiles,
+                                          tile_matrices)
 from methods.symbolic.trace.monomial_codes import emitter_columns, merge_codes, monomial_columns
 from methods.symbolic.trace.pixel_sums import pixel_sums
 
@@ -73,7 +74,7 @@ class CoefficientTiles:
 
     def coefficients_halves(self, scene: mi.Scene, sensor=0, *, spp: int, seed: int = 0,
                             pixel_range: tuple[int, int] | None = None, footprint=None,
-                            quarters: bool = False) -> tuple:
+                            quarters: bool = False, mean: bool = True) -> tuple:
         """``(codes, A, B, Γ)``: two independent estimates of the coefficients and their mean, from
         one render, over the monomial ``codes`` that occur.
 
@@ -86,19 +87,21 @@ class CoefficientTiles:
         4) also ``A₁`` and ``B₁``, the estimates from the first half of ``A``'s and of ``B``'s
         samples: ``(codes, A, B, Γ, A₁, B₁)``, four independent quarter estimates
         ``A₁, 2A - A₁, B₁, 2B - B₁`` of the same render
-        (:func:`~methods.symbolic.trace.events.tile_matrices`).
+        (:func:`~methods.symbolic.trace.events.tile_matrices`). With ``mean=False``, Γ is None (it
+        costs a sum of the two halves that a caller who keeps ``A`` and ``B`` can skip).
         """
         if int(spp) < 2:
             raise ConfigError(f"spp={spp}: two independent halves need spp >= 2")
         if quarters and int(spp) % 4:
             raise ConfigError(f"spp={spp}: four independent quarters need spp a multiple of 4")
-        return self._tiled(scene, sensor, spp, seed, pixel_range, halves=True, footprint=footprint,
-                           quarters=quarters)
+        codes, A, B, *firsts = self._tiled(scene, sensor, spp, seed, pixel_range, halves=True, footprint=footprint,
+                                           quarters=quarters)
+        return (codes, A, B, halves_mean(A, B, int(spp), int(spp) // 2) if mean else None, *firsts)
 
     def _tiled(self, scene, sensor, spp, seed, pixel_range, halves: bool, footprint=None,
                quarters: bool = False) -> tuple:
         """Checks, then the tiles of ``tile_pixels`` pixels over their merged codes, stacked:
-        ``(codes, Γ)``, ``(codes, A, B, Γ)`` or ``(codes, A, B, Γ, A₁, B₁)``."""
+        ``(codes, Γ)``, ``(codes, A, B)`` or ``(codes, A, B, A₁, B₁)``."""
         self._check()
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
@@ -114,11 +117,11 @@ class CoefficientTiles:
                  for t0 in range(start, stop, self.tile_pixels)]
         codes = merge_codes([0], *(codes for codes, _ in tiles))
         mats = [reindex_columns(t, np.searchsorted(codes, c), len(codes)) for c, t in tiles]
-        return (codes,) + stack_tiles(mats, 5 if quarters else 3 if halves else 1, self.n_channels, len(codes))
+        return (codes,) + stack_tiles(mats, 4 if quarters else 2 if halves else 1, self.n_channels, len(codes))
 
     def _tile(self, scene, sensor, spp, seed, start, stop, split, footprint=None, quarters=False) -> tuple:
         """Trace the pixels ``[start, stop)``, ``spp`` samples each, as one kernel: the codes of
-        their monomials and their matrices ``(Γ,)``, or ``(A, B, Γ)`` with the first
+        their monomials and their matrices ``(Γ,)``, or ``(A, B)`` with the first
         ``split < spp`` samples of each pixel in ``A`` (and ``A₁``, ``B₁`` with ``quarters``)."""
         n = stop - start
         if n * spp >= 2 ** 32:

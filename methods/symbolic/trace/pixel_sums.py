@@ -6,26 +6,27 @@ A tile of ``n`` pixels x ``spp`` samples writes ``spp × slots`` event slots per
 occur are 1-6 % as many numbers. On a GPU, copying the events out and summing them with numpy
 was 95 % of the pass; here the device does it, in three steps and one small host step:
 
-1. the ordered path keys that occur are marked in a table over the key range and compacted: the
-   host receives the distinct keys (a few hundred), maps them to monomial columns
+1. the slots holding an event are compacted (``dr.compress``, order kept); the ordered path keys
+   that occur are marked in a table over the key range and compacted: the host receives the
+   distinct keys (a few hundred), maps them to monomial columns
    (:func:`~methods.symbolic.trace.monomial_codes.monomial_columns`, or ``emitter_columns`` with unknown emitter
    scales) and sends back the key -> column table;
-2. each non-empty event gets its cell ``(block · n + pixel) · N_e,tile + column`` (the blocks are
-   the sample halves ``A``, ``B``; with ``quarters`` the first halves ``A₁``, ``B₁`` are their
-   events again, two blocks on), the cells are radix-sorted (``dr.argsort``), and each run of
-   equal cells is summed as the difference of a float64 prefix sum (``dr.prefix_sum``) at its two
-   ends: deterministic, where atomic adds (``dr.scatter_reduce``) sum in a thread-dependent order
-   and so round differently from run to run;
-3. the runs' cells and sums are copied out: sorted by (block, pixel, column), each block arrives
-   as a canonical CSR matrix.
+2. each event gets its row ``block · n + pixel`` (the blocks are the sample halves ``A``, ``B``;
+   with ``quarters`` the first halves ``A₁``, ``B₁`` are their events again, two blocks on) and
+   its cell ``row · N_e,tile + column``; the occupied cells are marked in a bitmap (an atomic OR)
+   whose per-word population counts, prefix-summed, give each occupied cell its rank: its index
+   in CSR order. No sort: the events of a row are already contiguous (the lanes' layout);
+3. one lane per row of ``A`` (and ``B``) walks its events in order and adds each to its cell's
+   rank (float64): each cell is summed by one lane in one order, so the same seed gives the same
+   bits on any backend and thread count, where atomic adds from many lanes would round in a
+   scheduling-dependent order. The columns, the sums and each row's first rank (``indptr``) are
+   copied out: each block is a canonical CSR matrix as it arrives.
 
-Memory on the device is that of the non-empty events (a fraction of the event buffer the tile
-size is chosen for, ``method.memory_mb``). Key ranges above
+Memory on the device is that of the events plus a bit per (row, monomial) cell. Key ranges above
 :data:`~methods.symbolic.trace.monomial_codes.TABLE_KEYS` (hundreds of parameters) have no key table:
 :func:`pixel_sums` returns None and the caller sums on the host
-(:func:`~methods.symbolic.trace.events.tile_matrices`). Sums are float64 prefix-sum differences on the
-device (the host path sums the float32 values in float64): the two agree to float32 rounding
-(``tests/methods/test_polynomial_integrator.py``).
+(:func:`~methods.symbolic.trace.events.tile_matrices`). Both sum the float32 values in float64, in
+another order: they agree to float32 rounding (``tests/methods/test_polynomial_integrator.py``).
 """
 from __future__ import annotations
 
@@ -34,6 +35,7 @@ import mitsuba as mi
 import numpy as np
 import scipy.sparse as sp
 
+from methods.symbolic.trace.events import lane_pixel
 from methods.symbolic.trace.monomial_codes import TABLE_KEYS
 
 
@@ -60,88 +62,144 @@ def pixel_sums(events, *, n: int, spp: int, split: int, quarters: bool, span: in
         None when the key range has no table or the cells overflow 32 bits (the caller sums on the
         host); else ``(codes, mats)``, ``mats`` as :func:`~methods.symbolic.trace.events.tile_matrices`
         returns them:
-        ``(Γ,)``, ``(A, B, Γ)`` or ``(A, B, Γ, A₁, B₁)``, each a list of ``C`` canonical float64
+        ``(Γ,)``, ``(A, B)`` or ``(A, B, A₁, B₁)``, each a list of ``C`` canonical float64
         ``csr_matrix`` of shape ``(n, len(codes))``.
     """
     if span > TABLE_KEYS:
         return None
-    dr.eval(events.mono, events.values)
-    keep = events.nonempty()
-    codes, table = _key_table(events.mono, keep, span, columns)
+    at = dr.compress(events.nonempty())            # the slots holding an event, in order
     halves = split < spp
     blocks = (4 if quarters else 2) if halves else 1
+    if dr.width(at) == 0:                          # no light reached the tile (and Dr.Jit cannot
+        codes, summed = np.zeros(1, np.int64), _no_sums(blocks * n, len(events.values))   # divide an empty array)
+        return codes, _matrices(summed, n, 1, spp, split, blocks)
+    codes, table = _key_table(dr.gather(mi.UInt32, events.mono, at), span, columns)
     if blocks * n * len(codes) >= 2 ** 32:          # cells are 32-bit: a huge tile of many monomials
         return None
-    sums = _summed(events, keep, table, n=n, spp=spp, split=split, n_cols=len(codes), blocks=blocks)
-    return codes, _matrices(sums, n, len(codes), spp, split, blocks)
+    tile = _Tile(events, at, table, n=n, spp=spp, split=split, n_cols=len(codes), blocks=blocks)
+    return codes, _matrices(tile.sums(), n, len(codes), spp, split, blocks)
 
 
-def _key_table(mono, keep, span: int, columns) -> tuple[np.ndarray, object]:
-    """The codes occurring in the tile and the device table key -> column (step 1)."""
+def _key_table(mono, span: int, columns) -> tuple[np.ndarray, object]:
+    """The codes of the events' keys ``mono`` and the device table key -> column (step 1)."""
     seen = dr.zeros(mi.UInt32, span)
-    dr.scatter(seen, mi.UInt32(1), mono, keep)
+    dr.scatter(seen, mi.UInt32(1), mono)
     distinct = dr.compress(seen != 0)              # sorted: the keys that occur
-    keys = distinct.numpy().astype(np.int64)
-    if len(keys) == 0:
-        return np.zeros(1, np.int64), dr.zeros(mi.UInt32, span)
-    codes, cols = columns(keys)
+    codes, cols = columns(distinct.numpy().astype(np.int64))
     table = dr.zeros(mi.UInt32, span)
     dr.scatter(table, mi.UInt32(cols.astype(np.uint32)), distinct)
     return np.asarray(codes, np.int64), table
 
 
-def _summed(events, keep, table, *, n: int, spp: int, split: int, n_cols: int, blocks: int):
-    """``(cells, [values per channel])``: the (block, pixel, column) cells the tile's events reach,
-    as flat indices ``(block · n + pixel) · n_cols + column`` in increasing order, and each cell's
-    summed values (steps 2 and 3). The quarters' cells (blocks 2 and 3) are their blocks' events
-    again, those of the first half of each block's samples."""
-    at = dr.compress(keep)                          # the events only: a fraction of the slots
-    if dr.width(at) == 0:                           # no light reached the tile (and Dr.Jit cannot
-        return np.zeros(0, np.int64), [np.zeros(0) for _ in events.values]   # divide an empty array)
-    lane = at // dr.opaque(mi.UInt32, events.slots)
-    row, block, first_quarter = _lane_cells(lane, n, spp, split, blocks)
-    col = dr.gather(mi.UInt32, table, dr.gather(mi.UInt32, events.mono, at))
-    values = [dr.gather(mi.Float, v, at) for v in events.values]
-    cell = (block * dr.opaque(mi.UInt32, n) + row) * dr.opaque(mi.UInt32, n_cols) + col
-    parts = [_cell_sums(cell, values)]
-    if blocks == 4:                                 # A₁, B₁: cells two blocks on
-        sub = dr.compress(first_quarter)
-        shift = dr.opaque(mi.UInt32, 2 * n * n_cols)
-        parts.append(_cell_sums(dr.gather(mi.UInt32, cell, sub) + shift,
-                                [dr.gather(mi.Float, v, sub) for v in values]))
-    return (np.concatenate([p[0] for p in parts]),
-            [np.concatenate([p[1][c] for p in parts]) for c in range(len(values))])
+def _no_sums(rows: int, n_channels: int) -> tuple:
+    """:meth:`_Tile.sums` of a tile without events."""
+    return np.zeros(rows + 1, np.int32), np.zeros(0, np.int32), [np.zeros(0) for _ in range(n_channels)]
 
 
-def _cell_sums(cell, values) -> tuple[np.ndarray, list]:
-    """The distinct ``cell`` indices, sorted, and the sum of each channel's ``values`` per cell: a
-    radix sort, then each run of equal cells summed as the difference of a float64 prefix sum at
-    its ends. Deterministic, unlike atomic adds (whose order, and so whose float rounding, changes
-    from run to run): the same seed gives the same coefficients, bit for bit."""
-    if dr.width(cell) == 0:
-        return np.zeros(0, np.int64), [np.zeros(0, np.float32) for _ in values]
-    order = dr.argsort(cell)
-    cell = dr.gather(mi.UInt32, cell, order)
-    n = dr.width(cell)
-    i = dr.arange(mi.UInt32, n)
-    previous = dr.gather(mi.UInt32, cell, dr.maximum(i, 1) - 1)
-    following = dr.gather(mi.UInt32, cell, dr.minimum(i + 1, dr.opaque(mi.UInt32, n - 1)))
-    starts = dr.compress((i == 0) | (cell != previous))             # first event of each run
-    ends = dr.compress((i == dr.opaque(mi.UInt32, n - 1)) | (cell != following))   # and its last
-    sums = []
-    for v in values:
-        v64 = dr.gather(mi.Float64, mi.Float64(v), order)
-        before = dr.prefix_sum(v64)                                  # exclusive: the events before
-        total = dr.gather(mi.Float64, before + v64, ends) - dr.gather(mi.Float64, before, starts)
-        sums.append(total)
-    dr.eval(sums)
-    return (dr.gather(mi.UInt32, cell, starts).numpy().astype(np.int64), [s.numpy() for s in sums])
+class _Tile:
+    """A tile's events (``at``: the slots that hold one), their cells and rows (step 2).
+
+    Rows are block-major, ``b · n + pixel``; the summing rows are those of the blocks A (and B),
+    whose events are contiguous in slot order; with quarters, rows ``(b + 2) · n + pixel`` hold
+    again the events of the first half of block ``b``'s samples (``A₁``, ``B₁``).
+    """
+
+    def __init__(self, events, at, table, *, n: int, spp: int, split: int, n_cols: int, blocks: int):
+        self.events, self.at, self.n, self.n_cols, self.blocks = events, at, n, n_cols, blocks
+        self.slots, self.spp, self.split = events.slots, spp, split
+        row, block, self.first_quarter = _lane_cells(at // dr.opaque(mi.UInt32, events.slots), n, spp, split, blocks)
+        self.row = block * dr.opaque(mi.UInt32, n) + row
+        mono = dr.gather(mi.UInt32, events.mono, at)
+        self.cell = self.row * dr.opaque(mi.UInt32, n_cols) + dr.gather(mi.UInt32, table, mono)
+        self.summing_rows = n * min(blocks, 2)
+
+    def sums(self) -> tuple:
+        """``(indptr, cols, [values per channel])``: the occupied (row, column) cells in CSR form
+        over the ``blocks · n`` rows: row ``k``'s cells are ``indptr[k] .. indptr[k + 1] - 1``,
+        with their columns (increasing) and summed values (step 3)."""
+        words = dr.zeros(mi.UInt32, -(-self.blocks * self.n * self.n_cols // 32))
+        _mark(words, self.cell, True)
+        if self.blocks == 4:
+            _mark(words, self.cell + self._quarter_shift(), self.first_quarter)
+        events_per_row = dr.zeros(mi.UInt32, self.summing_rows)
+        dr.scatter_add(events_per_row, mi.UInt32(1), self.row)    # integer adds: any order, same result
+        rank = _Ranks(words)
+        index = np.int32 if rank.total < 2 ** 31 else np.int64     # scipy's index type for this size
+        cols = dr.zeros(mi.UInt32, rank.total)
+        sums = [dr.zeros(mi.Float64, rank.total) for _ in self.events.values]
+        self._row_sums(events_per_row, rank, cols, sums)
+        all_rows = self.blocks * self.n
+        starts = rank(dr.arange(mi.UInt32, all_rows) * dr.opaque(mi.UInt32, self.n_cols), True)   # rows' first
+        dr.eval(cols, sums, starts)
+        indptr = np.append(starts.numpy().astype(index), index(rank.total))
+        return indptr, cols.numpy().astype(index), [v.numpy() for v in sums]
+
+    def _quarter_shift(self):
+        return dr.opaque(mi.UInt32, 2 * self.n * self.n_cols)
+
+    def _row_sums(self, events_per_row, rank, cols, sums) -> None:
+        """Each occupied cell's column and sum, written at its rank: one lane per summing row
+        walks that row's events in slot order, so each cell is summed by one lane in one order:
+        the same seed gives the same bits on any backend and thread count (atomic adds from many
+        lanes sum in a scheduling-dependent order)."""
+        n, slots = self.n, dr.opaque(mi.UInt32, self.slots)
+        r = dr.arange(mi.UInt32, self.summing_rows)
+        first_event = dr.prefix_sum(events_per_row)         # exclusive: the row's first in ``at``
+        in_b = r >= dr.opaque(mi.UInt32, n)
+        per_pixel = dr.select(in_b, dr.opaque(mi.UInt32, self.spp - self.split), dr.opaque(mi.UInt32, self.split))
+        # block B's pixel p = r - n starts at lane n·split + p·(spp - split) (unsigned wrap-around cancels)
+        b_base = dr.opaque(mi.UInt32, n * self.split) - dr.opaque(mi.UInt32, n) * per_pixel
+        first_slot = (dr.select(in_b, b_base, 0) + r * per_pixel) * slots
+        quarter = dr.opaque(mi.UInt32, (self.spp // 4) * self.slots)
+        n_cols = dr.opaque(mi.UInt32, self.n_cols)
+
+        def add(cell, values, active):
+            # a lane's cells are its row's alone: no two lanes of a packet reach the same one
+            where = rank(cell, active)
+            dr.scatter(cols, cell % n_cols, where, active)
+            for total, v in zip(sums, values):
+                dr.scatter_add(total, mi.Float64(v), where, active, mode=dr.ReduceMode.NoConflicts)
+
+        def body(j):
+            e = first_event + j
+            slot = dr.gather(mi.UInt32, self.at, e)
+            cell = dr.gather(mi.UInt32, self.cell, e)
+            values = [dr.gather(mi.Float, v, slot) for v in self.events.values]
+            add(cell, values, True)
+            if self.blocks == 4:                    # A₁, B₁: the first quarter's events again
+                add(cell + self._quarter_shift(), values, slot - first_slot < quarter)
+            return (j + 1,)
+
+        dr.while_loop(state=(dr.zeros(mi.UInt32, self.summing_rows),), cond=lambda j: j < events_per_row,
+                      body=body, labels=("j",), label="pixel sums")
+
+
+def _mark(words, cell, active) -> None:
+    """Set the bits of ``cell`` in the bitmap ``words`` (an atomic OR: any order, same result)."""
+    dr.scatter_reduce(dr.ReduceOp.Or, words, mi.UInt32(1) << (cell & 31), cell >> 5, active)
+
+
+class _Ranks:
+    """The rank of a cell among the occupied cells (the number of occupied cells before it: an
+    occupied cell's index in the tile's sorted cells, CSR order), from the bitmap and the count
+    of occupied cells in the words before its own."""
+
+    def __init__(self, words):
+        self.words = words
+        counts = dr.popcnt(words)
+        self.before = dr.prefix_sum(counts)        # exclusive
+        dr.eval(self.before)
+        self.total = int(dr.sum(counts).numpy()[0])
+
+    def __call__(self, cell, active):
+        word = cell >> 5
+        below = dr.gather(mi.UInt32, self.words, word, active) & ((mi.UInt32(1) << (cell & 31)) - 1)
+        return dr.gather(mi.UInt32, self.before, word, active) + dr.popcnt(below)
 
 
 def _lane_cells(lane, n: int, spp: int, split: int, blocks: int):
     """Each lane's pixel row, sample block (0: A, 1: B) and whether its sample lies in the first
     half of its block (the layout of :func:`~methods.symbolic.trace.events.lane_pixel`)."""
-    from methods.symbolic.trace.events import lane_pixel
     row = lane_pixel(lane, n, spp, split)
     if blocks == 1:
         return row, dr.zeros(mi.UInt32, dr.width(lane)), mi.Bool(False)
@@ -155,30 +213,26 @@ def _lane_cells(lane, n: int, spp: int, split: int, blocks: int):
     return row, block, sample < dr.opaque(mi.UInt32, spp // 4)
 
 
-def _matrices(sums, n: int, n_cols: int, spp: int, split: int, blocks: int) -> tuple:
-    """The blocks' canonical CSR matrices, reweighted to full estimates, and Γ (their weighted mean)."""
-    flat, values = sums
-    block, rest = np.divmod(flat, n * n_cols)
-    row, col = np.divmod(rest, n_cols)
-    bounds = np.searchsorted(block, np.arange(blocks + 1))
+def _matrices(summed, n: int, n_cols: int, spp: int, split: int, blocks: int) -> tuple:
+    """The blocks' canonical CSR matrices, reweighted to full estimates (:func:`_summed`'s rows)."""
+    indptr, cols, values = summed
 
     def csr(k: int, weight: float) -> list:
-        s = slice(bounds[k], bounds[k + 1])
-        indptr = np.searchsorted(row[s], np.arange(n + 1))
+        lo, hi = indptr[k * n], indptr[(k + 1) * n]
+        rows = indptr[k * n:(k + 1) * n + 1] - lo
         mats = []
         for v in values:
-            mat = sp.csr_matrix((v[s].astype(np.float64) * weight, col[s].astype(np.int32), indptr),
-                                shape=(n, n_cols))
+            data = v[lo:hi]
+            if weight != 1.0:
+                data *= weight                      # in place: the sums are this tile's own
+            mat = sp.csr_matrix((data, cols[lo:hi], rows), shape=(n, n_cols))
             mat.has_canonical_format = True
             mats.append(mat)
         return mats
 
     if blocks == 1:
         return (csr(0, 1.0),)
-    A, B = csr(0, spp / split), csr(1, spp / (spp - split))
-    wa, wb = split / spp, (spp - split) / spp
-    gamma = [(a + b) * 0.5 if wa == wb else a * wa + b * wb for a, b in zip(A, B)]
+    halves = csr(0, spp / split), csr(1, spp / (spp - split))
     if blocks == 2:
-        return A, B, gamma
-    quarter = spp // 4
-    return A, B, gamma, csr(2, spp / quarter), csr(3, spp / quarter)
+        return halves
+    return halves + (csr(2, spp / (spp // 4)), csr(3, spp / (spp // 4)))
