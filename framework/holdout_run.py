@@ -16,21 +16,35 @@ from framework.results import image_paths, used_pixels
 
 
 def fit_noise(problem, result) -> np.ndarray | None:
-    """``(C,)``: the mean squared residual of the fitted views' reconstructions over the pixels the
-    fit used (the observation noise the fit left); None when the method returned none."""
-    sq, n = 0.0, 0
+    """``(C,)``: the variance of the photographs' noise as the fit saw it, in unit-gain radiance
+    (each fitted view's residual divided by its exposure gain and lens falloff, as a held-out
+    view's variance is multiplied by its own: :class:`_Comparison`): the mean squared residual of
+    the fitted views' reconstructions over the pixels the fit used, less the reconstructions' own
+    Monte Carlo variance where the method reports it (``MethodResult.reconstruction_variance``: a
+    reconstruction from a pass at ``render.spp`` carries that render's noise, which a held-out
+    prediction at ``observe.spp`` does not); floored at 0. None when the method returned no
+    reconstruction."""
+    sq, mc, n = 0.0, 0.0, 0
+    own = result.reconstruction_variance or {}
+    gains = {e["view"]: np.asarray(e["estimate"], float) for e in result.extras.get("exposure") or []
+             if e.get("estimate") and None not in e["estimate"]}
+    cameras = {c.name: c for c in problem.cameras}
     for name, rec in result.reconstructions.items():
-        d = rec.astype(float) - problem.observed[name]
         used = used_pixels(problem, result, name)
-        d = d.reshape(-1, d.shape[-1]) if used is None else d[used]
+        scale = np.broadcast_to(gains.get(name, 1.0) * lens_falloff(problem.scene, cameras[name], result.extras),
+                                rec.shape)
+        pick = (lambda a: a.reshape(-1, a.shape[-1])) if used is None else (lambda a: a[used])
+        d = pick((rec.astype(float) - problem.observed[name]) / scale)
         sq, n = sq + (d * d).sum(axis=0), n + len(d)
-    return sq / n if n else None
+        if name in own:
+            mc = mc + pick(own[name].astype(float) / scale ** 2).sum(axis=0)
+    return np.maximum(sq - mc, 0.0) / n if n else None
 
 
 def observation_noise(problem, result, held: HeldOut, mc_var: dict) -> dict:
     """Variance ``(C,)`` of each held-out photograph's noise: rendered observations have the
     prediction's Monte Carlo variance (the same renderer at the same spp) plus ``observe.noise``'s
-    Gaussian noise; photographs the fit's residual mean square (:func:`fit_noise`; None when the
+    Gaussian noise; photographs the noise the fit's residuals hold (:func:`fit_noise`; None when the
     method returned no reconstruction)."""
     if problem.scene.images is None:
         rel = problem.settings.observe.noise
@@ -136,21 +150,19 @@ def holdout_entries(problem, result, held: HeldOut, run_dir: Path | None = None)
     preds, mc_var = _by_light(problem, held, lit, lambda p, cams: predict(p, cams, rho, params))
     noise = observation_noise(problem, result, held, mc_var)
     variances = _variances(problem, result, held, lit, rho, params, mc_var, noise)
-    gain = held_out_gain(result.extras, problem.n_channels)
     seg = view_segment_maps(problem.scene, held.cameras)
     paths = image_paths(c.name for c in held.cameras)
     entries = []
     for c in held.cameras:
-        scale = gain * lens_falloff(problem.scene, c, result.extras)
-        compare = _Comparison(problem, held, c, scale, seg[c.name])
-        entry = {**compare.metrics(preds[c.name], variances[c.name]), "gain": [float(g) for g in gain],
+        compare = _Comparison.of(problem, held, c, result.extras, preds[c.name], seg[c.name])
+        entry = {**compare.metrics(preds[c.name], variances[c.name]), "gain": [float(g) for g in compare.gain],
                  "light": held.scene_of(c.name, problem.scene).light}
-        if floor is not None:
-            entry["floor"] = compare.metrics(floor[0][c.name], None if noise[c.name] is None else
-                                             noise[c.name] + floor[1][c.name])
+        if floor is not None:       # the truth's prediction, its gain fitted the same way
+            entry["floor"] = _Comparison.of(problem, held, c, result.extras, floor[0][c.name], seg[c.name]).metrics(
+                floor[0][c.name], None if noise[c.name] is None else noise[c.name] + floor[1][c.name])
         if run_dir is not None:
             entry["images"] = _write(run_dir, paths[c.name], held.observed[c.name],
-                                     (preds[c.name] * scale).astype(np.float32), problem.scene.channels)
+                                     (preds[c.name] * compare.scale).astype(np.float32), problem.scene.channels)
         entries.append(entry)
     return entries
 
@@ -162,8 +174,17 @@ class _Comparison:
     problem: object
     held: HeldOut
     camera: object
+    gain: np.ndarray                       # (C,)
     scale: np.ndarray                      # gain times lens falloff, broadcast to (H, W, C)
     segment_map: np.ndarray
+
+    @classmethod
+    def of(cls, problem, held: HeldOut, camera, extras: dict, unit_prediction: np.ndarray, segment_map) -> "_Comparison":
+        """The comparison of ``camera``'s photograph with ``unit_prediction`` through its lens's
+        falloff and its gain (:func:`~framework.holdout.held_out_gain`)."""
+        falloff = lens_falloff(problem.scene, camera, extras)
+        gain = held_out_gain(extras, held.observed[camera.name], unit_prediction * falloff, held.used(camera.name))
+        return cls(problem, held, camera, gain, gain * falloff, segment_map)
 
     def metrics(self, unit_prediction: np.ndarray, unit_variance) -> dict:
         """``view`` and :func:`view_metrics` of the prediction scaled by :attr:`scale` (its

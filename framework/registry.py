@@ -69,6 +69,9 @@ class MethodResult:
     cost_history: list[float] = field(default_factory=list)     # cost at each evaluation
     cost_times_s: list[float] = field(default_factory=list)     # seconds since the method started
     reconstructions: dict[str, np.ndarray] = field(default_factory=dict)  # view -> (H, W, C)
+    #: view -> (H, W, C) Monte Carlo variance of each reconstructed pixel, where the method knows it
+    #: (the symbolic pass's two halves); None: unknown
+    reconstruction_variance: dict[str, np.ndarray] | None = None
     std: np.ndarray | None = None              # (P, C) standard errors, where known
     observable: np.ndarray | None = None       # (P,) bool, where known
     extras: dict[str, Any] = field(default_factory=dict)        # method-specific, JSON-able

@@ -191,6 +191,34 @@ def render_pass(ms, *, spp: int, seeds: list[int], ledger: RenderLedger) -> list
     return images
 
 
+def reconstruction_pass(ms, *, spp: int, seeds: list[int], ledger: RenderLedger) -> tuple[list, list | None]:
+    """The reconstructions at the estimate, one full pass (counts 1 render) rendered as two
+    independent parts of ``spp // 2`` and ``spp - spp // 2`` samples per view: their
+    sample-weighted mean, and each pixel's Monte Carlo variance ``s (1 - s) (a - b)²`` (``s`` the
+    first part's share; the same estimate as the symbolic pass's halves). A held-out view's noise
+    model takes the reconstructions' own noise out of their residuals
+    (:func:`framework.holdout_run.fit_noise`). ``spp`` 1: the render alone, variances None."""
+    if spp < 2:
+        return render_pass(ms, spp=spp, seeds=seeds, ledger=ledger), None
+    if not ledger.can_afford(1):
+        raise RuntimeError(f"render budget exceeded: {ledger.used} + 1 > {ledger.budget}")
+    t0 = time.perf_counter()
+    first = spp // 2
+    s = first / spp
+    images, variances = [], []
+    for v, seed in enumerate(seeds):
+        a = ms.render(v, spp=first, seed=seed)
+        b = ms.render(v, spp=spp - first, seed=seed + SECOND_PART_SEED)
+        images.append((s * a + (1 - s) * b).astype(np.float32))
+        variances.append((s * (1 - s) * (a - b) ** 2).astype(np.float32))
+    ledger.spend(1, time.perf_counter() - t0)
+    return images, variances
+
+
+#: what the second part of a reconstruction adds to its view's seed (:func:`reconstruction_pass`)
+SECOND_PART_SEED = 104729
+
+
 class Trace:
     """The iterates of a method, for error-against-time curves (results.json ``trace``).
 
@@ -239,15 +267,19 @@ def max_depth(problem) -> int:
 
 
 def loop_result(problem, ledger: RenderLedger, *, started: float, rho: np.ndarray, costs: list[float],
-                times: list[float], reconstructions: list[np.ndarray], extras: dict, trace: Trace):
+                times: list[float], reconstructions: tuple[list, list | None], extras: dict, trace: Trace):
     """The :class:`~framework.registry.MethodResult` of a render-in-the-loop method: Mitsuba time
-    is ``render``, the rest of the wall time since ``started`` is ``solve``."""
+    is ``render``, the rest of the wall time since ``started`` is ``solve``; ``reconstructions``
+    as :func:`reconstruction_pass` returns them (``([], None)``: none)."""
     total = time.perf_counter() - started
+    images, variances = reconstructions
     return MethodResult(
         estimate=rho, renders=ledger.used,
         timings_s={"render": ledger.render_s, "solve": total - ledger.render_s},
         cost_history=costs, cost_times_s=times, trace=trace.entries(),
-        reconstructions={c.name: img for c, img in zip(problem.cameras, reconstructions)},
+        reconstructions={c.name: img for c, img in zip(problem.cameras, images)},
+        reconstruction_variance=None if variances is None else
+        {c.name: v for c, v in zip(problem.cameras, variances)},
         extras=extras)
 
 

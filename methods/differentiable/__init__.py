@@ -86,7 +86,7 @@ class DifferentiableMethod(C.RenderingBaseline):
     def render_at(self, problem: Problem, rho: np.ndarray, *, seed: int = 0) -> dict[str, np.ndarray]:
         """The primal pass of the fit's own AD renderer at ρ, weights written as the fit writes them."""
         return C.render_once(problem, seed, "differentiable render",
-                             lambda pb, ledger: _Fit(pb, ledger, self.options).final_render(rho))
+                             lambda pb, ledger: _Fit(pb, ledger, self.options).final_render(rho)[0])
 
 
 class _Adam:
@@ -169,13 +169,14 @@ class _Fit:
         self.ms.assign_weights(variables, self.problem.parameters)
         return variables
 
-    def final_render(self, rho: np.ndarray) -> list[np.ndarray]:
-        """The reconstruction at the estimate (primal pass, one render); empty if no budget."""
+    def final_render(self, rho: np.ndarray) -> tuple[list, list | None]:
+        """The reconstructions at the estimate (primal passes, one render) and their Monte Carlo
+        variances (:func:`methods._common.reconstruction_pass`); none if no budget."""
         if not self.ledger.can_afford(1):
-            return []
+            return [], None
         self.write(rho, grad=False)
         seeds = [self.seeds(len(self.costs), v)[0] for v in range(len(self.observed))]
-        return C.render_pass(self.ms, spp=self.spp, seeds=seeds, ledger=self.ledger)
+        return C.reconstruction_pass(self.ms, spp=self.spp, seeds=seeds, ledger=self.ledger)
 
 
 def _device_targets(observed: list[np.ndarray], weights: list | None) -> list[tuple]:

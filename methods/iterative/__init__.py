@@ -165,9 +165,13 @@ class _Objective:
         hi, lo = np.minimum(rho[k] + step, 1.0), np.maximum(rho[k] - step, 0.0)
         return (self.channel_costs(_perturbed(rho, k, hi)) - self.channel_costs(_perturbed(rho, k, lo))) / (hi - lo)
 
-    def final_render(self, rho: np.ndarray) -> list[np.ndarray]:
-        """The reconstruction at the estimate (counts one render); empty if the budget is spent."""
-        return self.render(rho) if self.ledger.can_afford(1) else []
+    def final_render(self, rho: np.ndarray) -> tuple[list, list | None]:
+        """The reconstructions at the estimate and their Monte Carlo variances
+        (:func:`methods._common.reconstruction_pass`, one render); none if the budget is spent."""
+        if not self.ledger.can_afford(1):
+            return [], None
+        self.ms.set_weights(rho, self.problem.parameters)
+        return C.reconstruction_pass(self.ms, spp=self.spp, seeds=self.seeds(), ledger=self.ledger)
 
 
 def _perturbed(rho: np.ndarray, k: int, row: np.ndarray) -> np.ndarray:

@@ -130,17 +130,26 @@ def test_image_space_std_carries_the_parameters_covariance(tmp_path):
 
 
 def test_held_out_gain_and_falloff(three_views):
-    """A held-out view gets the per-channel median of the fitted views' gains (1 without), and its
-    lens's falloff 1 + a1 r² + a2 r⁴ + a3 r⁶ (r = 1 at the image corner)."""
+    """A held-out view's gain is 1 when the method estimated none, else its least-squares fit
+    to the photograph over the used pixels, per channel (by hand: a photograph 2, 0.5 and 1.25
+    times the prediction, where used, gives those gains; a dark channel 1); and its lens's falloff
+    1 + a1 r² + a2 r⁴ + a3 r⁶ (r = 1 at the image corner)."""
     import dataclasses
 
     from framework.holdout import held_out_gain, lens_falloff
     from framework.scene import load_scene
     from framework.scene.model import Photometry
-    exposure = [{"view": "a", "estimate": [1.0, 1.0, 1.0]}, {"view": "b", "estimate": [1.5, 0.8, 1.2]},
-                {"view": "c", "estimate": [2.0, 0.6, 1.1]}]
-    np.testing.assert_allclose(held_out_gain({"exposure": exposure}, 3), [1.5, 0.8, 1.1])
-    np.testing.assert_array_equal(held_out_gain({}, 3), [1.0, 1.0, 1.0])
+    rng = np.random.default_rng(0)
+    prediction = rng.uniform(0.1, 1.0, (4, 5, 3))
+    used = np.ones((4, 5), bool)
+    used[0] = False
+    observed = prediction * [2.0, 0.5, 1.25]
+    observed[0] = 9.0                                             # not used: no weight in the fit
+    exposure = {"exposure": [{"view": "a", "estimate": [1.0, 1.0, 1.0]}]}
+    np.testing.assert_allclose(held_out_gain(exposure, observed, prediction, used), [2.0, 0.5, 1.25])
+    np.testing.assert_array_equal(held_out_gain({}, observed, prediction, used), [1.0, 1.0, 1.0])
+    dark = prediction * [1.0, 0.0, 1.0]
+    assert held_out_gain(exposure, observed, dark, None)[1] == 1.0
     scene = load_scene(three_views)
     lens = dataclasses.replace(scene, photometry=Photometry(vignetting="known", vignetting_profile=(-0.3, 0.1, -0.05)))
     cam = scene.camera("view_2.png")
@@ -191,3 +200,25 @@ def test_held_out_light_at_the_estimated_scale(three_views):
     np.testing.assert_array_equal(lit.emitters[1].irradiance, scene.emitters[1].irradiance)
     assert lit.content_hash != scene.content_hash
     assert estimated_light(scene, {"illumination": [{"emitter": 0, "part": None, "estimate": None}]}) is scene
+
+
+def test_fit_noise_less_the_reconstructions_own_variance(three_views):
+    """The photographs' noise the fit saw, in unit-gain radiance: the fitted views' mean squared
+    residual over their gains, less the reconstructions' Monte Carlo variance where the method
+    reports it, floored at 0 (by hand: residual 0.02 everywhere, squared 4e-4; less 1e-4 is 3e-4;
+    less 5e-4 is 0)."""
+    from framework.holdout_run import fit_noise
+    problem = make_problem(three_views)
+    recon = {c.name: problem.observed[c.name] + 0.02 for c in problem.cameras}
+    bare = MethodResult(estimate=np.zeros((1, 3)), renders=0, reconstructions=recon)
+    np.testing.assert_allclose(fit_noise(problem, bare), 4e-4, rtol=1e-5)
+    for var, noise in ((1e-4, 3e-4), (5e-4, 0.0)):
+        own = {name: np.full_like(img, var) for name, img in recon.items()}
+        result = MethodResult(estimate=np.zeros((1, 3)), renders=0, reconstructions=recon,
+                              reconstruction_variance=own)
+        np.testing.assert_allclose(fit_noise(problem, result), noise, rtol=1e-4, atol=1e-12)
+    # in unit-gain radiance: a view of gain 2 has residual 0.01 there, squared 1e-4; (1 + 4 + 4) / 3
+    first = problem.cameras[0].name
+    gained = MethodResult(estimate=np.zeros((1, 3)), renders=0, reconstructions=recon,
+                          extras={"exposure": [{"view": first, "estimate": [2.0, 2.0, 2.0]}]})
+    np.testing.assert_allclose(fit_noise(problem, gained), 3e-4, rtol=1e-5)

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from framework.results import per_channel
-from methods.symbolic.fit.fit import Fit, StageClock, with_std
+from methods.symbolic.fit.fit import Fit, StageClock, reconstruction_fields, with_std
 from methods.symbolic.fit.fit_quality import material_fit
 from methods.symbolic.misfit.consistency import MIN_OTHERS, ViewPairs
 from methods.symbolic.misfit.robust_scale import LEFT_OUT, pixel_variance
@@ -44,7 +44,7 @@ from methods.symbolic.survey.exposure import GAIN_MAX, GAIN_PREFIX, gain_guess, 
 from methods.symbolic.survey.illumination import Illumination
 from methods.symbolic.survey.vignetting import Vignetting
 from methods.symbolic.system.basis import MonomialBasis
-from methods.symbolic.system.coefficients import predicted, predicted_with_variance
+from methods.symbolic.system.coefficients import predicted_with_variance
 from methods.symbolic.system.emitter_groups import unknown_emitters
 from methods.symbolic.system.view_systems import weighted_system
 from methods.symbolic.trace.monomial_codes import merge_codes
@@ -394,5 +394,4 @@ def _field_outputs(fit: Fit, views, used, basis, system, gains, P, C, rounds, st
         n_monomials=basis.size, gram_nnz=system.nnz, robust_weights={v.name: v.robust_w for v in views},
         pixel_weights={v.name: (np.ones(len(v.y)) if w is None else w).reshape(v.shape).astype(np.float32)
                        for v, w in zip(views, used)},
-        images=lambda: {v.name: predicted(v.coeffs, mu, system.codes).reshape(*v.shape, C).astype(np.float32)
-                        for v in views})
+        **reconstruction_fields([(v.name, v.coeffs, v.shape) for v in views], mu, system.codes))

@@ -8,12 +8,15 @@ it adds (gains, pixel weights, robust rounds).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from methods.symbolic.system.coefficients import images_with_variance
 
 
 @dataclass(frozen=True)
@@ -49,6 +52,9 @@ class Fit:
         Monomials of the solve's basis, stored entries of its G (all channels).
     images : callable
         ``images()`` -> view name -> ``(H, W, C)`` reconstruction at ``evaluated_at``.
+    image_variances : callable
+        ``image_variances()`` -> view name -> ``(H, W, C)`` Monte Carlo variance of each
+        reconstructed pixel (from the pass's two halves; zeros without them).
     per_segment : dict or None
         ``method.cost=per_segment``: sweeps, converged, held_at_guess.
     exposure : list or None
@@ -102,6 +108,7 @@ class Fit:
     n_monomials: int = 0
     gram_nnz: int = 0
     images: Callable[[], dict] = field(default=dict, repr=False)
+    image_variances: Callable[[], dict] = field(default=dict, repr=False)
     per_segment: dict | None = None
     exposure: list | None = None
     vignetting: list | None = None
@@ -133,10 +140,20 @@ def full(observable: np.ndarray, x: np.ndarray) -> np.ndarray:
     return out
 
 
-def images_at(result, basis, rho: np.ndarray, cameras) -> dict[str, np.ndarray]:
-    """Every view's polynomial of the pass ``result`` evaluated at ρ (P, C): (H, W, C) images."""
+def images_at(result, basis, rho: np.ndarray, cameras) -> dict[str, Callable[[], dict]]:
+    """``{"images": ..., "image_variances": ...}``: :class:`Fit`'s two callables for every view's
+    polynomial of the pass ``result`` evaluated at ρ (P, C), both from one sweep over the views'
+    coefficients, made on the first call."""
     mu = np.stack([basis.evaluate(rho[:, c]) for c in range(rho.shape[1])])
-    return {cam.name: result.image(cam.name, mu, (cam.height, cam.width)) for cam in cameras}
+    views = [(cam.name, result.coefficients(cam.name), (cam.height, cam.width)) for cam in cameras]
+    return reconstruction_fields(views, mu, result.codes)
+
+
+def reconstruction_fields(views, mu: np.ndarray, codes: np.ndarray) -> dict[str, Callable[[], dict]]:
+    """:func:`images_at` for ``views``, ``(name, coefficients, (H, W))`` triples, at monomials
+    ``mu`` (C, N) over ``codes``."""
+    both = functools.cache(lambda: images_with_variance(views, mu, codes))
+    return {"images": lambda: both()[0], "image_variances": lambda: both()[1]}
 
 
 class StageClock:

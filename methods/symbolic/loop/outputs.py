@@ -66,6 +66,7 @@ def method_result(passes: Passes, problem, params, guess: np.ndarray, options: S
     timings["method"] = time.perf_counter() - started
     return MethodResult(
         estimate=fit.estimate, renders=passes.renders, parameters=params, reconstructions=fit.images(),
+        reconstruction_variance=fit.image_variances(),
         pixel_weights=fit.pixel_weights, pixel_reasons=fit.pixel_reasons, timings_s=timings, std=std, observable=fit.observable,
         cost_history=list(sol.cost_history) if sol else [],
         cost_times_s=[at - started for at, _ in sol.iterates] if sol else [], trace=trace.entries(),

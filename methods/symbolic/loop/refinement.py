@@ -141,7 +141,7 @@ def fit_pass(result, params, x0: np.ndarray, problem, options: SymbolicOptions, 
     fit = solve(result.take_system(), basis, params, x0, problem, views=views, groups=segment_groups(params),
                 defer_std=estimate_only)
     return fit.replace(n_monomials=basis.size, gram_nnz=nnz,
-                       images=lambda: images_at(result, basis, fit.evaluated_at, problem.cameras))
+                       **images_at(result, basis, fit.evaluated_at, problem.cameras))
 
 
 def solve_system(system, basis, params, x0: np.ndarray, problem, options: SymbolicOptions, *, views,

@@ -185,3 +185,15 @@ def predicted_with_variance(coeffs, mu: np.ndarray, codes: np.ndarray) -> tuple[
         values.append(block.split * a + (1.0 - block.split) * b)
         variances.append(block.split * (1.0 - block.split) * (a - b) ** 2)
     return np.concatenate(values), np.concatenate(variances)
+
+
+def images_with_variance(views, mu: np.ndarray, codes: np.ndarray) -> tuple[dict, dict]:
+    """Each view's polynomial image at monomials ``mu`` (C, N) over ``codes`` and each pixel's
+    Monte Carlo variance (:func:`predicted_with_variance`), both ``(H, W, C)`` float32 by view
+    name; ``views``: ``(name, coefficients, (H, W))`` triples."""
+    images, variances = {}, {}
+    for name, coeffs, shape in views:
+        value, var = predicted_with_variance(coeffs, mu, codes)
+        images[name] = value.reshape(*shape, -1).astype(np.float32)
+        variances[name] = var.reshape(*shape, -1).astype(np.float32)
+    return images, variances
