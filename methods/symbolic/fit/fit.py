@@ -140,18 +140,23 @@ def full(observable: np.ndarray, x: np.ndarray) -> np.ndarray:
     return out
 
 
-def images_at(result, basis, rho: np.ndarray, cameras) -> dict[str, Callable[[], dict]]:
-    """``{"images": ..., "image_variances": ...}``: :class:`Fit`'s two callables for every view's
-    polynomial of the pass ``result`` evaluated at ρ (P, C), both from one sweep over the views'
-    coefficients, made on the first call."""
+def images_at(result, basis, rho: np.ndarray, cameras) -> dict[str, np.ndarray]:
+    """Every view's polynomial of the pass ``result`` evaluated at ρ (P, C): (H, W, C) images."""
+    mu = np.stack([basis.evaluate(rho[:, c]) for c in range(rho.shape[1])])
+    return {cam.name: result.image(cam.name, mu, (cam.height, cam.width)) for cam in cameras}
+
+
+def fields_at(result, basis, rho: np.ndarray, cameras) -> dict[str, Callable[[], dict]]:
+    """:func:`reconstruction_fields` of every view of the pass ``result`` at ρ (P, C)."""
     mu = np.stack([basis.evaluate(rho[:, c]) for c in range(rho.shape[1])])
     views = [(cam.name, result.coefficients(cam.name), (cam.height, cam.width)) for cam in cameras]
     return reconstruction_fields(views, mu, result.codes)
 
 
 def reconstruction_fields(views, mu: np.ndarray, codes: np.ndarray) -> dict[str, Callable[[], dict]]:
-    """:func:`images_at` for ``views``, ``(name, coefficients, (H, W))`` triples, at monomials
-    ``mu`` (C, N) over ``codes``."""
+    """``{"images": ..., "image_variances": ...}``: :class:`Fit`'s two callables for ``views``,
+    ``(name, coefficients, (H, W))`` triples, at monomials ``mu`` (C, N) over ``codes``: both
+    from one sweep over the views' coefficients, made on the first call."""
     both = functools.cache(lambda: images_with_variance(views, mu, codes))
     return {"images": lambda: both()[0], "image_variances": lambda: both()[1]}
 

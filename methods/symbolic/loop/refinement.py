@@ -21,7 +21,7 @@ from framework.cache import Cache
 from framework.executor import make_executor
 from methods._common import Trace, segment_groups
 from methods.symbolic.fit.field import FieldOptions, fit_field
-from methods.symbolic.fit.fit import Fit, StageClock, images_at
+from methods.symbolic.fit.fit import Fit, StageClock, fields_at
 from methods.symbolic.fit.joint import fit_joint
 from methods.symbolic.fit.per_segment import fit_per_segment
 from methods.symbolic.fit.with_known import fit_with_known
@@ -141,7 +141,7 @@ def fit_pass(result, params, x0: np.ndarray, problem, options: SymbolicOptions, 
     fit = solve(result.take_system(), basis, params, x0, problem, views=views, groups=segment_groups(params),
                 defer_std=estimate_only)
     return fit.replace(n_monomials=basis.size, gram_nnz=nnz,
-                       **images_at(result, basis, fit.evaluated_at, problem.cameras))
+                       **fields_at(result, basis, fit.evaluated_at, problem.cameras))
 
 
 def solve_system(system, basis, params, x0: np.ndarray, problem, options: SymbolicOptions, *, views,
