@@ -562,6 +562,35 @@ def test_device_sums_equal_host_sums(quarters, monkeypatch):
     _assert_same_matrices(*_both_sums(integ, odd, monkeypatch))
 
 
+@pytest.mark.parametrize("quarters", [False, True])
+def test_device_sums_in_chunks_of_pixels(quarters, monkeypatch):
+    """A tile summed a few pixels at a time (``CHUNK_CELLS`` cut so that each of the 100-pixel
+    tiles takes several chunks) gives the same codes, sparsity and bits as summed whole: each
+    cell is still summed by one lane in slot order."""
+    import methods.symbolic.trace.pixel_sums as PS
+    rho = np.full((5, 3), 0.3)
+    scene, ss = cornell(rho, res=16)
+    integ = PolynomialPathIntegrator.create(ss, SEGMENTS, 5, rho, max_bounces=3, tile_pixels=100)
+    monkeypatch.setattr(type(integ), "device_sums", True)
+    for call in (lambda: integ.coefficients_halves(scene, spp=8, seed=5, quarters=quarters),
+                 lambda: integ.coefficients_sparse(scene, spp=4, seed=5)):
+        whole = call()
+        chunks = []
+        sums = PS._Tile.sums
+        monkeypatch.setattr(PS._Tile, "sums", lambda tile, p0, m: chunks.append(m) or sums(tile, p0, m))
+        monkeypatch.setattr(PS, "CHUNK_CELLS", 1000)
+        chunked = call()
+        monkeypatch.undo()
+        monkeypatch.setattr(type(integ), "device_sums", True)
+        assert len(chunks) > 3 * 3 and min(chunks) < max(chunks) < 100    # several chunks per tile
+        np.testing.assert_array_equal(chunked[0], whole[0])
+        for c_block, w_block in zip(chunked[1:], whole[1:]):
+            for c, w in zip(c_block, w_block):
+                assert c.has_canonical_format
+                for name in ("indptr", "indices", "data"):
+                    np.testing.assert_array_equal(getattr(c, name), getattr(w, name))
+
+
 def test_device_sums_with_emitter_groups_and_wide_keys(monkeypatch):
     """With an unknown emitter scale (keys carry the emitter's group) the device sums equal the
     host's; a key range beyond the key table (TABLE_KEYS) falls back to the host path."""

@@ -22,7 +22,9 @@ was 95 % of the pass; here the device does it, in three steps and one small host
    scheduling-dependent order. The columns, the sums and each row's first rank (``indptr``) are
    copied out: each block is a canonical CSR matrix as it arrives.
 
-Memory on the device is that of the events plus a bit per (row, monomial) cell. Key ranges above
+Memory on the device is that of the events plus two bits per (row, monomial) cell (the bitmap and
+its ranks); a tile whose cells exceed :data:`CHUNK_CELLS` is summed a chunk of its pixels at a
+time, each chunk marking and summing only its pixels' events. Key ranges above
 :data:`~methods.symbolic.trace.monomial_codes.TABLE_KEYS` (hundreds of parameters) have no key table:
 :func:`pixel_sums` returns None and the caller sums on the host
 (:func:`~methods.symbolic.trace.events.tile_matrices`). Both sum the float32 values in float64, in
@@ -74,10 +76,31 @@ def pixel_sums(events, *, n: int, spp: int, split: int, quarters: bool, span: in
         codes, summed = np.zeros(1, np.int64), _no_sums(blocks * n, len(events.values))   # divide an empty array)
         return codes, _matrices(summed, n, 1, spp, split, blocks)
     codes, table = _key_table(dr.gather(mi.UInt32, events.mono, at), span, columns)
-    if blocks * n * len(codes) >= 2 ** 32:          # cells are 32-bit: a huge tile of many monomials
+    if blocks * len(codes) >= 2 ** 32:              # a chunk's cells are 32-bit (never seen: 2³² monomials)
         return None
     tile = _Tile(events, at, table, n=n, spp=spp, split=split, n_cols=len(codes), blocks=blocks)
-    return codes, _matrices(tile.sums(), n, len(codes), spp, split, blocks)
+    m = _chunk_pixels(n, len(codes), blocks)
+    chunks = [_matrices(tile.sums(p0, min(m, n - p0)), min(m, n - p0), len(codes), spp, split, blocks)
+              for p0 in range(0, n, m)]
+    return codes, chunks[0] if len(chunks) == 1 else _stacked(chunks)
+
+
+# The cells' bitmap holds a bit per (row, tile monomial) and its ranks a 32-bit count per 32 bits:
+# 2 bits per cell, more than the events themselves on a street of many materials (a 70-material
+# view of 40,000 pixels has 19,000 monomials: 370 MiB). A tile's pixels are summed in chunks of
+# at most this many cells (64 MiB of bitmap and ranks), each over the events of its pixels.
+CHUNK_CELLS = 2 ** 28
+
+
+def _chunk_pixels(n: int, n_cols: int, blocks: int) -> int:
+    """Pixels per chunk: the whole tile when its cells fit in :data:`CHUNK_CELLS`."""
+    return max(1, min(n, CHUNK_CELLS // (blocks * n_cols)))
+
+
+def _stacked(chunks: list) -> tuple:
+    """The chunks' matrices of each block and channel stacked by rows (pixels in order)."""
+    return tuple([sp.vstack([c[k][ch] for c in chunks], format="csr") for ch in range(len(chunks[0][k]))]
+                 for k in range(len(chunks[0])))
 
 
 def _key_table(mono, span: int, columns) -> tuple[np.ndarray, object]:
@@ -97,80 +120,84 @@ def _no_sums(rows: int, n_channels: int) -> tuple:
 
 
 class _Tile:
-    """A tile's events (``at``: the slots that hold one), their cells and rows (step 2).
+    """A tile's events (``at``: the slots that hold one), their pixels, blocks and columns
+    (step 2), summed a chunk of pixels at a time (:meth:`sums`).
 
-    Rows are block-major, ``b · n + pixel``; the summing rows are those of the blocks A (and B),
-    whose events are contiguous in slot order; with quarters, rows ``(b + 2) · n + pixel`` hold
-    again the events of the first half of block ``b``'s samples (``A₁``, ``B₁``).
+    A chunk of ``m`` pixels from ``p0`` has rows ``b · m + (pixel - p0)``, block-major; the
+    summing rows are those of the blocks A (and B), whose events are contiguous in slot order;
+    with quarters, rows ``(b + 2) · m + ...`` hold again the events of the first half of block
+    ``b``'s samples (``A₁``, ``B₁``).
     """
 
     def __init__(self, events, at, table, *, n: int, spp: int, split: int, n_cols: int, blocks: int):
         self.events, self.at, self.n, self.n_cols, self.blocks = events, at, n, n_cols, blocks
         self.slots, self.spp, self.split = events.slots, spp, split
-        row, block, self.first_quarter = _lane_cells(at // dr.opaque(mi.UInt32, events.slots), n, spp, split, blocks)
-        self.row = block * dr.opaque(mi.UInt32, n) + row
-        mono = dr.gather(mi.UInt32, events.mono, at)
-        self.cell = self.row * dr.opaque(mi.UInt32, n_cols) + dr.gather(mi.UInt32, table, mono)
-        self.summing_rows = n * min(blocks, 2)
+        self.pixel, self.block, self.first_quarter = _lane_cells(at // dr.opaque(mi.UInt32, events.slots),
+                                                                 n, spp, split, blocks)
+        self.col = dr.gather(mi.UInt32, table, dr.gather(mi.UInt32, events.mono, at))
+        # each summing row's event count and first event in ``at`` (exclusive prefix sum), tile-wide
+        self.events_per_row = dr.zeros(mi.UInt32, n * min(blocks, 2))
+        dr.scatter_add(self.events_per_row, mi.UInt32(1), self.block * dr.opaque(mi.UInt32, n) + self.pixel)
+        self.first_event = dr.prefix_sum(self.events_per_row)
 
-    def sums(self) -> tuple:
-        """``(indptr, cols, [values per channel])``: the occupied (row, column) cells in CSR form
-        over the ``blocks · n`` rows: row ``k``'s cells are ``indptr[k] .. indptr[k + 1] - 1``,
-        with their columns (increasing) and summed values (step 3)."""
-        words = dr.zeros(mi.UInt32, -(-self.blocks * self.n * self.n_cols // 32))
-        _mark(words, self.cell, True)
+    def sums(self, p0: int, m: int) -> tuple:
+        """``(indptr, cols, [values per channel])`` of pixels ``p0 .. p0 + m - 1``: the occupied
+        (row, column) cells in CSR form over the chunk's ``blocks · m`` rows: row ``k``'s cells
+        are ``indptr[k] .. indptr[k + 1] - 1``, with their columns (increasing) and summed
+        values (step 3)."""
+        first, size = dr.opaque(mi.UInt32, p0), dr.opaque(mi.UInt32, m)
+        inside = (self.pixel >= first) & (self.pixel < first + size)       # unsigned: no wrap below p0
+        cell = (self.block * size + self.pixel - first) * dr.opaque(mi.UInt32, self.n_cols) + self.col
+        shift = dr.opaque(mi.UInt32, 2 * m * self.n_cols)                  # to the rows of A₁, B₁
+        words = dr.zeros(mi.UInt32, -(-self.blocks * m * self.n_cols // 32))
+        _mark(words, cell, inside)
         if self.blocks == 4:
-            _mark(words, self.cell + self._quarter_shift(), self.first_quarter)
-        events_per_row = dr.zeros(mi.UInt32, self.summing_rows)
-        dr.scatter_add(events_per_row, mi.UInt32(1), self.row)    # integer adds: any order, same result
+            _mark(words, cell + shift, inside & self.first_quarter)
         rank = _Ranks(words)
         index = np.int32 if rank.total < 2 ** 31 else np.int64     # scipy's index type for this size
         cols = dr.zeros(mi.UInt32, rank.total)
         sums = [dr.zeros(mi.Float64, rank.total) for _ in self.events.values]
-        self._row_sums(events_per_row, rank, cols, sums)
-        all_rows = self.blocks * self.n
-        starts = rank(dr.arange(mi.UInt32, all_rows) * dr.opaque(mi.UInt32, self.n_cols), True)   # rows' first
+        self._row_sums(p0, m, cell, shift, rank, cols, sums)
+        starts = rank(dr.arange(mi.UInt32, self.blocks * m) * dr.opaque(mi.UInt32, self.n_cols), True)   # rows' first
         dr.eval(cols, sums, starts)
         indptr = np.append(starts.numpy().astype(index), index(rank.total))
         return indptr, cols.numpy().astype(index), [v.numpy() for v in sums]
 
-    def _quarter_shift(self):
-        return dr.opaque(mi.UInt32, 2 * self.n * self.n_cols)
-
-    def _row_sums(self, events_per_row, rank, cols, sums) -> None:
-        """Each occupied cell's column and sum, written at its rank: one lane per summing row
-        walks that row's events in slot order, so each cell is summed by one lane in one order:
-        the same seed gives the same bits on any backend and thread count (atomic adds from many
-        lanes sum in a scheduling-dependent order)."""
-        n, slots = self.n, dr.opaque(mi.UInt32, self.slots)
-        r = dr.arange(mi.UInt32, self.summing_rows)
-        first_event = dr.prefix_sum(events_per_row)         # exclusive: the row's first in ``at``
-        in_b = r >= dr.opaque(mi.UInt32, n)
+    def _row_sums(self, p0: int, m: int, cell, shift, rank, cols, sums) -> None:
+        """Each occupied cell's column and sum, written at its rank: one lane per summing row of
+        the chunk walks that row's events in slot order, so each cell is summed by one lane in
+        one order: the same seed gives the same bits on any backend and thread count (atomic adds
+        from many lanes sum in a scheduling-dependent order)."""
+        n, slots, size = self.n, dr.opaque(mi.UInt32, self.slots), dr.opaque(mi.UInt32, m)
+        local = dr.arange(mi.UInt32, m * min(self.blocks, 2))
+        in_b = local >= size
+        pixel = dr.opaque(mi.UInt32, p0) + local - dr.select(in_b, size, 0)
+        r = dr.select(in_b, dr.opaque(mi.UInt32, n), 0) + pixel             # the tile-wide summing row
+        count, first_event = dr.gather(mi.UInt32, self.events_per_row, r), dr.gather(mi.UInt32, self.first_event, r)
         per_pixel = dr.select(in_b, dr.opaque(mi.UInt32, self.spp - self.split), dr.opaque(mi.UInt32, self.split))
-        # block B's pixel p = r - n starts at lane n·split + p·(spp - split) (unsigned wrap-around cancels)
-        b_base = dr.opaque(mi.UInt32, n * self.split) - dr.opaque(mi.UInt32, n) * per_pixel
-        first_slot = (dr.select(in_b, b_base, 0) + r * per_pixel) * slots
+        # block B's pixel p starts at lane n·split + p·(spp - split)
+        first_slot = (dr.select(in_b, dr.opaque(mi.UInt32, n * self.split), 0) + pixel * per_pixel) * slots
         quarter = dr.opaque(mi.UInt32, (self.spp // 4) * self.slots)
         n_cols = dr.opaque(mi.UInt32, self.n_cols)
 
-        def add(cell, values, active):
+        def add(c, values, active):
             # a lane's cells are its row's alone: no two lanes of a packet reach the same one
-            where = rank(cell, active)
-            dr.scatter(cols, cell % n_cols, where, active)
+            where = rank(c, active)
+            dr.scatter(cols, c % n_cols, where, active)
             for total, v in zip(sums, values):
                 dr.scatter_add(total, mi.Float64(v), where, active, mode=dr.ReduceMode.NoConflicts)
 
         def body(j):
             e = first_event + j
             slot = dr.gather(mi.UInt32, self.at, e)
-            cell = dr.gather(mi.UInt32, self.cell, e)
+            c = dr.gather(mi.UInt32, cell, e)
             values = [dr.gather(mi.Float, v, slot) for v in self.events.values]
-            add(cell, values, True)
+            add(c, values, True)
             if self.blocks == 4:                    # A₁, B₁: the first quarter's events again
-                add(cell + self._quarter_shift(), values, slot - first_slot < quarter)
+                add(c + shift, values, slot - first_slot < quarter)
             return (j + 1,)
 
-        dr.while_loop(state=(dr.zeros(mi.UInt32, self.summing_rows),), cond=lambda j: j < events_per_row,
+        dr.while_loop(state=(dr.zeros(mi.UInt32, dr.width(local)),), cond=lambda j: j < count,
                       body=body, labels=("j",), label="pixel sums")
 
 
