@@ -577,11 +577,10 @@ def test_device_sums_in_chunks_of_pixels(quarters, monkeypatch):
         whole = call()
         chunks = []
         sums = PS._Tile.sums
-        monkeypatch.setattr(PS._Tile, "sums", lambda tile, p0, m: chunks.append(m) or sums(tile, p0, m))
-        monkeypatch.setattr(PS, "CHUNK_CELLS", 1000)
-        chunked = call()
-        monkeypatch.undo()
-        monkeypatch.setattr(type(integ), "device_sums", True)
+        with monkeypatch.context() as patch:
+            patch.setattr(PS._Tile, "sums", lambda tile, p0, m: chunks.append(m) or sums(tile, p0, m))
+            patch.setattr(PS, "CHUNK_CELLS", 1000)
+            chunked = call()
         assert len(chunks) > 3 * 3 and min(chunks) < max(chunks) < 100    # several chunks per tile
         np.testing.assert_array_equal(chunked[0], whole[0])
         for c_block, w_block in zip(chunked[1:], whole[1:]):

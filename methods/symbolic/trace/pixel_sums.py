@@ -86,9 +86,10 @@ def pixel_sums(events, *, n: int, spp: int, split: int, quarters: bool, span: in
 
 
 # The cells' bitmap holds a bit per (row, tile monomial) and its ranks a 32-bit count per 32 bits:
-# 2 bits per cell, more than the events themselves on a street of many materials (a 70-material
-# view of 40,000 pixels has 19,000 monomials: 370 MiB). A tile's pixels are summed in chunks of
-# at most this many cells (64 MiB of bitmap and ranks), each over the events of its pixels.
+# 2 bits per cell, which ``method.memory_mb`` (it sizes the events) does not count, and a street of
+# many materials makes large (a 70-material view of 40,000 pixels has 19,000 monomials: 370 MiB).
+# A tile's pixels are summed in chunks of at most this many cells (64 MiB of bitmap and ranks),
+# each over the events of its pixels.
 CHUNK_CELLS = 2 ** 28
 
 
