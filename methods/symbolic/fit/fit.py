@@ -80,7 +80,8 @@ class Fit:
         (:func:`~methods.symbolic.misfit.clusters.view_clusters`).
     fit_quality : dict or None
         The field path: how well the model explains each material's pixels (results.json
-        ``fit_quality``, :func:`~methods.symbolic.fit.fit_quality.material_fit`).
+        ``fit_quality``, :func:`~methods.symbolic.fit.fit_quality.material_fit`), once
+        :func:`with_quality` has computed it.
     spp_bias : numpy.ndarray or None
         ``method.bias=richardson``: ``(P, C)`` the finite-spp bias removed from ``estimate``
         (:mod:`methods.symbolic.loop.richardson`), NaN where not estimated.
@@ -92,6 +93,10 @@ class Fit:
         ``sigma2`` are NaN / empty and ``deferred_std()`` gives the complete Fit (:func:`with_std`).
         The field path's robust rounds and the bias correction's half refits need no standard
         error but the last round's, whose pixel scores cost as much as the solve.
+    deferred_quality : callable or None
+        The field path: ``deferred_quality()`` gives ``fit_quality`` (:func:`with_quality`). Only the
+        last refinement pass's is reported, and a sweep over every view's pixels costs a tenth of
+        a fit (bundled urban_canyon_survey: 3 of 31 s a pass): the earlier passes never make it.
     """
 
     estimate: np.ndarray
@@ -123,6 +128,7 @@ class Fit:
     fit_quality: dict | None = None
     spp_bias_actions: np.ndarray | None = None
     deferred_std: Callable[[], Fit] | None = field(default=None, repr=False)
+    deferred_quality: Callable[[], dict] | None = field(default=None, repr=False)
 
     def replace(self, **changes) -> Fit:
         return dataclasses.replace(self, **changes)
@@ -138,6 +144,13 @@ def full(observable: np.ndarray, x: np.ndarray) -> np.ndarray:
     out = np.full((len(observable), x.shape[1]), np.nan)
     out[observable] = x
     return out
+
+
+def with_quality(fit: Fit) -> Fit:
+    """``fit`` with its :attr:`Fit.deferred_quality` computed into ``fit_quality`` (itself without one)."""
+    if fit.deferred_quality is None:
+        return fit
+    return fit.replace(fit_quality=fit.deferred_quality(), deferred_quality=None)
 
 
 def images_at(result, basis, rho: np.ndarray, cameras) -> dict[str, np.ndarray]:

@@ -21,7 +21,7 @@ from framework.cache import Cache
 from framework.executor import make_executor
 from methods._common import Trace, segment_groups
 from methods.symbolic.fit.field import FieldOptions, fit_field
-from methods.symbolic.fit.fit import Fit, StageClock, fields_at
+from methods.symbolic.fit.fit import Fit, StageClock, fields_at, with_quality
 from methods.symbolic.fit.joint import fit_joint
 from methods.symbolic.fit.per_segment import fit_per_segment
 from methods.symbolic.fit.with_known import fit_with_known
@@ -96,6 +96,10 @@ def run_passes(problem, params, x0: np.ndarray, options: SymbolicOptions, *, ren
             stopped = (f"converged after {k} refinement pass(es): no weight moved beyond refine_tol + "
                        f"the two passes' noise ({moves[-1]:.2f} of it)")
             break
+    t_solve = time.perf_counter()
+    with clock("fit_quality"):         # the last pass's only: the run reports no other
+        fit = with_quality(fit)
+    solve_s += time.perf_counter() - t_solve
     if options.bias == "richardson":    # the last pass refitted at half its spp, from its own render
         t_solve = time.perf_counter()
         # the field fit forms its own weighted systems: the half passes' summed ones are not built
