@@ -91,6 +91,7 @@ def minimize_sqp(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndar
     H = None if start_hessian is None else np.asarray(start_hessian, dtype=float)
     last_step = np.inf
     linear = False                  # a fresh Hessian's step shrank slowly too: shrinking is no reason
+    ratios: list[float] = []        # of the steps while they shrink linearly
     try:
         f, g = evaluate(x)
         for _ in range(int(max_iter)):
@@ -104,8 +105,16 @@ def minimize_sqp(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndar
                     continue
                 res.status = "XTOL_REACHED"
                 break
-            alpha, slope = 1.0, float(g @ d)
-            while True:
+            slope = float(g @ d)
+            leap = _leap(ratios)
+            jumped = False
+            if leap is not None:               # the steps' geometric sum at once (see _leap)
+                z = np.clip(x + leap * d, lo, hi)
+                z = np.clip(project_feasible(z, groups), lo, hi) if groups else z
+                fz, gz = evaluate(z)
+                jumped = fz <= f + 1e-4 * leap * min(slope, 0.0)
+            alpha = 1.0
+            while not jumped:
                 z = np.clip(x + alpha * d, lo, hi)
                 fz, gz = evaluate(z)
                 if fz <= f + 1e-4 * alpha * min(slope, 0.0) or alpha < 1e-12:
@@ -116,7 +125,11 @@ def minimize_sqp(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndar
                 break
             predicted, step = -(slope + 0.5 * float(d @ H @ d)), float(np.max(np.abs(d)))
             slow = step > SQP_SHRINK * last_step
-            if alpha < 1.0 or not 0.5 * predicted <= f - fz <= 2.0 * predicted:
+            shrinking = not jumped and alpha == 1.0 and SQP_SHRINK * last_step < step < last_step
+            ratios = ratios + [step / last_step] if shrinking else []
+            if jumped:
+                pass                           # the leap's decrease is not the model's: H kept
+            elif alpha < 1.0 or not 0.5 * predicted <= f - fz <= 2.0 * predicted:
                 H, linear = None, False        # the model mispredicts: a new Hessian
             elif slow and fresh and step < last_step:
                 linear = True                  # even a new Hessian converges linearly here: keep it
@@ -134,6 +147,31 @@ def minimize_sqp(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndar
         res.status = "FORCED_STOP"
     res.x, res.f = x, f
     return res
+
+
+#: :func:`minimize_sqp` leaps once the last :data:`LEAP_STEPS` step ratios agree within
+#: :data:`LEAP_SPREAD` (relative) and lie below :data:`LEAP_RATIO`
+LEAP_STEPS, LEAP_SPREAD, LEAP_RATIO = 3, 0.05, 0.95
+
+
+def _leap(ratios: list) -> float | None:
+    """How far along the QP step to leap when the steps shrink geometrically, or None.
+
+    Where the cost is flatter than quadratic (a weight whose monomials are all of degree 2 or
+    more sliding to 0: the cost ~ ρ⁴ there), Newton steps shrink by a constant ratio ``r`` (2/3
+    for ρ⁴, more on a kept Hessian) and never reach the minimum; the remaining way is the
+    geometric series ``d / (1 - r)``. Measured on a 296-weight street (bench section 5,
+    2026-12-05): 358 QP steps in its 12 solves, 56 in a row at r = 0.87 in one. The leap is
+    clipped to the bounds and projected onto the groups' Σ <= 1 (a weight the step takes to its
+    bound stays there), tried once and kept only if it lowers the cost by the Armijo rule along
+    the step; the ordinary step follows otherwise."""
+    if len(ratios) < LEAP_STEPS:
+        return None
+    last = np.asarray(ratios[-LEAP_STEPS:])
+    r = float(last.mean())
+    if r >= LEAP_RATIO or np.ptp(last) > LEAP_SPREAD * r:
+        return None
+    return 1.0 / (1.0 - r)
 
 
 def _qp_step(H: np.ndarray, g: np.ndarray, C: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -165,3 +165,26 @@ def test_project_feasible():
     rho = np.array([[0.9, 1.4], [0.5, -0.2], [1.3, 0.4]])
     out = project_feasible(rho, params)
     np.testing.assert_allclose(out, [[0.7, 1.0], [0.3, 0.0], [1.0, 0.4]])
+
+
+def test_minimize_sqp_leaps_where_newton_shrinks_geometrically(monkeypatch):
+    """f = (x0 - 0.3)² + x1⁴ on [0, 1]²: Newton on x⁴ shrinks each step to 2/3 of the last (by
+    hand: x - 4x³ / 12x² = 2x / 3), and a kept Hessian slower still, so x1 crawls to 0. Within 80
+    iterations from (0.9, 0.9): with the leaps x1 < 1e-5, without them (never three ratios in a
+    row) x1 > 1e-3; x0 = 0.3 to 1e-9 in both."""
+    from framework.optim import minimize_sqp, sqp
+
+    def f(x, need):
+        return float((x[0] - 0.3) ** 2 + x[1] ** 4), np.array([2 * (x[0] - 0.3), 4 * x[1] ** 3])
+
+    def run():
+        return minimize_sqp(f, lambda x: np.diag([2.0, max(12 * x[1] ** 2, 1e-300)]), np.array([0.9, 0.9]),
+                            xtol=1e-12, ftol_rel=1e-16, max_iter=80)
+
+    leaping = run()
+    with monkeypatch.context() as m:
+        m.setattr(sqp, "LEAP_STEPS", 10 ** 6)
+        crawling = run()
+    assert leaping.x[1] < 1e-5 < 1e-3 < crawling.x[1], (leaping.x, crawling.x)
+    for res in (leaping, crawling):
+        assert abs(res.x[0] - 0.3) < 1e-9 and res.f <= f(np.array([0.9, 0.9]), True)[0]
