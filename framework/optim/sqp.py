@@ -43,7 +43,9 @@ def minimize_sqp(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndar
     fresh Hessian's step did so too: where the cost is flat or not convex (its negative curvature
     mirrored, see :func:`_qp_step`) even Newton steps shrink linearly, and a new Hessian a step
     bought nothing (measured on a 296-weight street's first pass: 75 steps of one channel, each
-    with a new Hessian, every step 0.85 of the one before).
+    with a new Hessian, every step 0.85 of the one before). Once :data:`LEAP_STEPS` full steps in a
+    row have shrunk by the same ratio ``r``, one leap of ``1 / (1 - r)`` times the step is tried
+    (:func:`_leap`).
 
     Parameters
     ----------
@@ -128,7 +130,7 @@ def minimize_sqp(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndar
             shrinking = not jumped and alpha == 1.0 and SQP_SHRINK * last_step < step < last_step
             ratios = ratios + [step / last_step] if shrinking else []
             if jumped:
-                pass                           # the leap's decrease is not the model's: H kept
+                H, linear = None, False        # far from where H was: a new one (and new ratios)
             elif alpha < 1.0 or not 0.5 * predicted <= f - fz <= 2.0 * predicted:
                 H, linear = None, False        # the model mispredicts: a new Hessian
             elif slow and fresh and step < last_step:
@@ -161,10 +163,11 @@ def _leap(ratios: list) -> float | None:
     more sliding to 0: the cost ~ ρ⁴ there), Newton steps shrink by a constant ratio ``r`` (2/3
     for ρ⁴, more on a kept Hessian) and never reach the minimum; the remaining way is the
     geometric series ``d / (1 - r)``. Measured on a 296-weight street (bench section 5,
-    2026-12-05): 358 QP steps in its 12 solves, 56 in a row at r = 0.87 in one. The leap is
+    2026-12-05): 358 QP steps in its 12 solves, 56 in a row at r = 0.87 in one; with the leaps 250,
+    the solver 69 -> 60 s, the estimates within 0.003 std of those without. The leap is
     clipped to the bounds and projected onto the groups' Σ <= 1 (a weight the step takes to its
     bound stays there), tried once and kept only if it lowers the cost by the Armijo rule along
-    the step; the ordinary step follows otherwise."""
+    the step (a fresh Hessian follows it); the ordinary step follows otherwise."""
     if len(ratios) < LEAP_STEPS:
         return None
     last = np.asarray(ratios[-LEAP_STEPS:])
