@@ -11,6 +11,8 @@ inverted Hessians (or the estimating equations' Jacobians) and says why.
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -109,9 +111,7 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
                 member = None if rows is None else sp.csr_matrix(
                     (np.ones(len(rows)), (rows, np.arange(len(rows)))), shape=(n_groups, len(rows)))
                 G = None if pose is None else pose[0][start + lo:start + hi]
-                tasks += [lambda c=c, block=block, lo=lo, hi=hi, y=y, w_pix=w_pix, own=own, member=member, G=G:
-                          _block_terms(*_score(block, (lo, hi), y, w_pix, mu, J, codes, own, c, slope=G is not None),
-                                       member, None if G is None else G[:, c])
+                tasks += [functools.partial(_chunk_terms, block, (lo, hi), y, w_pix, mu, J, codes, own, c, member, G)
                           for c in range(C)]
             # on threads: the sparse products release the GIL. Three channels on two cores leave
             # one idle a third of the time, two chunks' six tasks do not (bundled
@@ -160,6 +160,13 @@ def _row_chunks(block) -> list[tuple[int, int]]:
     cuts = np.searchsorted(count, np.arange(SCORE_CHUNK_NNZ, count[-1], SCORE_CHUNK_NNZ), side="right") - 1
     edges = np.unique(np.concatenate([[0], cuts[cuts > 0], [block.n_rows]]))
     return list(zip(edges[:-1].tolist(), edges[1:].tolist()))
+
+
+def _chunk_terms(block, rows: tuple[int, int], y, w_pix, mu, J, codes, own, c: int, member, G):
+    """One task of :func:`score_meat`: the scores of a block's ``rows`` in channel ``c``
+    (:func:`_score`) reduced by :func:`_block_terms` (``G``: the rows' pose sensitivity or None)."""
+    s, ds = _score(block, rows, y, w_pix, mu, J, codes, own, c, slope=G is not None)
+    return _block_terms(s, ds, member, None if G is None else G[:, c])
 
 
 def _block_terms(s: sp.csr_matrix, ds: sp.csr_matrix | None, member: sp.csr_matrix | None, G: np.ndarray | None
