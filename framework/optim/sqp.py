@@ -127,7 +127,7 @@ def minimize_sqp(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndar
                 break
             predicted, step = -(slope + 0.5 * float(d @ H @ d)), float(np.max(np.abs(d)))
             slow = step > SQP_SHRINK * last_step
-            shrinking = not jumped and alpha == 1.0 and SQP_SHRINK * last_step < step < last_step
+            shrinking = slow and step < last_step and alpha == 1.0 and not jumped
             ratios = ratios + [step / last_step] if shrinking else []
             if jumped:
                 H, linear = None, False        # far from where H was: a new one (and new ratios)

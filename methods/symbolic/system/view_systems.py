@@ -56,7 +56,7 @@ def summed_views(views) -> GramSystem:
     is the same bits either way (the same views' systems, added in the same order); two views'
     systems are held at once instead of one.
     """
-    from framework.threads import run_threads
+    from framework.threads import run_threads, two_at_a_time
     from methods.symbolic.system.gram import PARALLEL_CHANNEL_BYTES
     views = list(views)
     total = weighted_system(*views[0], threads=True)
@@ -65,8 +65,7 @@ def summed_views(views) -> GramSystem:
         for view in rest:
             total += weighted_system(*view, threads=True)
         return total
-    for i in range(0, len(rest), 2):
-        pair = rest[i:i + 2]
+    for pair in two_at_a_time(rest):
         parts = run_threads([lambda v=v: weighted_system(*v) for v in pair]) if len(pair) == 2 \
             else [weighted_system(*pair[0], threads=True)]
         for part in parts:

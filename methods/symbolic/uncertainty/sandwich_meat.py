@@ -16,7 +16,7 @@ import functools
 import numpy as np
 import scipy.sparse as sp
 
-from framework.threads import run_threads
+from framework.threads import run_threads, two_at_a_time
 from methods.symbolic.misfit.clusters import cr1_factor
 from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.system.view_systems import row_blocks
@@ -102,7 +102,7 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
         sums = [None] * C           # the view's cluster sums of the scores, per channel
         # a tiled view: one block in memory at a time (two where a pair of chunks spans two),
         # scored two chunks of its rows at a time, each chunk's channels a task
-        for pair in _pairs(_chunks(view, y_view, weights[0] if weights else None)):
+        for pair in two_at_a_time(_chunks(view, y_view, weights[0] if weights else None)):
             tasks = []
             for block, y_block, w_block, start, (lo, hi) in pair:
                 y, w_pix = y_block[lo:hi], None if w_block is None else w_block[lo:hi]
@@ -143,14 +143,6 @@ def _chunks(view, y_view, weights):
         for rows in _row_chunks(block):
             yield block, y_block, w_block, start, rows
         start += block.n_rows
-
-
-def _pairs(items):
-    """``items`` two at a time (the last alone when they are odd in number)."""
-    items = iter(items)
-    for first in items:
-        second = next(items, None)
-        yield (first,) if second is None else (first, second)
 
 
 def _row_chunks(block) -> list[tuple[int, int]]:
