@@ -27,7 +27,10 @@ Estimated profile (``vignetting: estimate``)
 
     Each pixel ``Γ_p μ`` becomes ``c0_p Γ_p μ + Σ_i c_ip h_i Γ_p μ``: every monomial once as it
     was (times ``c0_p``) and once per ``i`` with the digit of ``h_i`` appended (times
-    ``c_ip``), so the degree grows by one. The ``h`` parameters are numbered after ρ and the
+    ``c_ip``), so the degree grows by one. A pixel of ``k`` monomials then has ``4k``; the Gram
+    matrix is not formed from them but from seven products ``Γᵀ diag(w r^{2j}) Γ`` of the
+    coefficients before the expansion (the terms' products are polynomials of degree 6 in
+    ``r²``: :func:`term_products`, :mod:`methods.symbolic.system.row_factors`). The ``h`` parameters are numbered after ρ and the
     exposure gains, so an appended digit (after a gain digit, when ``exposure: per_view``) keeps
     the multiset codes sorted (:mod:`methods.symbolic.system.basis`). The profile is solved jointly
     with ρ, exactly, and its std comes from the same sandwich (``std(a_i) = 2 A std(h_i)``).
@@ -54,7 +57,8 @@ import numpy as np
 
 from framework.scene.lens import falloff, pixel_radius
 from methods.symbolic.system.pixel_matrices import expanded_columns
-from methods.symbolic.trace.monomial_codes import code_digits, encode_digits
+from methods.symbolic.system.row_factors import RowFactors
+from methods.symbolic.trace.monomial_codes import appended_codes
 
 #: ``segment_name`` of a camera's profile parameters: this prefix, then the camera's key
 VIGNETTING_PREFIX = "vignetting:"
@@ -74,7 +78,18 @@ def estimate_terms(r: np.ndarray, *, bound: float = PROFILE_BOUND) -> list[np.nd
     return [1.0 - bound * sum(powers)] + [2.0 * bound * p for p in powers]
 
 
-def with_factors(coeffs, terms, *, n_params: int, max_degree: int):
+def term_products(r: np.ndarray, *, bound: float = PROFILE_BOUND) -> tuple[np.ndarray, np.ndarray]:
+    """The products of the :func:`estimate_terms` as combinations of the powers ``r^{2k}``,
+    ``k = 0..6`` (:func:`~methods.symbolic.survey.vignetting.with_factors`' ``products``):
+    ``(basis (7, n), alpha (4, 4, 7))``. Each term is a polynomial of degree 3 in ``q = r²``
+    (``c0 = 1 - bound (q + q² + q³)``, ``c_i = 2 bound q^i``), so each product is one of degree 6."""
+    q = np.asarray(r, float).ravel() ** 2
+    polys = [np.array([1.0, -bound, -bound, -bound])] + [2.0 * bound * np.eye(4)[i] for i in (1, 2, 3)]
+    alpha = np.array([[np.convolve(p, u) for u in polys] for p in polys])
+    return np.stack([q ** k for k in range(alpha.shape[2])]), alpha
+
+
+def with_factors(coeffs, terms, *, n_params: int, max_degree: int, products: tuple | None = None):
     """``Σ_t diag(s_t) Γ`` with parameter ``j_t``'s digit appended to every monomial of term ``t``.
 
     Parameters
@@ -90,6 +105,11 @@ def with_factors(coeffs, terms, *, n_params: int, max_degree: int):
     n_params, max_degree : int
         The base and the number of digits of the codes (the result's codes have the same base and
         up to ``max_degree + 1`` digits).
+    products : tuple, optional
+        ``(basis, alpha)``, ``(K, rows)`` and ``(T, T, K)``: the terms' products as
+        ``s_t s_u = Σ_k alpha[t, u, k] basis[k]`` (checked). Given, the result keeps the
+        coefficients before the expansion (:class:`~methods.symbolic.system.row_factors.RowFactors`)
+        and its Gram matrix is formed from them (:func:`~methods.symbolic.system.row_factors.factored_gram`).
 
     Returns
     -------
@@ -99,30 +119,25 @@ def with_factors(coeffs, terms, *, n_params: int, max_degree: int):
     """
     from methods.symbolic.system.coefficients import TiledCoefficients, ViewCoefficients
     if isinstance(coeffs, TiledCoefficients):
-        blocks = [with_factors(b, [(s[start:start + b.n_rows], j) for s, j in terms], n_params=n_params,
-                               max_degree=max_degree) for start, b in coeffs.blocks()]
+        rows = lambda start, b: slice(start, start + b.n_rows)  # noqa: E731
+        blocks = [with_factors(b, [(s[rows(start, b)], j) for s, j in terms], n_params=n_params,
+                               max_degree=max_degree,
+                               products=None if products is None else (products[0][:, rows(start, b)], products[1]))
+                  for start, b in coeffs.blocks()]
         return TiledCoefficients(coeffs.starts, blocks, coeffs.n_rows)
-    digits = code_digits(np.asarray(coeffs.codes, np.int64), n_params, max_degree)
-    degree = (digits > 0).sum(axis=1)
-    codes = []
-    for _, index in terms:
-        wide = np.zeros((len(digits), max_degree + 1), dtype=np.int64)
-        wide[:, :max_degree] = digits
-        if index is not None:
-            if len(digits) and index + 1 <= digits.max():
-                raise ValueError(f"parameter {index} would not be the last digit of every monomial")
-            wide[np.arange(len(wide)), degree] = index + 1
-        codes.append(encode_digits(wide, n_params))
-    codes = np.concatenate(codes)
+    codes = np.concatenate([appended_codes(coeffs.codes, index, n_params, max_degree) for _, index in terms])
     order = np.argsort(codes, kind="stable")
     if len(np.unique(codes)) != len(codes):
         raise ValueError("with_factors: two terms give the same monomial (repeated parameter index)")
     position = np.empty(len(codes), np.int64)
     position[order] = np.arange(len(codes))                 # term t's column j goes to position[t N + j]
-    columns = position.reshape(len(terms), len(digits))
+    columns = position.reshape(len(terms), len(coeffs.codes))
     scales = np.stack([np.asarray(scale, np.float64) for scale, _ in terms])
     stacked = lambda mats: None if mats is None else [expanded_columns(m, scales, columns, len(codes)) for m in mats]  # noqa: E731
-    return ViewCoefficients(stacked(coeffs.a), stacked(coeffs.b), float(coeffs.split), codes[order])
+    factors = None if products is None else RowFactors.of(
+        coeffs.a, coeffs.b, coeffs.codes, tuple(index for _, index in terms), n_params, max_degree, scales, products)
+    return ViewCoefficients(stacked(coeffs.a), stacked(coeffs.b), float(coeffs.split), codes[order],
+                            factors=factors)
 
 
 def lens_key(camera) -> str:
@@ -198,7 +213,8 @@ class Vignetting:
         k = next(i for i, (key, _, _) in enumerate(self.lenses) if key == lens_key(camera))
         c0, *ci = estimate_terms(r)
         terms = [(c0, None)] + [(c, self.first + 3 * k + i) for i, c in enumerate(ci)]
-        return with_factors(coeffs, terms, n_params=n_params, max_degree=max_degree)
+        # the products of the terms span seven powers of r²: the Gram matrix is formed from them
+        return with_factors(coeffs, terms, n_params=n_params, max_degree=max_degree, products=term_products(r))
 
     def report(self, estimate: np.ndarray, std: np.ndarray, correlation: dict | None = None) -> list[dict]:
         """results.json ``vignetting`` from the solve's ``h`` rows (``estimate``, ``std``: the

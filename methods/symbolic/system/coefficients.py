@@ -31,6 +31,10 @@ class ViewCoefficients:
     and of ``b``'s samples (``split`` 1/2); the four quarters ``a1``, ``2a - a1``, ``b1``,
     ``2b - b1`` are independent, and :meth:`halved` pairs them into the coefficients of a pass
     with half the samples.
+
+    ``factors``: how ``a`` and ``b`` were expanded by per-pixel factors
+    (:class:`~methods.symbolic.system.row_factors.RowFactors`, a lens to estimate), from which their
+    Gram matrix is formed at a fraction of the cost; None otherwise.
     """
 
     a: list
@@ -39,6 +43,7 @@ class ViewCoefficients:
     codes: np.ndarray | None = None
     a1: list | None = None
     b1: list | None = None
+    factors: object | None = None
 
     @property
     def n_rows(self) -> int:
@@ -53,6 +58,11 @@ class ViewCoefficients:
     def blocks(self):
         """``(first row, ViewCoefficients)`` of each row block: itself, from row 0."""
         yield 0, self
+
+    @property
+    def held(self) -> bool:
+        """Whether every block is in memory (not read from the cache when iterated): yes."""
+        return True
 
     def halved(self, j: int) -> ViewCoefficients:
         """The coefficients of half the samples, as a pass with half the spp keeps them: the
@@ -81,6 +91,11 @@ class TiledCoefficients:
     def blocks(self):
         for start, block in zip(self.starts, self._blocks):
             yield start, (block() if callable(block) else block)
+
+    @property
+    def held(self) -> bool:
+        """Whether every block is in memory, none read from the cache when iterated."""
+        return not any(callable(block) for block in self._blocks)
 
     def halved(self, j: int) -> TiledCoefficients:
         """:meth:`ViewCoefficients.halved` of every block, made as each block is read."""

@@ -48,17 +48,24 @@ def summed_views(views) -> GramSystem:
     """``Σ_v`` :func:`weighted_system` of the views, ``(coeffs, y, weights)`` triples, summed in
     their order, for a system formed again and again (the field path's fits).
 
-    The first view's channels are formed side by side (``threads``). When its system is small
-    (:data:`~methods.symbolic.system.gram.PARALLEL_CHANNEL_BYTES` a channel) the others are formed
-    two views at a time, each view's channels in turn: three channels on two cores leave one idle
-    a third of the time, two views do not (bundled urban_canyon_survey, 2026-12-05: 11.0-11.5 s a
-    fit's systems one view at a time, 8.2-8.3 s two at a time). The sum
-    is the same bits either way (the same views' systems, added in the same order); two views'
-    systems are held at once instead of one.
+    When every block keeps the coefficients before a lens's expansion (its ``factors``) and the
+    summed matrices are small (:data:`DENSE_SYSTEM_BYTES`), they are formed from those and summed
+    dense (:func:`dense_sum`); otherwise as sparse systems: the first
+    view's channels side by side (``threads``), the others two views at a time, each view's
+    channels in turn (three channels on two cores leave one idle a third of the time, two views
+    do not; bundled urban_canyon_survey, 2026-12-05: 11.0-11.5 s a fit's systems one view at a
+    time, 8.2-8.3 s two at a time), while the first view's system is small
+    (:data:`~methods.symbolic.system.gram.PARALLEL_CHANNEL_BYTES` a channel). Either way the sum
+    does not depend on the machine: the same views' parts, added in the same order.
     """
     from framework.threads import run_threads, two_at_a_time
     from methods.symbolic.system.gram import PARALLEL_CHANNEL_BYTES
     views = list(views)
+    parts = _factored_parts(views)
+    if parts is not None:
+        codes = np.unique(np.concatenate([block.codes for block, _, _ in parts]))
+        if dense_bytes(parts, len(codes), parts[0][1].shape[1]) <= DENSE_SYSTEM_BYTES:
+            return dense_sum(parts, codes)
     total = weighted_system(*views[0], threads=True)
     rest = views[1:]
     if total.nbytes() > PARALLEL_CHANNEL_BYTES * total.n_channels:
@@ -71,6 +78,81 @@ def summed_views(views) -> GramSystem:
         for part in parts:
             total += part
     return total
+
+
+#: the field path sums its views' systems from a lens's factors as dense matrices when they take
+#: at most this many bytes (``8 C N²`` for ``N`` monomials, and the lenses' products ``8 C K U²``:
+#: bundled urban_canyon_survey, 2,508 monomials, 218 MB), and as sparse ones above. Coefficients
+#: without factors are summed sparse: scattered into a dense sum, their products took 10.8 s a fit
+#: against 8.5 s (the same survey with the factors dropped, 2026-12-05)
+DENSE_SYSTEM_BYTES = 256 * 2**20
+
+
+def _factored_parts(views) -> list | None:
+    """The row blocks ``(block, y, w)`` of the views when every block is held and has its
+    ``factors``, else None (a block waiting in the cache is not read twice)."""
+    if not all(getattr(coeffs, "held", True) for coeffs, _, _ in views):
+        return None
+    parts = [part for view in views for part in row_blocks(*view)]
+    return parts if all(block.factors is not None for block, _, _ in parts) else None
+
+
+def _lenses(parts) -> dict:
+    """Lens key -> ``(a block's factors, the sorted union of the base codes of the blocks with
+    that lens)`` (:class:`~methods.symbolic.system.row_factors.RowFactors`)."""
+    seen: dict = {}
+    for block, _, _ in parts:
+        f = block.factors
+        if f is not None:
+            first, codes = seen.get(f.lens, (f, []))
+            seen[f.lens] = (first, codes + [f.codes])
+    return {key: (f, np.unique(np.concatenate(codes))) for key, (f, codes) in seen.items()}
+
+
+def dense_bytes(parts, n_monomials: int, n_channels: int) -> int:
+    """Bytes :func:`dense_sum` holds: the ``(N, N)`` matrices and each lens's products, per channel."""
+    lens = sum(f.alpha.shape[2] * len(u) ** 2 for f, u in _lenses(parts).values())
+    return 8 * n_channels * (n_monomials ** 2 + lens)
+
+
+def dense_sum(parts, codes: np.ndarray) -> GramSystem:
+    """:func:`summed_views` as dense matrices over ``codes`` (the union of the blocks' codes) from
+    the row blocks ``parts`` (``(block, y, w)``, :func:`row_blocks`), each with its ``factors``:
+    a block's products ``H_k`` are added to its lens's, expanded once at the end
+    (:mod:`~methods.symbolic.system.row_factors`), and the triangles cut once. Each channel on a
+    thread of its own adds the blocks in their order, so the sum is the same whatever the thread
+    count (bundled urban_canyon_survey, 2026-12-05: a fit's systems 4.4 s against 8.5 s sparse
+    from the expanded coefficients)."""
+    from framework.threads import run_threads
+    from methods.symbolic.system.row_factors import expanded_gram, factored_products
+    lenses = _lenses(parts)
+    C, N = len(parts[0][0].a), len(codes)
+    G, b = np.zeros((C, N, N)), np.zeros((C, N))
+
+    def channel(c: int) -> None:
+        H = {key: np.zeros((f.alpha.shape[2] * len(u), len(u))) for key, (f, u) in lenses.items()}
+        for block, y, w in parts:
+            at = np.searchsorted(codes, block.codes)
+            b[c, at] += _block_b(block, c, y[:, c], w)
+            f = block.factors          # a sparse sum into a dense one: a copy, cheaper than a scatter
+            H[f.lens] = np.asarray(factored_products(f, c, w, lenses[f.lens][1]) + H[f.lens])
+        for key, (f, u) in lenses.items():
+            pos = np.searchsorted(codes, f.expanded_codes(u))
+            for t, v, part in expanded_gram(H.pop(key).reshape(-1, len(u), len(u)), f.alpha):
+                G[c][np.ix_(pos[t], pos[v])] += part
+                if v != t:
+                    G[c][np.ix_(pos[v], pos[t])] += part.T
+    run_threads([lambda c=c: channel(c) for c in range(C)])
+    yy = sum((np.square(y) * (1.0 if w is None else w[:, None])).sum(axis=0) for _, y, w in parts)
+    return GramSystem.from_dense(G, b, yy, sum(block.n_rows for block, _, _ in parts), codes)
+
+
+def _block_b(block, c: int, y: np.ndarray, weights: np.ndarray | None) -> np.ndarray:
+    """``b`` of channel ``c`` of one block: ``ΓᵀWy`` with Γ the halves' mean (with halves)."""
+    wy = y if weights is None else weights * y
+    if block.b is None:
+        return block.a[c].T @ wy
+    return 0.5 * (block.a[c].T @ wy + block.b[c].T @ wy)
 
 
 def summed(total: GramSystem | None, part: GramSystem) -> GramSystem:
@@ -105,7 +187,7 @@ def owned_systems(coeffs, y: np.ndarray, weights: np.ndarray | None, owned: np.n
         start += block.n_rows
         for k in np.flatnonzero(rows.any(axis=0)):
             idx = np.flatnonzero(rows[:, k])          # the owned rows only: K systems cost one
-            rows_k = dataclasses.replace(block, a=[m[idx] for m in block.a],
+            rows_k = dataclasses.replace(block, a=[m[idx] for m in block.a], factors=None,
                                          b=None if block.b is None else [m[idx] for m in block.b])
             systems[k] = summed(systems[k], _block_system(rows_k, y_rows[idx], None if w_rows is None else w_rows[idx]))
     return systems

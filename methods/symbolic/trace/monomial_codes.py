@@ -114,6 +114,22 @@ def encode_digits(digits: np.ndarray, D: int) -> np.ndarray:
     return (np.asarray(digits, dtype=np.int64) * (D + 1) ** np.arange(digits.shape[1], dtype=np.int64)).sum(axis=1)
 
 
+def appended_codes(codes: np.ndarray, index: int | None, n_params: int, max_degree: int) -> np.ndarray:
+    """The codes of the monomials ``codes`` (``max_degree`` digits of base ``n_params + 1``) each
+    times parameter ``index`` (its digit appended after the used ones: ``index`` must exceed every
+    parameter of the codes for the digits to stay sorted); ``codes`` for ``index`` None."""
+    codes = np.asarray(codes, np.int64)
+    if index is None:
+        return codes
+    digits = code_digits(codes, n_params, max_degree)
+    if len(digits) and index + 1 <= digits.max():
+        raise ValueError(f"parameter {index} would not be the last digit of every monomial")
+    wide = np.zeros((len(digits), max_degree + 1), dtype=np.int64)
+    wide[:, :max_degree] = digits
+    wide[np.arange(len(wide)), (digits > 0).sum(axis=1)] = index + 1
+    return encode_digits(wide, n_params)
+
+
 def all_codes(n_params: int, max_degree: int) -> np.ndarray:
     """Sorted codes of all ``C(D + N_max, N_max)`` monomials of degree ``<= N_max``."""
     D, N = int(n_params), int(max_degree)
