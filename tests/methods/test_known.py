@@ -69,6 +69,33 @@ def test_substitution_by_hand_two_parameters():
         np.testing.assert_allclose(reduced.cost(free_mu), system.cost(full_mu), rtol=1e-12)
 
 
+def test_mapped_view_lifts_instead_of_mapping_its_blocks():
+    """A view mapped to the free monomials is predicted and scored through its own coefficients
+    with ``μ`` and ``J`` lifted (``(A M) x = A (M x)``): the same pixel values and sandwich meat,
+    with and without clusters, as coefficients mapped block by block (materialised), to 1e-12
+    relative (only the order of the products differs); a tiled view of two blocks."""
+    from methods.symbolic.system.coefficients import TiledCoefficients, predicted
+    from methods.symbolic.uncertainty.sandwich_meat import score_meat
+    rng = np.random.default_rng(3)
+    basis, A, B, y = _random_polynomials(rng, 3, 2, 9, 2)
+    values = np.array([[np.nan, np.nan], [0.4, 0.6], [np.nan, np.nan]])
+    sub = Substitution.build(basis.codes, 3, 2, values, np.array([[1.0, 1.0], [1.0, 1.0], [0.5, 0.3]]))
+    view = TiledCoefficients([0, 4], [ViewCoefficients([m[:4] for m in A], [m[:4] for m in B], 0.5, basis.codes),
+                                      ViewCoefficients([m[4:] for m in A], [m[4:] for m in B], 0.5, basis.codes)], 9)
+    lifted = sub.view(view)
+    materialised = TiledCoefficients([0, 4], [block for _, block in lifted.blocks()], 9)
+    free = sub.basis()
+    rho = rng.uniform(0.2, 0.8, (free.n_params, 2))
+    mu = np.stack([free.evaluate(rho[:, c]) for c in range(2)])
+    np.testing.assert_allclose(predicted(lifted, mu, free.codes), predicted(materialised, mu, free.codes),
+                               rtol=1e-12, atol=1e-12)
+    columns = np.arange(free.size)
+    for clusters in (None, [np.array([0, 0, 1, 1, 1, 2, 2, 3, 3])]):
+        meat = score_meat(free, rho, [(lifted, y)], columns, free.codes, clusters=clusters)
+        expected = score_meat(free, rho, [(materialised, y)], columns, free.codes, clusters=clusters)
+        np.testing.assert_allclose(meat, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+
+
 def test_substitution_renumbers_and_scales_the_free_weights():
     """Three parameters, N_max = 3, the middle one known: the free ones are renumbered (0, 2 ->
     0, 1), and a free weight solved as z = ρ / s (s: what its segment's known kernels leave)

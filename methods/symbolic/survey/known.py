@@ -249,7 +249,15 @@ class Substitution:
 
 
 class _MappedView:
-    """:meth:`Substitution.view`: ``n_rows`` and ``blocks()`` as the fit's consumers iterate them."""
+    """:meth:`Substitution.view`: ``n_rows`` and ``blocks()`` as the fit's consumers iterate them.
+
+    A consumer that only multiplies the coefficients by something over the free monomials (the
+    values ``μ`` of a prediction, the Jacobian ``J`` of a score) can skip the mapping of every
+    block: ``(A M_c) x = A (M_c x)``, with :meth:`lift` giving ``M_c x`` over the view's own
+    monomials :attr:`old_codes` and :attr:`coeffs` its own coefficients (bundled
+    urban_canyon_survey, 2026-12-05: the blocks' mapping took 7.8 s of a 102 s solve, for the
+    clusters' residuals and the sandwich's scores).
+    """
 
     def __init__(self, coeffs, substitution: Substitution):
         self.coeffs, self.substitution = coeffs, substitution
@@ -258,3 +266,13 @@ class _MappedView:
     def blocks(self):
         for start, block in self.coeffs.blocks():
             yield start, self.substitution.block(block)
+
+    @property
+    def old_codes(self) -> np.ndarray:
+        """The monomials of :attr:`coeffs` (those of the substitution's ``old_codes``)."""
+        return self.substitution.old_codes
+
+    def lift(self, c: int, x, codes: np.ndarray):
+        """``M_c x`` over :attr:`old_codes` for ``x`` (an array or a sparse matrix, rows over the
+        sorted free monomials ``codes``, which hold the substitution's ``codes``)."""
+        return self.substitution.matrix(c) @ x[np.searchsorted(codes, self.substitution.codes)]

@@ -171,7 +171,13 @@ class PassResult:
 def predicted(coeffs, mu: np.ndarray, codes: np.ndarray) -> np.ndarray:
     """``(n, C)`` pixel values of a view's coefficients (:class:`ViewCoefficients` or
     :class:`TiledCoefficients`, Γ over each block's ``codes``) at monomials ``mu``
-    (C, N) over the sorted ``codes``, a superset of the view's."""
+    (C, N) over the sorted ``codes``, a superset of the view's. Coefficients mapped to fewer
+    monomials that can ``lift`` ``μ`` to their own (a known weight substituted,
+    :class:`~methods.symbolic.survey.known.Substitution`) are evaluated through their own
+    coefficients, not mapped block by block."""
+    if hasattr(coeffs, "lift"):
+        mu = np.stack([coeffs.lift(c, mu[c], codes) for c in range(len(mu))])
+        return predicted(coeffs.coeffs, mu, coeffs.old_codes)
     out = []
     for _, block in coeffs.blocks():
         at = np.searchsorted(codes, block.codes)

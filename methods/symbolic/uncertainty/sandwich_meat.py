@@ -93,6 +93,7 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
     pose_meat = np.zeros((C, D, D))
     poses = None if poses is None else iter(poses)
     for v, (view, y_view, *weights) in enumerate(views):
+        view, mu_v, J_v, codes_v = _own_monomials(view, mu, J, codes)
         pose = None if poses is None else next(poses)
         T = None if pose is None else np.zeros((C, D, pose[0].shape[2]))
         n += view.n_rows
@@ -111,8 +112,8 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
                 member = None if rows is None else sp.csr_matrix(
                     (np.ones(len(rows)), (rows, np.arange(len(rows)))), shape=(n_groups, len(rows)))
                 G = None if pose is None else pose[0][start + lo:start + hi]
-                tasks += [functools.partial(_chunk_terms, block, (lo, hi), y, w_pix, mu, J, codes, own, c, member, G)
-                          for c in range(C)]
+                tasks += [functools.partial(_chunk_terms, block, (lo, hi), y, w_pix, mu_v, J_v, codes_v, own, c,
+                                            member, G) for c in range(C)]
             # on threads: the sparse products release the GIL. Three channels on two cores leave
             # one idle a third of the time, two chunks' six tasks do not (bundled
             # urban_canyon_survey's first pass, 2026-12-05: its meat 3.3 s a chunk at a time, 2.8 s
@@ -133,6 +134,17 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
                 pose_meat[c] += T[c] @ pose[1] @ T[c].T
     meat = outer - np.einsum("ci,cj->cij", total, total) / max(groups, 1)
     return (meat if clusters is None else cr1_factor(groups, n, D) * meat) + pose_meat
+
+
+def _own_monomials(view, mu: np.ndarray, J: list, codes: np.ndarray) -> tuple:
+    """``(coefficients, μ, J, codes)`` to score ``view`` with: for a view mapped to fewer
+    monomials that can ``lift`` (a known weight substituted,
+    :class:`~methods.symbolic.survey.known.Substitution`), its own coefficients with ``μ`` and
+    ``J`` lifted to its own monomials (``(A M) J = A (M J)``: no block is mapped); else as given."""
+    if not hasattr(view, "lift"):
+        return view, mu, J, codes
+    lifted_mu = np.stack([view.lift(c, mu[c], codes) for c in range(len(mu))])
+    return view.coeffs, lifted_mu, [sp.csr_matrix(view.lift(c, J[c], codes)) for c in range(len(J))], view.old_codes
 
 
 def _chunks(view, y_view, weights):
