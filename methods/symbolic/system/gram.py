@@ -87,8 +87,8 @@ class GramSystem:
     @classmethod
     def from_dense(cls, G: np.ndarray, b: np.ndarray, yy: np.ndarray, n_pixels: int, codes) -> "GramSystem":
         """A system from ``(C, N, N)`` dense symmetric matrices ``G`` (their upper triangles are
-        kept, exact zeros left out), ``b`` ``(C, N)``, ``yy`` ``(C,)``."""
-        return cls([sp.csr_matrix(np.triu(g)) for g in G], np.asarray(b, np.float64),
+        kept, exact zeros left out, the channels on threads), ``b`` ``(C, N)``, ``yy`` ``(C,)``."""
+        return cls(run_threads([lambda g=g: sp.csr_matrix(np.triu(g)) for g in G]), np.asarray(b, np.float64),
                    np.asarray(yy, np.float64), int(n_pixels), np.asarray(codes, np.int64))
 
     @property

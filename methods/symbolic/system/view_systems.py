@@ -119,32 +119,53 @@ def dense_sum(parts, codes: np.ndarray) -> GramSystem:
     """:func:`summed_views` as dense matrices over ``codes`` (the union of the blocks' codes) from
     the row blocks ``parts`` (``(block, y, w)``, :func:`row_blocks`), each with its ``factors``:
     a block's products ``H_k`` are added to its lens's, expanded once at the end
-    (:mod:`~methods.symbolic.system.row_factors`), and the triangles cut once. Each channel on a
-    thread of its own adds the blocks in their order, so the sum is the same whatever the thread
-    count (bundled urban_canyon_survey, 2026-12-05: a fit's systems 4.4 s against 8.5 s sparse
-    from the expanded coefficients)."""
+    (:mod:`~methods.symbolic.system.row_factors`), and the triangles cut once.
+
+    The work is six tasks on threads, each channel's blocks in two halves (:data:`DENSE_SPLITS`),
+    each half summed in its blocks' order and the halves added in theirs: the sum is the same
+    whatever the thread count, and two cores stay busy, where three channels side by side left
+    one idle a third of the time; the expansions and the triangles are a channel a task
+    (bundled urban_canyon_survey, 2026-12-05: a fit's systems 4.4 s a channel a task, 3.5-3.8 s
+    so, 8.3-8.6 s sparse from the expanded coefficients).
+    """
     from framework.threads import run_threads
     from methods.symbolic.system.row_factors import expanded_gram, factored_products
     lenses = _lenses(parts)
     C, N = len(parts[0][0].a), len(codes)
-    G, b = np.zeros((C, N, N)), np.zeros((C, N))
+    cuts = np.linspace(0, len(parts), DENSE_SPLITS + 1).round().astype(int)
 
-    def channel(c: int) -> None:
+    def products(c: int, lo: int, hi: int) -> tuple[dict, np.ndarray]:
+        """The lenses' summed ``H`` and ``b`` of channel ``c`` over the blocks ``lo:hi``."""
         H = {key: np.zeros((f.alpha.shape[2] * len(u), len(u))) for key, (f, u) in lenses.items()}
-        for block, y, w in parts:
-            at = np.searchsorted(codes, block.codes)
-            b[c, at] += _block_b(block, c, y[:, c], w)
+        b = np.zeros(N)
+        for block, y, w in parts[lo:hi]:
+            b[np.searchsorted(codes, block.codes)] += _block_b(block, c, y[:, c], w)
             f = block.factors          # a sparse sum into a dense one: a copy, cheaper than a scatter
             H[f.lens] = np.asarray(factored_products(f, c, w, lenses[f.lens][1]) + H[f.lens])
+        return H, b
+
+    halves = run_threads([lambda c=c, lo=lo, hi=hi: products(c, lo, hi)
+                          for c in range(C) for lo, hi in zip(cuts[:-1], cuts[1:])])
+    G, b = np.zeros((C, N, N)), np.zeros((C, N))
+
+    def expand(c: int) -> None:
+        """Channel ``c``'s halves added, each lens's ``H`` expanded into ``G_c``."""
+        mine = halves[c * DENSE_SPLITS:(c + 1) * DENSE_SPLITS]
+        b[c] = sum(h[1] for h in mine)
         for key, (f, u) in lenses.items():
+            H = sum(h[0].pop(key) for h in mine).reshape(-1, len(u), len(u))
             pos = np.searchsorted(codes, f.expanded_codes(u))
-            for t, v, part in expanded_gram(H.pop(key).reshape(-1, len(u), len(u)), f.alpha):
+            for t, v, part in expanded_gram(H, f.alpha):
                 G[c][np.ix_(pos[t], pos[v])] += part
                 if v != t:
                     G[c][np.ix_(pos[v], pos[t])] += part.T
-    run_threads([lambda c=c: channel(c) for c in range(C)])
+    run_threads([lambda c=c: expand(c) for c in range(C)])
     yy = sum((np.square(y) * (1.0 if w is None else w[:, None])).sum(axis=0) for _, y, w in parts)
     return GramSystem.from_dense(G, b, yy, sum(block.n_rows for block, _, _ in parts), codes)
+
+
+#: :func:`dense_sum` splits each channel's blocks into this many consecutive parts, each a task
+DENSE_SPLITS = 2
 
 
 def _block_b(block, c: int, y: np.ndarray, weights: np.ndarray | None) -> np.ndarray:
