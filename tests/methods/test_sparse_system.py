@@ -93,12 +93,14 @@ def test_sparse_and_dense_give_the_same_cost_gradient_and_minimiser():
         np.testing.assert_allclose(sol.estimate[:, c], ref, atol=1e-5)
 
 
-@pytest.mark.parametrize("bound", [0, 10**6])
-def test_gauss_newton_from_the_triangle_or_dense_is_jt_g_j(monkeypatch, bound):
-    """The Gauss-Newton matrix ``2 Jᵀ G J`` from G's sparse triangle (above the dense bound) and
-    from its dense copy (below): both the dense numpy reference ``2 Jᵀ (ΓᵀΓ) J`` to 1e-12 relative."""
+@pytest.mark.parametrize("bound, per_entry", [(0, 10**6), (10**6, 0), (10**6, 10**6)])
+def test_gauss_newton_from_the_triangle_or_dense_is_jt_g_j(monkeypatch, bound, per_entry):
+    """The Gauss-Newton matrix ``2 Jᵀ G J`` from G's sparse triangle (above the dense bound on the
+    monomials, or too sparse for it) and from its dense copy (otherwise): both the dense numpy
+    reference ``2 Jᵀ (ΓᵀΓ) J`` to 1e-12 relative."""
     from methods.symbolic.system import cost as cost_module
     monkeypatch.setattr(cost_module, "DENSE_HESSIAN_MONOMIALS", bound)
+    monkeypatch.setattr(cost_module, "DENSE_HESSIAN_FLOPS_PER_ENTRY", per_entry)
     rng = np.random.default_rng(5)
     basis, _ = _subset(4, 2, np.arange(1, 12))
     system, gamma, _ = _system(rng, basis)
@@ -108,7 +110,7 @@ def test_gauss_newton_from_the_triangle_or_dense_is_jt_g_j(monkeypatch, bound):
         expected = 2.0 * J.T @ (gamma[:, :, c].T @ gamma[:, :, c]) @ J
         cost = ChannelCost(system, basis, c)
         np.testing.assert_allclose(cost.gauss_newton(x), expected, rtol=0, atol=1e-12 * np.abs(expected).max())
-        assert (cost._dense is not None) == (bound > 0)
+        assert (cost._dense is not None) == (bound > 0 and per_entry > 0)
 
 
 def test_systems_over_different_codes_add_by_merging():

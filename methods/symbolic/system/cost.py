@@ -17,11 +17,16 @@ from methods.symbolic.system.gram import GramSystem
 from methods.symbolic.system.upper_triangle import principal, sandwich, symmetric_dot
 
 
-#: a channel's cost with at most this many used monomials forms its Gauss-Newton matrix
-#: ``Jᵀ G J`` from a dense copy of ``G`` (``8 N²`` bytes, 72 MB at the bound), one BLAS product:
-#: bundled urban_canyon_survey (2,568 monomials, 18 parameters, 2026-12-05) 6.3 ms a Hessian
-#: against 21 ms from the sparse triangle, over about 650 Hessians a run
+#: a channel's cost with at most this many used monomials may form its Gauss-Newton matrix
+#: ``Jᵀ G J`` from a dense copy of ``G`` (``8 N²`` bytes, 72 MB at the bound), one BLAS product
 DENSE_HESSIAN_MONOMIALS = 3000
+#: ... when that product's ``N² D`` multiply-adds are at most this many per stored entry of G's
+#: triangle (what the sparse product's work follows). Measured 2026-12-05, 2 cores: bundled
+#: urban_canyon_survey (N = 2,568, D = 18, 36 per entry) 6.3 ms a Hessian dense against 21 ms
+#: sparse, about 650 Hessians a run: 0.053 ns a multiply-add against 6.4 ns an entry, even at
+#: about 120; urban_canyon_field at 100 px (N about 2,100-2,200, D = 20, 353 per entry) its
+#: solver stage 12.3 s dense against 10.3 s sparse
+DENSE_HESSIAN_FLOPS_PER_ENTRY = 120
 
 
 class ChannelCost:
@@ -29,8 +34,9 @@ class ChannelCost:
 
     Only the monomials some pixel depends on (:meth:`GramSystem.used_monomials`) enter the
     products, and ``G_c`` is sparse (its upper triangle stored): an evaluation costs O(nnz(G_c)).
-    The Gauss-Newton matrix is formed from a dense copy of ``G_c`` when it has at most
-    :data:`DENSE_HESSIAN_MONOMIALS` used monomials (made at the first Hessian).
+    The Gauss-Newton matrix is formed from a dense copy of ``G_c`` (made at the first Hessian)
+    when it has at most :data:`DENSE_HESSIAN_MONOMIALS` used monomials and is full enough for the
+    dense product to be the cheaper (:data:`DENSE_HESSIAN_FLOPS_PER_ENTRY`).
     """
 
     def __init__(self, system: GramSystem, basis: MonomialBasis, c: int, used: np.ndarray | None = None):
@@ -62,13 +68,19 @@ class ChannelCost:
         """``(D, D)`` Gauss-Newton part ``2 Jᵀ G_c J`` of the Hessian (PSD when ``G_c`` is), with
         the sparse Jacobian, from G's triangle (:func:`~methods.symbolic.system.upper_triangle.sandwich`)."""
         J = self.basis.jacobian_sparse(x)[self.used]
-        if len(self.used) > DENSE_HESSIAN_MONOMIALS:
+        if not self._dense_hessian():
             return 2.0 * sandwich(self.G, J, self.diagonal).toarray()
         if self._dense is None:
             self._dense = (self.G + self.G.T).toarray()
             self._dense[np.diag_indices_from(self._dense)] = self.diagonal
         J = J.toarray()
         return 2.0 * J.T @ (self._dense @ J)
+
+    def _dense_hessian(self) -> bool:
+        """Whether the Gauss-Newton matrix is formed from a dense copy of G (class docstring)."""
+        N = len(self.used)
+        return N <= DENSE_HESSIAN_MONOMIALS and \
+            N * N * self.basis.n_params <= DENSE_HESSIAN_FLOPS_PER_ENTRY * max(self.G.nnz, 1)
 
     def _residual_curvature(self, x: np.ndarray) -> np.ndarray:
         """``(D, D)`` second-order part ``2 Σ_m (G_c μ - b_c)_m ∇²μ_m`` of the Hessian
