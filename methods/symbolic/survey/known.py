@@ -253,7 +253,7 @@ class _MappedView:
 
     A consumer that only multiplies the coefficients by something over the free monomials (the
     values ``μ`` of a prediction, the Jacobian ``J`` of a score) can skip the mapping of every
-    block: ``(A M_c) x = A (M_c x)``, with :meth:`lift` giving ``M_c x`` over the view's own
+    block: ``(A M_c) x = A (M_c x)``, with :meth:`lift` giving each ``M_c x`` over the view's own
     monomials :attr:`old_codes` and :attr:`coeffs` its own coefficients (bundled
     urban_canyon_survey, 2026-12-05: the blocks' mapping took 7.8 s of a 102 s solve, for the
     clusters' residuals and the sandwich's scores).
@@ -272,7 +272,9 @@ class _MappedView:
         """The monomials of :attr:`coeffs` (those of the substitution's ``old_codes``)."""
         return self.substitution.old_codes
 
-    def lift(self, c: int, x, codes: np.ndarray):
-        """``M_c x`` over :attr:`old_codes` for ``x`` (an array or a sparse matrix, rows over the
-        sorted free monomials ``codes``, which hold the substitution's ``codes``)."""
-        return self.substitution.matrix(c) @ x[np.searchsorted(codes, self.substitution.codes)]
+    def lift(self, xs, codes: np.ndarray) -> list:
+        """``[M_c x_c]`` over :attr:`old_codes` for the channels' ``xs`` (arrays or sparse
+        matrices, rows over the sorted free monomials ``codes``, which hold the substitution's
+        ``codes``)."""
+        at = np.searchsorted(codes, self.substitution.codes)
+        return [self.substitution.matrix(c) @ x[at] for c, x in enumerate(xs)]

@@ -27,10 +27,11 @@ Estimated profile (``vignetting: estimate``)
 
     Each pixel ``Γ_p μ`` becomes ``c0_p Γ_p μ + Σ_i c_ip h_i Γ_p μ``: every monomial once as it
     was (times ``c0_p``) and once per ``i`` with the digit of ``h_i`` appended (times
-    ``c_ip``), so the degree grows by one. A pixel of ``k`` monomials then has ``4k``; the Gram
-    matrix is not formed from them but from seven products ``Γᵀ diag(w r^{2j}) Γ`` of the
-    coefficients before the expansion (the terms' products are polynomials of degree 6 in
-    ``r²``: :func:`term_products`, :mod:`methods.symbolic.system.row_factors`). The ``h`` parameters are numbered after ρ and the
+    ``c_ip``), so the degree grows by one. A pixel of ``k`` monomials then has ``4k``; where the
+    summed system is small the field path forms the Gram matrix not from them but from seven
+    products ``Γᵀ diag(w r^{2j}) Γ`` of the coefficients before the expansion (the terms' products
+    are polynomials of degree 6 in ``r²``: :func:`term_products`,
+    :mod:`methods.symbolic.system.row_factors`). The ``h`` parameters are numbered after ρ and the
     exposure gains, so an appended digit (after a gain digit, when ``exposure: per_view``) keeps
     the multiset codes sorted (:mod:`methods.symbolic.system.basis`). The profile is solved jointly
     with ρ, exactly, and its std comes from the same sandwich (``std(a_i) = 2 A std(h_i)``).
@@ -80,7 +81,7 @@ def estimate_terms(r: np.ndarray, *, bound: float = PROFILE_BOUND) -> list[np.nd
 
 def term_products(r: np.ndarray, *, bound: float = PROFILE_BOUND) -> tuple[np.ndarray, np.ndarray]:
     """The products of the :func:`estimate_terms` as combinations of the powers ``r^{2k}``,
-    ``k = 0..6`` (:func:`~methods.symbolic.survey.vignetting.with_factors`' ``products``):
+    ``k = 0..6`` (:func:`with_factors`' ``products``):
     ``(basis (7, n), alpha (4, 4, 7))``. Each term is a polynomial of degree 3 in ``q = r²``
     (``c0 = 1 - bound (q + q² + q³)``, ``c_i = 2 bound q^i``), so each product is one of degree 6."""
     q = np.asarray(r, float).ravel() ** 2
@@ -108,8 +109,8 @@ def with_factors(coeffs, terms, *, n_params: int, max_degree: int, products: tup
     products : tuple, optional
         ``(basis, alpha)``, ``(K, rows)`` and ``(T, T, K)``: the terms' products as
         ``s_t s_u = Σ_k alpha[t, u, k] basis[k]`` (checked). Given, the result keeps the
-        coefficients before the expansion (:class:`~methods.symbolic.system.row_factors.RowFactors`)
-        and its Gram matrix is formed from them (:func:`~methods.symbolic.system.row_factors.factored_gram`).
+        coefficients before the expansion (:class:`~methods.symbolic.system.row_factors.RowFactors`),
+        from which the field path forms its Gram matrix (:func:`~methods.symbolic.system.view_systems.dense_sum`).
 
     Returns
     -------

@@ -176,8 +176,7 @@ def predicted(coeffs, mu: np.ndarray, codes: np.ndarray) -> np.ndarray:
     :class:`~methods.symbolic.survey.known.Substitution`) are evaluated through their own
     coefficients, not mapped block by block."""
     if hasattr(coeffs, "lift"):
-        mu = np.stack([coeffs.lift(c, mu[c], codes) for c in range(len(mu))])
-        return predicted(coeffs.coeffs, mu, coeffs.old_codes)
+        return predicted(coeffs.coeffs, np.stack(coeffs.lift(mu, codes)), coeffs.old_codes)
     out = []
     for _, block in coeffs.blocks():
         at = np.searchsorted(codes, block.codes)

@@ -65,8 +65,9 @@ class ChannelCost:
         return f, 2.0 * self.basis.jacobian_t_dot(x, r)
 
     def gauss_newton(self, x: np.ndarray) -> np.ndarray:
-        """``(D, D)`` Gauss-Newton part ``2 Jᵀ G_c J`` of the Hessian (PSD when ``G_c`` is), with
-        the sparse Jacobian, from G's triangle (:func:`~methods.symbolic.system.upper_triangle.sandwich`)."""
+        """``(D, D)`` Gauss-Newton part ``2 Jᵀ G_c J`` of the Hessian (PSD when ``G_c`` is): with
+        the sparse Jacobian from G's triangle (:func:`~methods.symbolic.system.upper_triangle.sandwich`),
+        or from a dense copy of G where that is the cheaper (:meth:`_dense_hessian`)."""
         J = self.basis.jacobian_sparse(x)[self.used]
         if not self._dense_hessian():
             return 2.0 * sandwich(self.G, J, self.diagonal).toarray()

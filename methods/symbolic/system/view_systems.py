@@ -99,13 +99,13 @@ def _factored_parts(views) -> list | None:
 
 def _lenses(parts) -> dict:
     """Lens key -> ``(a block's factors, the sorted union of the base codes of the blocks with
-    that lens)`` (:class:`~methods.symbolic.system.row_factors.RowFactors`)."""
+    that lens)`` (:class:`~methods.symbolic.system.row_factors.RowFactors`), every block with its
+    ``factors`` (:func:`_factored_parts`)."""
     seen: dict = {}
     for block, _, _ in parts:
         f = block.factors
-        if f is not None:
-            first, codes = seen.get(f.lens, (f, []))
-            seen[f.lens] = (first, codes + [f.codes])
+        first, codes = seen.get(f.lens, (f, []))
+        seen[f.lens] = (first, codes + [f.codes])
     return {key: (f, np.unique(np.concatenate(codes))) for key, (f, codes) in seen.items()}
 
 
@@ -147,6 +147,8 @@ def dense_sum(parts, codes: np.ndarray) -> GramSystem:
     halves = run_threads([lambda c=c, lo=lo, hi=hi: products(c, lo, hi)
                           for c in range(C) for lo, hi in zip(cuts[:-1], cuts[1:])])
     G, b = np.zeros((C, N, N)), np.zeros((C, N))
+    # where each copy of each lens's base monomials sits in ``codes``: the same for every channel
+    positions = {key: np.searchsorted(codes, f.expanded_codes(u)) for key, (f, u) in lenses.items()}
 
     def expand(c: int) -> None:
         """Channel ``c``'s halves added, each lens's ``H`` expanded into ``G_c``."""
@@ -154,7 +156,7 @@ def dense_sum(parts, codes: np.ndarray) -> GramSystem:
         b[c] = sum(h[1] for h in mine)
         for key, (f, u) in lenses.items():
             H = sum(h[0].pop(key) for h in mine).reshape(-1, len(u), len(u))
-            pos = np.searchsorted(codes, f.expanded_codes(u))
+            pos = positions[key]
             for t, v, part in expanded_gram(H, f.alpha):
                 G[c][np.ix_(pos[t], pos[v])] += part
                 if v != t:

@@ -143,8 +143,7 @@ def _own_monomials(view, mu: np.ndarray, J: list, codes: np.ndarray) -> tuple:
     ``J`` lifted to its own monomials (``(A M) J = A (M J)``: no block is mapped); else as given."""
     if not hasattr(view, "lift"):
         return view, mu, J, codes
-    lifted_mu = np.stack([view.lift(c, mu[c], codes) for c in range(len(mu))])
-    return view.coeffs, lifted_mu, [sp.csr_matrix(view.lift(c, J[c], codes)) for c in range(len(J))], view.old_codes
+    return view.coeffs, np.stack(view.lift(mu, codes)), [sp.csr_matrix(j) for j in view.lift(J, codes)], view.old_codes
 
 
 def _chunks(view, y_view, weights):
