@@ -3,7 +3,12 @@
 import numpy as np
 import scipy.sparse as sp
 
-from methods.symbolic.system.pixel_matrices import expanded_columns, scale_columns, scale_rows
+import pickle
+
+import pytest
+
+from methods.symbolic.system.pixel_matrices import (FactoredColumns, expanded_columns, scale_columns, scale_rows,
+                                                    stored_per_row)
 
 
 def test_scale_rows_by_hand():
@@ -58,3 +63,52 @@ def test_scale_columns_by_hand():
     big = sp.random(40, 25, density=0.2, format="csr", random_state=2)
     f = np.random.default_rng(2).normal(size=25)
     assert np.array_equal(scale_columns(big, f).toarray(), (big @ sp.diags(f)).toarray())
+
+
+def _factored(seed: int = 7):
+    """A 30 x 20 matrix expanded into three copies over 60 columns, a row's copy scaled to 0."""
+    rng = np.random.default_rng(seed)
+    m = sp.random(30, 20, density=0.3, format="csr", random_state=seed)
+    scales = rng.normal(size=(3, 30))
+    scales[1, 4] = 0.0
+    columns = rng.permutation(60).reshape(3, 20)
+    return FactoredColumns(m, scales, columns, 60), expanded_columns(m, scales, columns, 60).toarray()
+
+
+@pytest.mark.parametrize("operand", ["vector", "dense", "sparse"])
+def test_factored_product_equals_the_expanded_one(operand):
+    """``E x`` from the factors equals the expanded matrix's product to rounding (1e-12 of entries
+    of order 1: a few sums of products of normal values), for a vector, a dense and a sparse ``x``."""
+    E, ref = _factored()
+    rng = np.random.default_rng(1)
+    x = {"vector": rng.normal(size=60), "dense": rng.normal(size=(60, 5)),
+         "sparse": sp.random(60, 5, density=0.3, format="csr", random_state=1)}[operand]
+    out = E @ x
+    expected = ref @ (x.toarray() if sp.issparse(x) else x)
+    assert sp.issparse(out) == sp.issparse(x)
+    np.testing.assert_allclose(out.toarray() if sp.issparse(out) else out, expected, rtol=0, atol=1e-12)
+    assert E._expanded is None                       # nothing expanded for a product
+
+
+def test_factored_transpose_and_rows():
+    """``Eᵀ v`` and a row slice's products come from the factors; ``Eᵀ`` times a matrix, an index
+    and any other attribute from the expanded matrix, made once."""
+    E, ref = _factored()
+    v = np.random.default_rng(2).normal(size=30)
+    np.testing.assert_allclose(E.T @ v, ref.T @ v, rtol=0, atol=1e-12)
+    rows = E[5:17]
+    assert isinstance(rows, FactoredColumns) and rows.shape == (12, 60)
+    np.testing.assert_allclose(rows @ np.ones(60), ref[5:17] @ np.ones(60), rtol=0, atol=1e-12)
+    assert E._expanded is None and E.shape == (30, 60)
+    assert np.array_equal(stored_per_row(E), 3 * E.m.indptr)
+    np.testing.assert_allclose((E.T @ sp.csr_matrix(np.eye(30))).toarray(), ref.T)
+    assert np.array_equal(E.toarray(), ref) and E._expanded is not None
+    assert np.array_equal(E[[0, 3]].toarray(), ref[[0, 3]])
+    assert np.array_equal(stored_per_row(E.expanded()), E.indptr)
+
+
+def test_factored_columns_pickle():
+    """A worker may receive it: it pickles with its factors, unexpanded."""
+    E, ref = _factored()
+    back = pickle.loads(pickle.dumps(E))
+    assert back._expanded is None and np.array_equal(back.toarray(), ref)

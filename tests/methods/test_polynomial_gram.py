@@ -1,5 +1,6 @@
 """GramSystem: normal equations of the p = 2 cost (paper eq. 6)."""
 import numpy as np
+import pytest
 
 from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.system.gram import GramSystem
@@ -121,3 +122,16 @@ def test_psd_projection():
     assert np.linalg.norm(G[1] - truth) < np.linalg.norm(noisy - truth)
     np.testing.assert_array_equal(p.b, s.b)
     np.testing.assert_array_equal(p.yy, s.yy)
+
+
+@pytest.mark.parametrize("negatives", [3, 37])
+def test_psd_projection_from_the_smaller_eigenspace(negatives):
+    """``_psd_projection`` equals ``V max(λ, 0) Vᵀ`` (to 1e-12 of eigenvalues of order 1) whether
+    it subtracts the few negative eigenvalues' part or sums the few positive ones'."""
+    from methods.symbolic.system.gram import _psd_projection
+    rng = np.random.default_rng(negatives)
+    Q, _ = np.linalg.qr(rng.normal(size=(40, 40)))
+    lam = np.concatenate([-rng.uniform(0.1, 2.0, negatives), rng.uniform(0.1, 2.0, 40 - negatives)])
+    m = (Q * lam) @ Q.T
+    expected = (Q * np.maximum(lam, 0.0)) @ Q.T
+    np.testing.assert_allclose(_psd_projection(m), expected, rtol=0, atol=1e-12)

@@ -57,7 +57,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from framework.scene.lens import falloff, pixel_radius
-from methods.symbolic.system.pixel_matrices import expanded_columns
+from methods.symbolic.system.pixel_matrices import FactoredColumns, expanded_columns
 from methods.symbolic.system.row_factors import RowFactors
 from methods.symbolic.trace.monomial_codes import appended_codes
 
@@ -110,7 +110,9 @@ def with_factors(coeffs, terms, *, n_params: int, max_degree: int, products: tup
         ``(basis, alpha)``, ``(K, rows)`` and ``(T, T, K)``: the terms' products as
         ``s_t s_u = Σ_k alpha[t, u, k] basis[k]`` (checked). Given, the result keeps the
         coefficients before the expansion (:class:`~methods.symbolic.system.row_factors.RowFactors`),
-        from which the field path forms its Gram matrix (:func:`~methods.symbolic.system.view_systems.dense_sum`).
+        from which the field path forms its Gram matrix (:func:`~methods.symbolic.system.view_systems.dense_sum`),
+        and ``a``, ``b`` are :class:`~methods.symbolic.system.pixel_matrices.FactoredColumns`: their
+        products come from the factors, the copies are made only for what needs them.
 
     Returns
     -------
@@ -134,7 +136,9 @@ def with_factors(coeffs, terms, *, n_params: int, max_degree: int, products: tup
     position[order] = np.arange(len(codes))                 # term t's column j goes to position[t N + j]
     columns = position.reshape(len(terms), len(coeffs.codes))
     scales = np.stack([np.asarray(scale, np.float64) for scale, _ in terms])
-    stacked = lambda mats: None if mats is None else [expanded_columns(m, scales, columns, len(codes)) for m in mats]  # noqa: E731
+    # with the factors, the copies are made only where a product cannot do without them
+    expand = expanded_columns if products is None else FactoredColumns
+    stacked = lambda mats: None if mats is None else [expand(m, scales, columns, len(codes)) for m in mats]  # noqa: E731
     factors = None if products is None else RowFactors.of(
         coeffs.a, coeffs.b, coeffs.codes, tuple(index for _, index in terms), n_params, max_degree, scales, products)
     return ViewCoefficients(stacked(coeffs.a), stacked(coeffs.b), float(coeffs.split), codes[order],

@@ -19,6 +19,7 @@ import scipy.sparse as sp
 from framework.threads import run_threads, two_at_a_time
 from methods.symbolic.misfit.clusters import cr1_factor
 from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.system.pixel_matrices import stored_per_row
 from methods.symbolic.system.view_systems import row_blocks
 
 #: stored coefficients (both halves, one channel) of the rows :func:`score_meat` scores at once,
@@ -159,7 +160,7 @@ def _chunks(view, y_view, weights):
 def _row_chunks(block) -> list[tuple[int, int]]:
     """``[lo, hi)`` row ranges of a block holding at most about :data:`SCORE_CHUNK_NNZ` stored
     coefficients of one channel each (cut by channel 0's rows; a single row may exceed it)."""
-    count = block.a[0].indptr if block.b is None else block.a[0].indptr + block.b[0].indptr
+    count = stored_per_row(block.a[0]) if block.b is None else stored_per_row(block.a[0]) + stored_per_row(block.b[0])
     cuts = np.searchsorted(count, np.arange(SCORE_CHUNK_NNZ, count[-1], SCORE_CHUNK_NNZ), side="right") - 1
     edges = np.unique(np.concatenate([[0], cuts[cuts > 0], [block.n_rows]]))
     return list(zip(edges[:-1].tolist(), edges[1:].tolist()))
