@@ -140,8 +140,8 @@ def dense_sum(parts, codes: np.ndarray) -> GramSystem:
         b = np.zeros(N)
         for block, y, w in parts[lo:hi]:
             b[np.searchsorted(codes, block.codes)] += _block_b(block, c, y[:, c], w)
-            f = block.factors          # a sparse sum into a dense one: a copy, cheaper than a scatter
-            H[f.lens] = np.asarray(factored_products(f, c, w, lenses[f.lens][1]) + H[f.lens])
+            f = block.factors
+            add_into(H[f.lens], factored_products(f, c, w, lenses[f.lens][1]))
         return H, b
 
     halves = run_threads([lambda c=c, lo=lo, hi=hi: products(c, lo, hi)
@@ -164,6 +164,17 @@ def dense_sum(parts, codes: np.ndarray) -> GramSystem:
     run_threads([lambda c=c: expand(c) for c in range(C)])
     yy = sum((np.square(y) * (1.0 if w is None else w[:, None])).sum(axis=0) for _, y, w in parts)
     return GramSystem.from_dense(G, b, yy, sum(block.n_rows for block, _, _ in parts), codes)
+
+
+def add_into(dense: np.ndarray, m) -> None:
+    """``dense += m`` in place for a sparse ``m``: its stored entries added where they sit. scipy's
+    ``m + dense`` makes a new dense matrix, a copy of the whole sum for every block (bundled
+    urban_canyon_survey, 2026-12-05: 1.2 s of a fit's products, 0.15 s so)."""
+    m = m.tocsr()
+    if not m.has_canonical_format:          # a repeated entry would be added once
+        m.sum_duplicates()
+    rows = np.repeat(np.arange(m.shape[0]), np.diff(m.indptr))
+    dense.reshape(-1)[rows * dense.shape[1] + m.indices] += m.data
 
 
 #: :func:`dense_sum` splits each channel's blocks into this many consecutive parts, each a task
