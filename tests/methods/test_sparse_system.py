@@ -95,9 +95,10 @@ def test_sparse_and_dense_give_the_same_cost_gradient_and_minimiser():
 
 @pytest.mark.parametrize("bound, per_entry", [(0, 10**6), (10**6, 0), (10**6, 10**6)])
 def test_gauss_newton_from_the_triangle_or_dense_is_jt_g_j(monkeypatch, bound, per_entry):
-    """The Gauss-Newton matrix ``2 Jᵀ G J`` from G's sparse triangle (above the dense bound on the
-    monomials, or too sparse for it) and from its dense copy (otherwise): both the dense numpy
-    reference ``2 Jᵀ (ΓᵀΓ) J`` to 1e-12 relative."""
+    """The Gauss-Newton matrix ``2 Jᵀ G J``, the cost and its gradient from G's sparse triangle
+    (above the dense bound on the monomials, or too sparse for it) and from its dense copy
+    (otherwise): the dense numpy references ``2 Jᵀ (ΓᵀΓ) J`` to 1e-12 relative, the cost and
+    gradient to 1e-10 (as the sparse ones in the test above)."""
     from methods.symbolic.system import cost as cost_module
     monkeypatch.setattr(cost_module, "DENSE_HESSIAN_MONOMIALS", bound)
     monkeypatch.setattr(cost_module, "DENSE_HESSIAN_FLOPS_PER_ENTRY", per_entry)
@@ -109,6 +110,11 @@ def test_gauss_newton_from_the_triangle_or_dense_is_jt_g_j(monkeypatch, bound, p
         J = basis.jacobian(x)
         expected = 2.0 * J.T @ (gamma[:, :, c].T @ gamma[:, :, c]) @ J
         cost = ChannelCost(system, basis, c)
+        Gd, mu = gamma[:, :, c].T @ gamma[:, :, c], basis.evaluate(x)
+        bd = system.b[c]
+        f, g = cost(x)
+        np.testing.assert_allclose(f, mu @ Gd @ mu - 2 * bd @ mu + system.yy[c], rtol=1e-10)
+        np.testing.assert_allclose(g, 2 * J.T @ (Gd @ mu - bd), rtol=1e-10)
         np.testing.assert_allclose(cost.gauss_newton(x), expected, rtol=0, atol=1e-12 * np.abs(expected).max())
         assert (cost._dense is not None) == (bound > 0 and per_entry > 0)
 
