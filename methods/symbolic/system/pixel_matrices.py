@@ -66,6 +66,12 @@ def expanded_columns(m, scales: np.ndarray, columns: np.ndarray, n_columns: int)
     return out
 
 
+#: :meth:`FactoredColumns._sparse_product` folds its copies in a dense array when that holds at most
+#: this many entries per stored entry of the product; a sparse fold sorts each row (bundled
+#: urban_canyon_survey, 2026-12-05: the std's products 3.2 s a fit sparse, serial)
+FOLD_DENSE = 4
+
+
 class FactoredColumns:
     """The matrix :func:`expanded_columns` gives, ``Σ_t diag(s_t) m P_t``, kept as its factors.
 
@@ -122,12 +128,15 @@ class FactoredColumns:
         of its entries then scaled by its row's ``s_t`` and folded onto column ``d``. A survey fit's
         std took 3.3 s so, 3.9 s as ``T`` scaled products and their sparse sums, 2.6 s from the
         expanded matrix plus 1.1 s to expand it (bundled urban_canyon_survey, 2026-12-05)."""
-        D = x.shape[1]
+        n, D = self.shape[0], x.shape[1]
         x = x.tocsr()
         p = (self.m @ sp.hstack([x[cols] for cols in self.columns], format="csr")).tocsr()
-        row = np.repeat(np.arange(p.shape[0]), np.diff(p.indptr))
-        data = p.data * self.scales[p.indices // D, row]
-        out = sp.csr_matrix((data, p.indices % D, p.indptr), shape=(p.shape[0], D))
+        row = np.repeat(np.arange(n), np.diff(p.indptr))
+        copy, column = np.divmod(p.indices, D)
+        data = p.data * self.scales[copy, row]
+        if n * D <= FOLD_DENSE * p.nnz:     # few columns: summed into a dense array, no sort of each row
+            return sp.csr_matrix(np.bincount(row * D + column, weights=data, minlength=n * D).reshape(n, D))
+        out = sp.csr_matrix((data, column, p.indptr), shape=(n, D))
         out.sum_duplicates()
         out.eliminate_zeros()
         return out

@@ -19,7 +19,7 @@ import scipy.sparse as sp
 from framework.threads import run_threads, two_at_a_time
 from methods.symbolic.misfit.clusters import cr1_factor
 from methods.symbolic.system.basis import MonomialBasis
-from methods.symbolic.system.pixel_matrices import stored_per_row
+from methods.symbolic.system.pixel_matrices import scale_rows, stored_per_row
 from methods.symbolic.system.view_systems import row_blocks
 
 #: stored coefficients (both halves, one channel) of the rows :func:`score_meat` scores at once,
@@ -130,7 +130,7 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
                     sums[c] = term if sums[c] is None else sums[c] + term
         for c in range(C):
             if sums[c] is not None:
-                outer[c] += (sums[c].T @ sums[c]).toarray()
+                outer[c] += _array(sums[c].T @ sums[c])
             if T is not None:
                 pose_meat[c] += T[c] @ pose[1] @ T[c].T
     meat = outer - np.einsum("ci,cj->cij", total, total) / max(groups, 1)
@@ -179,12 +179,12 @@ def _block_terms(s: sp.csr_matrix, ds: sp.csr_matrix | None, member: sp.csr_matr
     with the ``(clusters, n)`` 0/1 ``member``, their sums per cluster (sparse); with the pose
     sensitivity ``G`` ``(n, k)`` of its residuals, ``dsᵀG`` ``(D, k)`` (``ds``: ∂s_p/∂r_p)."""
     slope = None if G is None else np.asarray(ds.T @ G)
-    return np.asarray(s.sum(axis=0)).ravel(), (s.T @ s).toarray() if member is None else member @ s, slope
+    return np.asarray(s.sum(axis=0)).ravel(), _array(s.T @ s) if member is None else member @ s, slope
 
 
 def _score(block, rows: tuple[int, int], y, w_pix, mu, J, codes, own, c: int, *, slope: bool = False
            ) -> tuple[sp.csr_matrix, sp.csr_matrix | None]:
-    """The ``(n, D)`` sparse scores ``s_p`` in channel ``c`` of a block's ``rows`` ``[lo, hi)``
+    """The ``(n, D)`` scores ``s_p`` (dense for at most :data:`DENSE_SCORES` parameters, else CSR) in channel ``c`` of a block's ``rows`` ``[lo, hi)``
     and (``slope``) their derivatives ``∂s_p/∂r_p`` by the pixel's residual, else None
     (:func:`score_meat`; the task copies only its own channel's rows)."""
     lo, hi = rows
@@ -192,19 +192,43 @@ def _score(block, rows: tuple[int, int], y, w_pix, mu, J, codes, own, c: int, *,
     at = np.searchsorted(codes, block.codes)                 # the block's columns in ``codes``
     mu_v, J_v = mu[c, at], J[c][at]
     # sparse scores: a pixel's paths touch a few of the D parameters, so sᵀs costs
-    # Σ_p nnz(s_p)² instead of pixels × D² (dense)
+    # Σ_p nnz(s_p)² instead of pixels × D² (dense); dense ones where D is small (DENSE_SCORES)
+    dense = J_v.shape[1] <= DENSE_SCORES
+    form = (lambda m: m.toarray()) if dense else (lambda m: m.tocsr())       # noqa: E731
     A = cut(block.a[c])
-    ra, aJ = A @ mu_v - y[:, c], (A @ J_v).tocsr()
+    ra, aJ = A @ mu_v - y[:, c], form(A @ J_v)
     if block.b is None:
-        s = sp.diags(2.0 * ra) @ aJ
+        s = _rows_times(aJ, 2.0 * ra)
         ds = 2.0 * aJ if slope else None
     else:
         B = cut(block.b[c])
-        rb, bJ = B @ mu_v - y[:, c], (B @ J_v).tocsr()
-        s = sp.diags(rb) @ aJ + sp.diags(ra) @ bJ
+        rb, bJ = B @ mu_v - y[:, c], form(B @ J_v)
+        s = _rows_times(aJ, rb) + _rows_times(bJ, ra)
         ds = aJ + bJ if slope else None
     if w_pix is not None:            # the weighted cost's term: w_p times the unweighted one
-        s, ds = sp.diags(w_pix) @ s, None if ds is None else sp.diags(w_pix) @ ds
+        s, ds = _rows_times(s, w_pix), None if ds is None else _rows_times(ds, w_pix)
     if own is not None:              # estimating equations: a pixel scores its owners only
-        s, ds = s.multiply(own), None if ds is None else ds.multiply(own)
-    return s.tocsr(), None if ds is None else sp.csr_matrix(ds)
+        own = own.toarray() if dense else own
+        s, ds = _elementwise(s, own), None if ds is None else _elementwise(ds, own)
+    return s, ds
+
+
+#: :func:`_score` keeps the scores dense for at most this many parameters, where the sparse
+#: matrices' bookkeeping (products with diagonals, sums, conversions) costs more than the zeros
+#: (bundled urban_canyon_survey, D = 17, 2026-12-05: a fit's std 4.7 s serial sparse, 4.0 s dense)
+DENSE_SCORES = 64
+
+
+def _rows_times(m, v: np.ndarray):
+    """Row ``i`` of ``m`` (dense or CSR) times ``v[i]``."""
+    return scale_rows(m, v) if sp.issparse(m) else m * v[:, None]
+
+
+def _elementwise(m, own):
+    """``m ∘ own`` (both dense, or both sparse: CSR)."""
+    return sp.csr_matrix(m.multiply(own)) if sp.issparse(m) else m * own
+
+
+def _array(m) -> np.ndarray:
+    """A dense or sparse matrix as an array."""
+    return m.toarray() if sp.issparse(m) else np.asarray(m)

@@ -1,0 +1,51 @@
+"""score_meat's dense scores (few parameters) and sparse ones (many) give the same meat."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.system.coefficients import TiledCoefficients, ViewCoefficients
+from methods.symbolic.trace.monomial_codes import all_codes
+from methods.symbolic.uncertainty import sandwich_meat
+from methods.symbolic.uncertainty.sandwich_meat import score_meat
+
+P, DEGREE, C, ROWS = 4, 2, 2, 120
+
+
+def _views(rng):
+    """Two views of random sparse half-sample coefficients (the second in two row blocks), their
+    pixels, weights, clusters, owners and pose sensitivities."""
+    codes = all_codes(P, DEGREE)
+    views, extras = [], []
+    for v in range(2):
+        def half():
+            return [sp.random(ROWS, len(codes), density=0.2, format="csr", random_state=rng) for _ in range(C)]
+        a, b = half(), half()
+        block = ViewCoefficients(a, b, 0.5, codes)
+        coeffs = block if v == 0 else TiledCoefficients(
+            [0, 50], [ViewCoefficients([m[:50] for m in a], [m[:50] for m in b], 0.5, codes),
+                      ViewCoefficients([m[50:] for m in a], [m[50:] for m in b], 0.5, codes)], ROWS)
+        views.append((coeffs, rng.uniform(0, 1, (ROWS, C)), rng.uniform(0.2, 1.0, ROWS)))
+        extras.append((rng.integers(0, 9, ROWS), sp.csr_matrix(rng.uniform(size=(ROWS, P)) < 0.6, dtype=float),
+                       (rng.normal(size=(ROWS, C, 2)), np.diag([0.3, 0.1]))))
+    return MonomialBasis(P, DEGREE, codes), codes, views, extras
+
+
+@pytest.mark.parametrize("options", ["plain", "clusters", "owned", "poses"])
+def test_dense_and_sparse_scores_give_the_same_meat(monkeypatch, options):
+    """The meat with the scores dense (``DENSE_SCORES`` above D) and sparse (below), halves and pixel
+    weights throughout, with each of the clusters, the owners and the pose terms: equal to 1e-12
+    of its largest entry (sums of the same products, in another order)."""
+    rng = np.random.default_rng(11)
+    basis, codes, views, extras = _views(rng)
+    rho = rng.uniform(0.1, 0.6, (P, C))
+    kwargs = {"plain": {}, "clusters": {"clusters": [e[0] for e in extras]},
+              "owned": {"owned": [e[1] for e in extras]}, "poses": {"poses": [e[2] for e in extras]}}[options]
+    meats = []
+    for bound in (P, 0):
+        monkeypatch.setattr(sandwich_meat, "DENSE_SCORES", bound)
+        meats.append(score_meat(basis, rho, views, np.arange(len(codes)), codes, **kwargs))
+    assert np.abs(meats[0]).max() > 0
+    np.testing.assert_allclose(meats[0], meats[1], rtol=0, atol=1e-12 * np.abs(meats[0]).max())
