@@ -194,7 +194,9 @@ def _score(block, rows: tuple[int, int], y, w_pix, mu, J, codes, own, c: int, *,
     # sparse scores: a pixel's paths touch a few of the D parameters, so sᵀs costs
     # Σ_p nnz(s_p)² instead of pixels × D² (dense); dense ones where D is small (DENSE_SCORES)
     dense = J_v.shape[1] <= DENSE_SCORES
-    form = (lambda m: m.toarray()) if dense else (lambda m: m.tocsr())       # noqa: E731
+    # dense: the coefficients times a dense J, one pass over their entries (no sparse product)
+    J_v = J_v.toarray() if dense else J_v
+    form = np.asarray if dense else (lambda m: m.tocsr())       # noqa: E731
     A = cut(block.a[c])
     ra, aJ = A @ mu_v - y[:, c], form(A @ J_v)
     if block.b is None:
@@ -213,9 +215,10 @@ def _score(block, rows: tuple[int, int], y, w_pix, mu, J, codes, own, c: int, *,
     return s, ds
 
 
-#: :func:`_score` keeps the scores dense for at most this many parameters, where the sparse
-#: matrices' bookkeeping (products with diagonals, sums, conversions) costs more than the zeros
-#: (bundled urban_canyon_survey, D = 17, 2026-12-05: a fit's std 4.7 s serial sparse, 4.0 s dense)
+#: :func:`_score` keeps the scores dense for at most this many parameters, and multiplies the
+#: coefficients by a dense ``J``: there the sparse matrices' bookkeeping (sparse products, products
+#: with diagonals, sums, conversions) costs more than the zeros (bundled urban_canyon_survey,
+#: D = 17, 2026-12-05: a fit's std 4.7 s serial sparse, 2.0 s dense)
 DENSE_SCORES = 64
 
 
