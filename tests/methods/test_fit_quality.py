@@ -196,3 +196,19 @@ def test_a_car_in_every_view_is_no_confident_wrong_number(tmp_path):
             continue
         for error, std in zip(p["error"], p["std"]):
             assert abs(error) <= 3 * std + 0.005, (segment, kernel, error, std)
+
+
+def test_dense_and_sparse_jacobian_give_the_same_quality(courtyard, monkeypatch):
+    """The pulls and chi² of every material alike (1e-9 relative) whether the coefficients
+    multiply the Jacobian dense (few parameters, the default here) or sparse."""
+    from methods.symbolic.system import pixel_matrices
+    clean, _ = courtyard
+    out = []
+    for bound in (pixel_matrices.DENSE_JACOBIAN_COLUMNS, 0):
+        monkeypatch.setattr(pixel_matrices, "DENSE_JACOBIAN_COLUMNS", bound)
+        out.append(run_symbolic(clean, bias="none", refine=0).extras["fit_quality"])
+    for name, m in out[0].items():
+        for key in ("chi2", "dropped"):
+            assert m[key] == pytest.approx(out[1][name][key], rel=1e-9)
+        for kernel, pulls in m["pull_std"].items():
+            np.testing.assert_allclose(pulls, out[1][name]["pull_std"][kernel], rtol=1e-9)

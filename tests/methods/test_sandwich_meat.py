@@ -8,7 +8,7 @@ import scipy.sparse as sp
 from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.system.coefficients import TiledCoefficients, ViewCoefficients
 from methods.symbolic.trace.monomial_codes import all_codes
-from methods.symbolic.uncertainty import sandwich_meat
+from methods.symbolic.system import pixel_matrices
 from methods.symbolic.uncertainty.sandwich_meat import score_meat
 
 P, DEGREE, C, ROWS = 4, 2, 2, 120
@@ -35,7 +35,7 @@ def _views(rng):
 
 @pytest.mark.parametrize("options", ["plain", "clusters", "owned", "poses"])
 def test_dense_and_sparse_scores_give_the_same_meat(monkeypatch, options):
-    """The meat with the scores dense (``DENSE_SCORES`` above D) and sparse (below), halves and pixel
+    """The meat with the scores dense (``DENSE_JACOBIAN_COLUMNS`` at or above D) and sparse (below), halves and pixel
     weights throughout, with each of the clusters, the owners and the pose terms: equal to 1e-12
     of its largest entry (sums of the same products, in another order)."""
     rng = np.random.default_rng(11)
@@ -45,7 +45,7 @@ def test_dense_and_sparse_scores_give_the_same_meat(monkeypatch, options):
               "owned": {"owned": [e[1] for e in extras]}, "poses": {"poses": [e[2] for e in extras]}}[options]
     meats = []
     for bound in (P, 0):
-        monkeypatch.setattr(sandwich_meat, "DENSE_SCORES", bound)
+        monkeypatch.setattr(pixel_matrices, "DENSE_JACOBIAN_COLUMNS", bound)
         meats.append(score_meat(basis, rho, views, np.arange(len(codes)), codes, **kwargs))
     assert np.abs(meats[0]).max() > 0
     np.testing.assert_allclose(meats[0], meats[1], rtol=0, atol=1e-12 * np.abs(meats[0]).max())

@@ -62,6 +62,7 @@ import numpy as np
 
 from methods.symbolic.misfit.robust_scale import LEFT_OUT, pixel_variance, robust_scale
 from methods.symbolic.system.coefficients import predicted_with_variance
+from methods.symbolic.system.pixel_matrices import dense_jacobian
 
 #: share of a material's usable pixels the robust weights may leave out (over all views) before
 #: its fit counts as poor. A Cauchy weight does not remove what it leaves out (0.19 at five scales):
@@ -157,10 +158,15 @@ def _sweep(v, mu: np.ndarray, codes: np.ndarray, jacobian):
         split = block.split if block.b is not None else 1.0
         for k, h in enumerate(halves):
             parts[k].append(np.stack([h[c] @ mu[c][at] for c in range(C)], axis=1))
-            parts[2 + k].append(np.stack([(h[c] @ jacobian[c][at]).toarray() for c in range(C)], axis=1))
+            parts[2 + k].append(np.stack([_times(h[c], jacobian[c][at]) for c in range(C)], axis=1))
     a, b, ja, jb = (np.concatenate(p) for p in parts)
     pred = split * a + (1.0 - split) * b
     return pred, split * (1.0 - split) * (a - b) ** 2, a, b, ja, jb, split
+
+
+def _times(m, J) -> np.ndarray:
+    """``m J`` as an array, ``J`` taken dense for few parameters (:func:`dense_jacobian`)."""
+    return m @ J.toarray() if dense_jacobian(J) else (m @ J).toarray()
 
 
 class _Pulls:

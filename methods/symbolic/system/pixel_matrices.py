@@ -164,6 +164,19 @@ class _Transposed:
         return out
 
 
+#: a product of coefficients with a Jacobian of at most this many columns (parameters) takes the
+#: Jacobian dense, and the scores and derivatives made from it stay dense: there the sparse
+#: matrices' bookkeeping (sparse products, products with diagonals, sums, conversions) costs more
+#: than the zeros (bundled urban_canyon_survey, 17 parameters, 2026-12-05: a fit's std 4.7 s
+#: serial sparse, 2.0 s dense; its fit quality 3.3 s sparse)
+DENSE_JACOBIAN_COLUMNS = 64
+
+
+def dense_jacobian(J) -> bool:
+    """Whether products with the Jacobian ``J`` take it dense (:data:`DENSE_JACOBIAN_COLUMNS`)."""
+    return J.shape[1] <= DENSE_JACOBIAN_COLUMNS
+
+
 def stored_per_row(m) -> np.ndarray:
     """``(n + 1,)`` cumulative count of a CSR matrix's stored entries by row (its ``indptr``); of a
     :class:`FactoredColumns`, that of its copies (``T`` per entry), not expanded for it."""

@@ -19,7 +19,7 @@ import scipy.sparse as sp
 from framework.threads import run_threads, two_at_a_time
 from methods.symbolic.misfit.clusters import cr1_factor
 from methods.symbolic.system.basis import MonomialBasis
-from methods.symbolic.system.pixel_matrices import scale_rows, stored_per_row
+from methods.symbolic.system.pixel_matrices import dense_jacobian, scale_rows, stored_per_row
 from methods.symbolic.system.view_systems import row_blocks
 
 #: stored coefficients (both halves, one channel) of the rows :func:`score_meat` scores at once,
@@ -184,7 +184,8 @@ def _block_terms(s: sp.csr_matrix, ds: sp.csr_matrix | None, member: sp.csr_matr
 
 def _score(block, rows: tuple[int, int], y, w_pix, mu, J, codes, own, c: int, *, slope: bool = False
            ) -> tuple[sp.csr_matrix, sp.csr_matrix | None]:
-    """The ``(n, D)`` scores ``s_p`` (dense for at most :data:`DENSE_SCORES` parameters, else CSR) in channel ``c`` of a block's ``rows`` ``[lo, hi)``
+    """The ``(n, D)`` scores ``s_p`` in channel ``c`` of a block's ``rows`` ``[lo, hi)``, dense for
+    few parameters (:func:`~methods.symbolic.system.pixel_matrices.dense_jacobian`), else CSR,
     and (``slope``) their derivatives ``∂s_p/∂r_p`` by the pixel's residual, else None
     (:func:`score_meat`; the task copies only its own channel's rows)."""
     lo, hi = rows
@@ -192,9 +193,9 @@ def _score(block, rows: tuple[int, int], y, w_pix, mu, J, codes, own, c: int, *,
     at = np.searchsorted(codes, block.codes)                 # the block's columns in ``codes``
     mu_v, J_v = mu[c, at], J[c][at]
     # sparse scores: a pixel's paths touch a few of the D parameters, so sᵀs costs
-    # Σ_p nnz(s_p)² instead of pixels × D² (dense); dense ones where D is small (DENSE_SCORES)
-    dense = J_v.shape[1] <= DENSE_SCORES
-    # dense: the coefficients times a dense J, one pass over their entries (no sparse product)
+    # Σ_p nnz(s_p)² instead of pixels × D² (dense); dense ones for few parameters, the
+    # coefficients times a dense J (one pass over their entries, no sparse product)
+    dense = dense_jacobian(J_v)
     J_v = J_v.toarray() if dense else J_v
     form = np.asarray if dense else (lambda m: m.tocsr())       # noqa: E731
     A = cut(block.a[c])
@@ -213,13 +214,6 @@ def _score(block, rows: tuple[int, int], y, w_pix, mu, J, codes, own, c: int, *,
         own = own.toarray() if dense else own
         s, ds = _elementwise(s, own), None if ds is None else _elementwise(ds, own)
     return s, ds
-
-
-#: :func:`_score` keeps the scores dense for at most this many parameters, and multiplies the
-#: coefficients by a dense ``J``: there the sparse matrices' bookkeeping (sparse products, products
-#: with diagonals, sums, conversions) costs more than the zeros (bundled urban_canyon_survey,
-#: D = 17, 2026-12-05: a fit's std 4.7 s serial sparse, 2.0 s dense)
-DENSE_SCORES = 64
 
 
 def _rows_times(m, v: np.ndarray):
