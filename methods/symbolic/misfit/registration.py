@@ -257,14 +257,15 @@ def _normal_system(m, yv, grad, w, camera: Camera, omega, px, n_par, clusters=No
     use = (q[:, 0] >= 0.5) & (q[:, 0] <= W - 0.5) & (q[:, 1] >= 0.5) & (q[:, 1] <= H - 0.5) & (w > 0) & ring
     if use.sum() < MIN_PIXELS:
         return None
-    J = np.einsum("kcd,kdp->kcp", grad[use], dq[use])                 # (k, C, n_par)
+    J = grad[use] @ dq[use]                                           # (k, C, n_par)
     r = _sample(m, q[use]) - yv[use]                                  # (k, C)
     wJ = w[use][:, None, None] * J
-    scores = np.einsum("kcp,kc->kp", wJ, r)
+    scores = (wJ * r[:, :, None]).sum(axis=1)
     b = scores.sum(axis=0)
     if clusters is not None:
         scores = _cluster_scores(scores, np.asarray(clusters)[use])
-    return np.einsum("kcp,kcq->pq", wJ, J), b, scores
+    # the pixels' and channels' sum as one matrix product (numpy's einsum loops in C without BLAS)
+    return wJ.reshape(-1, n_par).T @ J.reshape(-1, n_par), b, scores
 
 
 def _cluster_scores(scores: np.ndarray, ids: np.ndarray) -> np.ndarray:
