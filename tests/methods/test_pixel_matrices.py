@@ -112,3 +112,16 @@ def test_factored_columns_pickle():
     E, ref = _factored()
     back = pickle.loads(pickle.dumps(E))
     assert back._expanded is None and np.array_equal(back.toarray(), ref)
+
+
+def test_moved_columns_equals_the_permutation_product():
+    """``moved_columns(m, position, f)`` equals ``m P f`` (P[j, position[j]] = 1) exactly, its rows
+    left unsorted; a factor 0 leaves no stored entry."""
+    from methods.symbolic.system.pixel_matrices import moved_columns
+    m = sp.random(25, 12, density=0.3, format="csr", random_state=3)
+    position = np.random.default_rng(3).permutation(12)
+    P = sp.csr_matrix((np.ones(12), (np.arange(12), position)), shape=(12, 12))
+    out = moved_columns(m, position, 2.5)
+    assert not out.has_sorted_indices
+    assert np.array_equal(out.toarray(), (m @ P).toarray() * 2.5)
+    assert moved_columns(m, position, 0.0).nnz == 0

@@ -13,9 +13,9 @@ its closed-form guess (:func:`gain_guess`).
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
 
 from methods.symbolic.system.coefficients import TiledCoefficients, ViewCoefficients, predicted
+from methods.symbolic.system.pixel_matrices import moved_columns
 from methods.symbolic.trace.monomial_codes import code_digits, encode_digits
 
 #: ``segment_name`` of a view's gain parameter: this prefix, then the view's name
@@ -61,9 +61,9 @@ def with_gain(coeffs, *, n_params: int, max_degree: int, n_total: int, gain: int
         scale = GAIN_MAX
     codes = encode_digits(wide, n_total)
     order = np.argsort(codes, kind="stable")
-    move = sp.csr_matrix((np.full(len(order), scale), (order, np.arange(len(order)))),
-                         shape=(len(order), len(order)))
-    relabel = lambda mats: None if mats is None else [sp.csr_matrix(m @ move) for m in mats]
+    position = np.empty(len(order), np.int64)
+    position[order] = np.arange(len(order))           # old column j goes to position[j]
+    relabel = lambda mats: None if mats is None else [moved_columns(m, position, scale) for m in mats]  # noqa: E731
     return ViewCoefficients(relabel(coeffs.a), relabel(coeffs.b), float(coeffs.split), codes[order])
 
 

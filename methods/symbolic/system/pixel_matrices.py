@@ -33,6 +33,22 @@ def scale_columns(m, f: np.ndarray) -> sp.csr_matrix:
     return out
 
 
+def moved_columns(m, position: np.ndarray, factor: float = 1.0) -> sp.csr_matrix:
+    """``m`` with column ``j`` moved to column ``position[j]`` (a permutation) and every entry times
+    ``factor``: ``m P`` for the permutation matrix ``P``, in one pass over the entries; the rows'
+    entries are left in their order (unsorted, marked so), as :func:`expanded_columns` leaves them
+    (scipy's sparse product for it: 0.33 of a survey fit's 1.3 s views, 2026-12-05)."""
+    m = m.tocsr()
+    position = np.asarray(position)
+    index = m.indices.dtype if len(position) < np.iinfo(m.indices.dtype).max else np.int64
+    out = sp.csr_matrix((m.data * float(factor), position[m.indices].astype(index), m.indptr.copy()),
+                        shape=(m.shape[0], len(position)))
+    out.has_sorted_indices = False
+    if factor == 0.0:
+        out.eliminate_zeros()
+    return out
+
+
 def expanded_columns(m, scales: np.ndarray, columns: np.ndarray, n_columns: int) -> sp.csr_matrix:
     """``Σ_t diag(scales[t]) m P_t``: each entry ``(i, j)`` of the CSR ``m`` copied to the ``T``
     columns ``columns[t, j]``, scaled by its row's ``scales[t, i]`` (``n_columns`` wide; the
