@@ -91,13 +91,15 @@ class Cache:
     def path(self, kind: str, key: dict) -> Path | None:
         return None if self.dir is None else self.dir / kind / f"{key_digest(key)}.npz"
 
-    def load(self, kind: str, key: dict) -> dict[str, np.ndarray] | None:
+    def load(self, kind: str, key: dict, *, keep=None) -> dict[str, np.ndarray] | None:
+        """The arrays of the entry (those whose name ``keep(name)`` accepts, when given: the others
+        are not read), or None when it is missing or damaged."""
         path = self.path(kind, key)
         if path is None or not path.is_file():
             return None
         try:
             with np.load(path, allow_pickle=False) as z:      # each array's CRC-32 checked as it is read
-                return {k: z[k] for k in z.files if k != _OLD_CHECKSUM}
+                return {k: z[k] for k in z.files if k != _OLD_CHECKSUM and (keep is None or keep(k))}
         except Exception:
             return None  # corrupt: rebuilt by the caller
 

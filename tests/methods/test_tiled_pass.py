@@ -165,3 +165,24 @@ def test_the_meat_scored_in_row_chunks_equals_the_whole_blocks(problem, monkeypa
     assert len(U._row_chunks(block)) >= 6
     chunked = score_meat(basis, rho, views, np.arange(basis.size), passed.codes, clusters=clusters)
     np.testing.assert_allclose(chunked, whole, rtol=1e-12, atol=1e-12 * np.abs(whole).max())
+
+
+def test_a_stored_tile_reads_its_quarters_only_to_be_halved(tmp_path):
+    """A plain read of a stored tile leaves its quarters (``a1``, ``b1``) unread; the halves of the
+    cached view read them, and equal the halves of the tile as it was stored, bit for bit."""
+    import scipy.sparse as sp
+
+    from methods.symbolic.system.coefficients import ViewCoefficients
+    from methods.symbolic.system.pass_cache import store_tile
+    rng = np.random.default_rng(4)
+    mats = [[sp.random(6, 5, density=0.5, format="csr", random_state=rng) for _ in range(2)] for _ in range(4)]
+    block = ViewCoefficients(mats[0], mats[1], 0.5, np.arange(5), mats[2], mats[3])
+    loader = store_tile(Cache(tmp_path), {"view": "v", "tile": 0}, 0, block, 2)
+    plain = loader()
+    assert plain.a1 is None and plain.b1 is None
+    assert all(np.array_equal(m.toarray(), n.toarray()) for m, n in zip(plain.a, block.a))
+    for j in (0, 1):
+        (_, half), = TiledCoefficients([0], [loader], 6).halved(j).blocks()
+        expected = block.halved(j)
+        for got, want in ((half.a, expected.a), (half.b, expected.b)):
+            assert all(np.array_equal(m.toarray(), n.toarray()) for m, n in zip(got, want))

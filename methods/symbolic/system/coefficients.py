@@ -110,7 +110,9 @@ class _Halved:
     j: int
 
     def __call__(self) -> ViewCoefficients:
-        block = self.block() if callable(self.block) else self.block
+        # a block read from the cache: read with its quarters (a plain read leaves them out)
+        load = getattr(self.block, "with_quarters", lambda: self.block)()
+        block = load() if callable(load) else load
         return block.halved(self.j)
 
 

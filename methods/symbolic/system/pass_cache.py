@@ -149,14 +149,22 @@ def _pack(coeffs: ViewCoefficients) -> dict[str, np.ndarray]:
 
 class TileLoader:
     """Reads a tile's :class:`ViewCoefficients` back from the cache folder when called; plain
-    data, so a Dask worker that stored the tile can return it in place of the tile."""
+    data, so a Dask worker that stored the tile can return it in place of the tile.
 
-    def __init__(self, cache_dir, key: dict, C: int):
-        self.cache_dir, self.key, self.C = cache_dir, key, int(C)
+    Its quarters (``a1``, ``b1``, ``method.bias=richardson``) are read only by the loader
+    :meth:`with_quarters` gives, which the half passes use: a fit of the whole pass does not
+    need them, and they are half a tile's bytes."""
+
+    def __init__(self, cache_dir, key: dict, C: int, quarters: bool = False):
+        self.cache_dir, self.key, self.C, self.quarters = cache_dir, key, int(C), bool(quarters)
+
+    def with_quarters(self) -> "TileLoader":
+        return TileLoader(self.cache_dir, self.key, self.C, quarters=True)
 
     def __call__(self) -> ViewCoefficients:
         cache = Cache(self.cache_dir)
-        hit = cache.load("polynomial_tile", self.key)
+        keep = None if self.quarters else (lambda name: not name.startswith(("qa", "qb")))
+        hit = cache.load("polynomial_tile", self.key, keep=keep)
         if hit is None:
             raise RuntimeError(f"cache entry of {self.key['view']} (tile {self.key['tile']}) vanished from "
                                f"{cache.dir} during the run")
