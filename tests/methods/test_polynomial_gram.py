@@ -135,3 +135,43 @@ def test_psd_projection_from_the_smaller_eigenspace(negatives):
     m = (Q * lam) @ Q.T
     expected = (Q * np.maximum(lam, 0.0)) @ Q.T
     np.testing.assert_allclose(_psd_projection(m), expected, rtol=0, atol=1e-12)
+
+
+def test_dense_triangle_equals_scipy_triu():
+    """``dense_triangle`` gives scipy's ``csr_matrix(np.triu(m))`` exactly, zeros left out."""
+    import scipy.sparse as sp
+
+    from methods.symbolic.system.upper_triangle import dense_triangle
+    m = np.random.default_rng(2).normal(size=(30, 30))
+    m[3, 7] = m[0, 0] = 0.0
+    out, ref = dense_triangle(m), sp.csr_matrix(np.triu(m))
+    assert out.nnz == ref.nnz == 30 * 31 // 2 - 2
+    assert np.array_equal(out.indptr, ref.indptr) and np.array_equal(out.indices, ref.indices)
+    assert np.array_equal(out.data, ref.data)
+
+
+def test_psd_of_one_component_equals_the_general_path(monkeypatch):
+    """A G of one connected component and 1 x 1 ones (the fast path) gives the entries of the
+    general path (two components): the component projected, a 1 x 1 one max(g_ii, 0); [[1, 2],
+    [2, 1]] (eigenvalues 3, -1) projects to 1.5 everywhere."""
+    from methods.symbolic.system.gram import _psd_components
+    import scipy.sparse as sp
+    rng = np.random.default_rng(8)
+    a = rng.normal(size=(12, 12))
+    sym = a + a.T
+    whole, _ = _psd_components(sp.csr_matrix(np.triu(sym)), 100)
+    padded = np.zeros((13, 13))
+    padded[:12, :12] = sym
+    padded[12, 12] = -1.0
+    parts, _ = _psd_components(sp.csr_matrix(np.triu(padded)), 100)
+    np.testing.assert_allclose(parts.toarray()[:12, :12], whole.toarray(), rtol=0, atol=1e-12)
+    assert parts[12, 12] == 0.0 and parts.nnz == whole.nnz
+    padded[12, 12] = 2.0
+    parts, _ = _psd_components(sp.csr_matrix(np.triu(padded)), 100)
+    assert parts[12, 12] == 2.0 and parts.nnz == whole.nnz + 1
+    np.testing.assert_allclose(parts.toarray()[:12, :12], whole.toarray(), rtol=0, atol=1e-12)
+    three = np.zeros((14, 14))                         # two components: the general path
+    three[:12, :12], three[12:, 12:] = sym, [[1.0, 2.0], [2.0, 1.0]]
+    parts, _ = _psd_components(sp.csr_matrix(np.triu(three)), 100)
+    np.testing.assert_allclose(parts.toarray()[:12, :12], whole.toarray(), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(parts.toarray()[12:, 12:], [[1.5, 1.5], [0.0, 1.5]], atol=1e-12)

@@ -80,8 +80,10 @@ class ChannelCost:
     def _dense_matrix(self) -> np.ndarray:
         """The whole ``G_c`` on the used monomials, dense, made once."""
         if self._dense is None:
-            self._dense = (self.G + self.G.T).toarray()
-            self._dense[np.diag_indices_from(self._dense)] = self.diagonal
+            dense = self.G.toarray()
+            dense += dense.T                  # both triangles, not a sparse sum of them
+            dense[np.diag_indices_from(dense)] = self.diagonal
+            self._dense = dense
         return self._dense
 
     def _dense_hessian(self) -> bool:

