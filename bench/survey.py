@@ -156,9 +156,10 @@ def summarise(res: dict, row: str) -> dict:
         if c is not None:
             pairs.append((corner["error"], cs))
     worst = {k: max(v) if v else None for k, v in errs.items()}
+    timings = res.get("timings_s") or {}
     out = {"worst_diffuse": worst.get("diffuse"), "worst_specular": worst.get("specular"),
            "ill_determined": n_ill, "scales": scales, "corner": corner, **z_stats(pairs),
-           "renders": res.get("renders")}
+           "renders": res.get("renders"), "pass_s": timings.get("render"), "solve_s": timings.get("solve")}
     out["met"] = _targets(out)
     if row == "d":
         out.update(sky_match(scales))
@@ -273,7 +274,9 @@ def markdown(rows: list[dict]) -> list[str]:
              "ill-determined, not known); scales per channel R/G/B, estimate ± std (error in % of the truth); "
              "RMS z and the count beyond 3 std + 0.005 over the weights' channels, the scales of known truth and "
              "the corner. Targets (row b): 0.02 diffuse, 0.03 specular, scales 3 %, corner 0.02, no error "
-             "beyond 3 std + 0.005."
+             "beyond 3 std + 0.005. Passes and solves: the run's `timings_s` `render` and `solve` (row b renders "
+             "its passes, the others may take some from the cache); with `--jobs 2` the section runs beside "
+             "another accuracy section, whose processes share the two cores."
              + "".join(f" Row ({r['row']}) runs on a copy of the scene box-averaged to {r['image']} pixels wide "
                        "(the bundled views are 200): at the bundled size it took 18 min on this 2-core machine "
                        "(2026-12-03), beyond the hour the whole benchmark has." for r in rows if r.get("image")),
@@ -282,14 +285,18 @@ def markdown(rows: list[dict]) -> list[str]:
     for r in rows:
         if "refusal" in r:
             verb = "refused" if r["rc"] == 2 else "failed"
-            body.append([r["label"], f"{verb} (exit {r['rc']}): `{r['refusal']}`", "", "", "", "", "", "",
+            body.append([r["label"], f"{verb} (exit {r['rc']}): `{r['refusal']}`", "", "", "", "", "", "", "",
                          f(r["wall_s"], 1), "n/a"])
             continue
         body.append([r["label"], f(r.get("worst_diffuse"), 4), f(r.get("worst_specular"), 4), r.get("ill_determined"),
                      _scales(r), _corner(r), f(r.get("rms_z"), 2), f"{r.get('beyond')} / {r.get('n_z')}",
+                     f"{f(r.get('pass_s'), 1)} / {f(r.get('solve_s'), 1)}",
                      f(r["wall_s"], 1), yes(r["met"]) if r["row"] in ("b", "d") else "n/a"])
     out = lines + table(["fit", "worst diffuse", "worst specular", "ill-determined", "scales", "corner V(1)",
-                         "RMS z", "beyond 3 std", "wall (s)", "targets"], body) + [""]
+                         "RMS z", "beyond 3 std", "passes / solves (s)", "wall (s)", "targets"], body) + [""]
+    out += [line for r in rows if r["row"] == "b" and r.get("solve_s") is not None and r.get("pass_s")
+            for line in (f"Row (b)'s solves within its passes: {r['solve_s']:.1f} s against {r['pass_s']:.1f} s "
+                         f"({r['solve_s'] / r['pass_s']:.2f}x): {yes(r['solve_s'] <= r['pass_s'])}.", "")]
     for r in rows:
         if r["row"] == "d" and r.get("sky_irradiance_error") is not None:
             pct = lambda v: "/".join(f"{100 * x:+.1f}" for x in v)   # noqa: E731

@@ -148,3 +148,12 @@ def test_failure_line():
     assert survey.failure(trace, Path("/w")) == "RuntimeError: [parser.cpp] Only one"
     assert survey.failure("warn\nerror: /w/s/scene.yaml: bad\nSet HYDRA\n", Path("/w")) == "error: <work>/s/scene.yaml: bad"
     assert survey.failure("a\nb\n", Path("/w")) == "b" and survey.failure("", Path("/w")) == ""
+
+
+def test_markdown_reports_passes_and_solves():
+    """Row (b)'s passes and solves (results.json ``timings_s``) in the table and its target line."""
+    res = {**_results(), "timings_s": {"render": 58.0, "solve": 60.9}}
+    row = {"row": "b", "label": survey.LABELS["b"], "rc": 0, "wall_s": 121.0, **survey.summarise(res, "b")}
+    text = "\n".join(survey.markdown([row]))
+    assert "| 58.0 / 60.9 |" in text
+    assert "Row (b)'s solves within its passes: 60.9 s against 58.0 s (1.05x): **not met**." in text
