@@ -5,9 +5,9 @@ content). Writes go to a temporary file in the same folder and are renamed into 
 interrupted run never leaves a half-written entry; an entry that fails to load is treated as
 missing and rebuilt, never trusted. An ``.npz`` is a zip archive holding each array's CRC-32,
 which reading the array checks (a flipped byte anywhere in an array fails its load), so the
-cache adds no checksum of its own: a SHA-256 of every array, checked on every load, was 6 s
-of a 100 s run that read its pass's tiles again for every fit (bundled urban_canyon_survey,
-2026-12-05), and caught nothing the CRC does not.
+cache adds no checksum of its own: a SHA-256 of every array, checked on every load, took 6 s
+(summed over the threads that loaded) of a 100 s run that read its pass's tiles again for every
+fit (bundled urban_canyon_survey, 2026-12-05), and caught nothing the CRC does not.
 """
 from __future__ import annotations
 

@@ -110,9 +110,10 @@ class _Halved:
     j: int
 
     def __call__(self) -> ViewCoefficients:
-        # a block read from the cache: read with its quarters (a plain read leaves them out)
-        load = getattr(self.block, "with_quarters", lambda: self.block)()
-        block = load() if callable(load) else load
+        block = self.block
+        if hasattr(block, "with_quarters"):      # read from the cache: a plain read leaves them out
+            block = block.with_quarters()
+        block = block() if callable(block) else block
         return block.halved(self.j)
 
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.system.gram import GramSystem
-from methods.symbolic.system.upper_triangle import principal, sandwich, symmetric_dot
+from methods.symbolic.system.upper_triangle import dense_symmetric, principal, sandwich, symmetric_dot
 
 
 #: a channel's cost with at most this many used monomials may form its Gauss-Newton matrix
@@ -49,7 +49,7 @@ class ChannelCost:
         self.b = system.b[c][self.used]
         self.yy = float(system.yy[c])
         self._last = None          # (x, r, μ) of the last residual: the Hessian follows the gradient
-        self._dense = None         # the whole G_c, dense, once a Hessian needs it (small systems)
+        self._dense = None         # the whole G_c, dense, made at first use (small, full systems)
 
     def _residual(self, x: np.ndarray) -> np.ndarray:
         """``(size,)`` residual ``G_c μ - b_c`` on the used monomials, 0 elsewhere, and ``μ_used``."""
@@ -57,7 +57,7 @@ class ChannelCost:
             return self._last[1], self._last[2]
         m = self.basis.evaluate(x)[self.used]
         r = np.zeros(self.basis.size)
-        Gm = self._dense_matrix() @ m if self._dense_hessian() else symmetric_dot(self.G, m, self.diagonal)
+        Gm = self._dense_matrix() @ m if self._dense_copy() else symmetric_dot(self.G, m, self.diagonal)
         r[self.used] = Gm - self.b
         self._last = (np.array(x, dtype=float, copy=True), r, m)
         return r, m
@@ -70,9 +70,9 @@ class ChannelCost:
     def gauss_newton(self, x: np.ndarray) -> np.ndarray:
         """``(D, D)`` Gauss-Newton part ``2 Jᵀ G_c J`` of the Hessian (PSD when ``G_c`` is): with
         the sparse Jacobian from G's triangle (:func:`~methods.symbolic.system.upper_triangle.sandwich`),
-        or from a dense copy of G where that is the cheaper (:meth:`_dense_hessian`)."""
+        or from a dense copy of G where that is the cheaper (:meth:`_dense_copy`)."""
         J = self.basis.jacobian_sparse(x)[self.used]
-        if not self._dense_hessian():
+        if not self._dense_copy():
             return 2.0 * sandwich(self.G, J, self.diagonal).toarray()
         J = J.toarray()
         return 2.0 * J.T @ (self._dense_matrix() @ J)
@@ -80,14 +80,11 @@ class ChannelCost:
     def _dense_matrix(self) -> np.ndarray:
         """The whole ``G_c`` on the used monomials, dense, made once."""
         if self._dense is None:
-            dense = self.G.toarray()
-            dense += dense.T                  # both triangles, not a sparse sum of them
-            dense[np.diag_indices_from(dense)] = self.diagonal
-            self._dense = dense
+            self._dense = dense_symmetric(self.G)
         return self._dense
 
-    def _dense_hessian(self) -> bool:
-        """Whether the Gauss-Newton matrix is formed from a dense copy of G (class docstring)."""
+    def _dense_copy(self) -> bool:
+        """Whether the residual and the Gauss-Newton matrix use a dense copy of G (class docstring)."""
         N = len(self.used)
         return N <= DENSE_HESSIAN_MONOMIALS and \
             N * N * self.basis.n_params <= DENSE_HESSIAN_FLOPS_PER_ENTRY * max(self.G.nnz, 1)

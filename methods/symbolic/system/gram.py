@@ -22,7 +22,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from framework.threads import run_threads
-from methods.symbolic.system.upper_triangle import dense_triangle, principal, spread, triangle, upper
+from methods.symbolic.system.upper_triangle import dense_symmetric, dense_triangle, principal, spread, triangle, upper
 
 log = logging.getLogger(__name__)
 
@@ -330,8 +330,7 @@ def _psd_components(g: sp.csr_matrix, limit: int) -> tuple[sp.csr_matrix, list[i
             skipped.append(len(idx))
             kept[idx] = True
             continue
-        block = principal(g, idx).toarray()                      # the component's triangle
-        block = np.triu(_psd_projection(block + block.T - np.diag(np.diag(block))))
+        block = np.triu(_psd_projection(dense_symmetric(principal(g, idx))))
         r, c = np.nonzero(block)
         rows.append(idx[r]), cols.append(idx[c]), vals.append(block[r, c])
     coo = g.tocoo()
@@ -349,8 +348,7 @@ def _one_component(g: sp.csr_matrix, idx: np.ndarray, single: np.ndarray) -> sp.
     increasing) and 1 x 1 ones (``single``): the component's triangle made from its dense
     projection row by row and moved into place, no sort of its entries (the general path's COO
     assembly took 0.25 of a survey fit's 0.8 s around its eigen-decompositions, 2026-12-05)."""
-    block = principal(g, idx).toarray()
-    out = spread(dense_triangle(_psd_projection(block + block.T - np.diag(np.diag(block)))), idx, g.shape[0])
+    out = spread(dense_triangle(_psd_projection(dense_symmetric(principal(g, idx)))), idx, g.shape[0])
     d = np.maximum(g.diagonal()[single], 0.0)
     if not d.any():
         return out

@@ -137,7 +137,7 @@ class FactoredColumns:
             return self.expanded() @ (x.expanded() if isinstance(x, FactoredColumns) else x)
         if sp.issparse(x):
             return self._sparse_product(x)
-        parts = [_scaled_rows(self.m @ x[cols], s) for s, cols in zip(self.scales, self.columns)]
+        parts = [rows_times(self.m @ x[cols], s) for s, cols in zip(self.scales, self.columns)]
         return sum(parts[1:], parts[0])
 
     def _sparse_product(self, x) -> sp.csr_matrix:
@@ -201,8 +201,8 @@ def stored_per_row(m) -> np.ndarray:
     return m.indptr
 
 
-def _scaled_rows(p, s: np.ndarray):
-    """``diag(s) p`` of a product ``p``: a vector, a dense matrix or a sparse one."""
+def rows_times(p, s: np.ndarray):
+    """``diag(s) p`` of a vector, a dense matrix or a sparse one (CSR, :func:`scale_rows`)."""
     if sp.issparse(p):
-        return sp.csr_matrix(scale_rows(p, s))
+        return scale_rows(p, s)
     return p * (s if p.ndim == 1 else s[:, None])

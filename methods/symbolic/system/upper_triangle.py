@@ -71,6 +71,16 @@ def dense_triangle(m: np.ndarray) -> sp.csr_matrix:
     return out
 
 
+def dense_symmetric(u) -> np.ndarray:
+    """The whole symmetric matrix whose upper triangle is ``u``, dense (both triangles, the
+    diagonal once; no sparse sum of the triangles)."""
+    dense = u.toarray()
+    diagonal = dense.diagonal().copy()
+    dense += dense.T
+    dense[np.diag_indices_from(dense)] = diagonal
+    return dense
+
+
 def symmetric_dot(u: sp.csr_matrix, x: np.ndarray, diagonal: np.ndarray | None = None) -> np.ndarray:
     """``G x`` for the symmetric ``G`` whose upper triangle is ``u``: ``U x + Uᵀ x - diag(U) x``
     (``x``: ``(N,)`` or ``(N, k)``; ``diagonal``: ``u.diagonal()`` when the caller keeps it).

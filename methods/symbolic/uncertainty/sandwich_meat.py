@@ -19,7 +19,7 @@ import scipy.sparse as sp
 from framework.threads import run_threads, two_at_a_time
 from methods.symbolic.misfit.clusters import cr1_factor
 from methods.symbolic.system.basis import MonomialBasis
-from methods.symbolic.system.pixel_matrices import dense_jacobian, scale_rows, stored_per_row
+from methods.symbolic.system.pixel_matrices import dense_jacobian, rows_times, stored_per_row
 from methods.symbolic.system.view_systems import row_blocks
 
 #: stored coefficients (both halves, one channel) of the rows :func:`score_meat` scores at once,
@@ -201,24 +201,19 @@ def _score(block, rows: tuple[int, int], y, w_pix, mu, J, codes, own, c: int, *,
     A = cut(block.a[c])
     ra, aJ = A @ mu_v - y[:, c], form(A @ J_v)
     if block.b is None:
-        s = _rows_times(aJ, 2.0 * ra)
+        s = rows_times(aJ, 2.0 * ra)
         ds = 2.0 * aJ if slope else None
     else:
         B = cut(block.b[c])
         rb, bJ = B @ mu_v - y[:, c], form(B @ J_v)
-        s = _rows_times(aJ, rb) + _rows_times(bJ, ra)
+        s = rows_times(aJ, rb) + rows_times(bJ, ra)
         ds = aJ + bJ if slope else None
     if w_pix is not None:            # the weighted cost's term: w_p times the unweighted one
-        s, ds = _rows_times(s, w_pix), None if ds is None else _rows_times(ds, w_pix)
+        s, ds = rows_times(s, w_pix), None if ds is None else rows_times(ds, w_pix)
     if own is not None:              # estimating equations: a pixel scores its owners only
         own = own.toarray() if dense else own
         s, ds = _elementwise(s, own), None if ds is None else _elementwise(ds, own)
     return s, ds
-
-
-def _rows_times(m, v: np.ndarray):
-    """Row ``i`` of ``m`` (dense or CSR) times ``v[i]``."""
-    return scale_rows(m, v) if sp.issparse(m) else m * v[:, None]
 
 
 def _elementwise(m, own):
