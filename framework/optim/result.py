@@ -29,3 +29,5 @@ class OptimResult:
     history: list[float] = field(default_factory=list)
     status: str = ""
     n_eval: int = 0
+    #: the curvature the solver computed at ``x`` itself, when its last one was there (SQP), else None
+    hessian: np.ndarray | None = None

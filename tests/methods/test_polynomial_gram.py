@@ -175,3 +175,37 @@ def test_psd_of_one_component_equals_the_general_path(monkeypatch):
     parts, _ = _psd_components(sp.csr_matrix(np.triu(three)), 100)
     np.testing.assert_allclose(parts.toarray()[:12, :12], whole.toarray(), rtol=0, atol=1e-12)
     np.testing.assert_allclose(parts.toarray()[12:, 12:], [[1.5, 1.5], [0.0, 1.5]], atol=1e-12)
+
+
+def test_psd_channels_sharing_a_pattern_equal_one_at_a_time():
+    """``GramSystem.psd`` searches the components once for channels storing entries at the same
+    places: the result equals each channel projected on its own (to the bit), with channels of
+    the same pattern and of another one (a coupling entry left out of the last channel)."""
+    from methods.symbolic.system.gram import _psd_components
+    import scipy.sparse as sp
+    rng = np.random.default_rng(9)
+    blocks = []
+    for seed in range(3):
+        a = rng.normal(size=(10, 10))
+        m = np.zeros((10, 10))
+        m[:4, :4], m[4:, 4:] = (a + a.T)[:4, :4], (a + a.T)[4:, 4:]      # two components each
+        blocks.append(m)
+    blocks[2][0, 1] = blocks[2][1, 0] = 0.0                              # another pattern
+    s = GramSystem([sp.csr_matrix(np.triu(m)) for m in blocks], rng.normal(size=(3, 10)), np.ones(3), 10)
+    together = s.psd()
+    for g, m in zip(together.G, blocks):
+        alone, _ = _psd_components(sp.csr_matrix(np.triu(m)), 4000)
+        assert (g != alone).nnz == 0
+
+
+@pytest.mark.parametrize("n", [1, 5, 128, 300])
+def test_dense_symmetric_mirrors_the_triangle(n):
+    """``dense_symmetric`` of a triangle equals ``U + Uᵀ - diag(U)`` summed densely by numpy, to
+    the bit (copies only), for sizes below, at and across its block of rows."""
+    import scipy.sparse as sp
+
+    from methods.symbolic.system.upper_triangle import dense_symmetric
+    m = np.random.default_rng(n).normal(size=(n, n))
+    u = np.triu(m)
+    expected = u + u.T - np.diag(np.diag(u))
+    assert np.array_equal(dense_symmetric(sp.csr_matrix(u)), expected)

@@ -118,3 +118,27 @@ def test_sqp_and_slsqp_same_minimiser():
     sqp, ref = (solve_polynomial(s, b, algorithm=a, **kw) for a in ("SQP", "LD_SLSQP"))
     np.testing.assert_allclose(sqp.estimate, ref.estimate, atol=1e-7)
     assert np.all(sqp.cost <= ref.cost + 1e-10 * np.abs(ref.cost))
+
+
+def test_solve_hands_its_last_hessian_to_the_std():
+    """Where a channel's SQP ends on a Hessian of its estimate, ``SolveResult.hessians`` holds it:
+    equal to :func:`hessian` recomputed there to 1e-12 relative (the same sums), and the standard
+    errors from it equal those recomputed."""
+    from methods.symbolic.uncertainty.standard_errors import parameter_uncertainty
+    rho = np.array([[0.7, 0.3], [0.6, 0.2], [0.5, 0.8]])
+    s, b = _system(rho, seed=3)
+    s.b = s.b * 1.03
+    r = solve_polynomial(s, b, segments_params=[[0, 1], [2]], x0=np.full((3, 2), 0.4), starts=1)
+    assert len(r.hessians) == 2 and all(h is not None for h in r.hessians)
+    again = hessian(s, b, r.estimate)
+    np.testing.assert_allclose(np.stack(r.hessians), again, rtol=1e-12, atol=1e-12 * np.abs(again).max())
+    known = parameter_uncertainty(s, b, r.estimate, hessians=r.hessians)
+    fresh = parameter_uncertainty(s, b, r.estimate)
+    np.testing.assert_allclose(known.std, fresh.std, rtol=1e-10)
+
+
+def test_hessian_known_errors():
+    rho = np.array([[0.3], [0.4], [0.6]])
+    s, b = _system(rho, seed=2)
+    with pytest.raises(ValueError, match="known has 2 entries for 1 channels"):
+        hessian(s, b, rho, known=[None, None])

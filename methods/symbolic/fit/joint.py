@@ -90,7 +90,7 @@ def fit_joint(system, basis, params, x0: np.ndarray, problem, options: SymbolicO
         meat = (score_meat(sub_basis, sol.estimate, views(), columns, basis.codes, clusters=clusters,
                            poses=pose_terms(problem, views()))
                 if method in ("sandwich", "cluster") else None)
-        unc = parameter_uncertainty(sub_system, sub_basis, sol.estimate, meat=meat)
+        unc = parameter_uncertainty(sub_system, sub_basis, sol.estimate, meat=meat, hessians=sol.hessians)
         return point.replace(std=full(observable, unc.std), correlation=correlation_extra(params, observable, unc),
                              sigma2=[float(v) for v in unc.sigma2], clusters=about,
                              stages_s={**point.stages_s, "uncertainty": time.perf_counter() - t_unc})

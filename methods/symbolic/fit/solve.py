@@ -52,6 +52,10 @@ class SolveResult:
         Wall time of the whole solve.
     blocks : list of list of int
         The independent parameter blocks solved one after the other (:func:`parameter_blocks`).
+    hessians : list
+        Per channel the ``(D, D)`` exact Hessian at ``estimate`` where the SQP solve ended on one
+        computed there (one block holding every parameter), else None: the standard errors need
+        it at that point (:func:`~methods.symbolic.uncertainty.standard_errors.parameter_uncertainty`).
     iterates : list of (float, numpy.ndarray)
         At each evaluation: its ``time.perf_counter()`` and the ``(D, C)`` estimate the solve
         would return if it stopped there (per channel the best point seen so far; channels not
@@ -67,6 +71,7 @@ class SolveResult:
     solve_s: float = 0.0
     iterates: list = field(default_factory=list)
     blocks: list = field(default_factory=list)
+    hessians: list = field(default_factory=list)
 
 
 def check_solve_memory(system: GramSystem, basis: MonomialBasis) -> None:
@@ -192,6 +197,7 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
     costs = [[_BlockCost(system, basis, c, used, block, whole[c]) for block in blocks] for c in range(C)]
     trace = _Trace(x0, [whole[c](x0[:, c])[0] for c in range(C)])
     n_evals = guess_evals = 0
+    hessians = [None] * C
     options = dict(algorithm=algorithm, max_eval=int(max_eval), xtol_rel=float(xtol_rel), ftol_rel=float(ftol_rel),
                    precondition=precondition)
     if executor is not None and len(blocks) > 1:
@@ -205,12 +211,14 @@ def solve_polynomial(system: GramSystem, basis: MonomialBasis, *, segments_param
                                                        starts=_starts(starts, block), **options)
                 n_evals, guess_evals = n_evals + evals, guess_evals + from_guess
                 trace.settle(c, block, np.clip(best.x, 0.0, 1.0), best.f - f_ref)
+                if len(block) == D and best.hessian is not None and np.array_equal(trace.current[:, c], best.x):
+                    hessians[c] = best.hessian
     estimate, best_cost = trace.current, trace.channel_costs
     history, iterates = trace.history, trace.iterates
     times = [at - t_start for at, _ in iterates]    # the same clock readings as the iterates
     return SolveResult(estimate=estimate, cost=np.array(best_cost), cost_history=history, eval_times_s=times,
                        n_evals=n_evals, guess_evals=guess_evals, solve_s=time.perf_counter() - t_start,
-                       iterates=iterates, blocks=[b.tolist() for b in blocks])
+                       iterates=iterates, blocks=[b.tolist() for b in blocks], hessians=hessians)
 
 
 def _solve_blocks_on(executor, costs, blocks, trace: _Trace, segs, starts, seed: int, options: dict) -> tuple[int, int]:
@@ -248,6 +256,8 @@ def parameter_blocks(system: GramSystem, basis: MonomialBasis, segments_params: 
 
     The graph is built on the D parameters directly (a D x D adjacency): a monomial's parameters
     are linked to each other, so two coupled monomials need only their first parameters linked.
+    G's entries are looked at only while the graph has several components (a 296-weight
+    street's monomials alone link every weight: its 3 x 15.5M entries took 0.7 s a fit).
     """
     D = basis.n_params
     monomials, params = basis.incidence
@@ -256,18 +266,24 @@ def parameter_blocks(system: GramSystem, basis: MonomialBasis, segments_params: 
     first[monomials[keep][::-1]] = params[keep][::-1]
     adjacency = np.zeros(D * D, dtype=bool)
     adjacency[first[monomials[keep]] * D + params[keep]] = True
+    for ps in segments_params:
+        adjacency[ps[0] * D + np.asarray(ps[1:], dtype=np.int64)] = True
     for g in system.G:
         g = g.tocsr()
         for lo, hi in _row_chunks(g.indptr, PAIRS_PER_CHUNK):    # bounded temporaries
+            if _components(adjacency, D)[0] == 1:
+                break
             rows = np.repeat(np.arange(lo, hi), np.diff(g.indptr[lo:hi + 1]))
             a, b = first[rows], first[g.indices[g.indptr[lo]:g.indptr[hi]]]
             on = (a >= 0) & (b >= 0)
             adjacency[a[on] * D + b[on]] = True
-    for ps in segments_params:
-        adjacency[ps[0] * D + np.asarray(ps[1:], dtype=np.int64)] = True
-    graph = sp.csr_matrix(adjacency.reshape(D, D))
-    _, labels = connected_components(graph, directed=False)
+    _, labels = _components(adjacency, D)
     return [np.flatnonzero(labels == label) for label in np.unique(labels)]
+
+
+def _components(adjacency: np.ndarray, D: int) -> tuple[int, np.ndarray]:
+    """Connected components of the parameters' graph (a flat ``D x D`` adjacency)."""
+    return connected_components(sp.csr_matrix(adjacency.reshape(D, D)), directed=False)
 
 
 #: non-zeros of G looked at together by :func:`parameter_blocks` (its temporaries: 17 bytes each)

@@ -111,13 +111,18 @@ def channel_cost_grad(system: GramSystem, basis: MonomialBasis, c: int, x: np.nd
     return ChannelCost(system, basis, c)(x)
 
 
-def hessian(system: GramSystem, basis: MonomialBasis, rho: np.ndarray) -> np.ndarray:
+def hessian(system: GramSystem, basis: MonomialBasis, rho: np.ndarray, known=None) -> np.ndarray:
     """Exact Hessian of the per-channel cost, ``(C, D, D)`` (:meth:`ChannelCost.hessian`).
 
-    ``rho``: ``(D, C)``, or ``(D,)`` for every channel.
+    ``rho``: ``(D, C)``, or ``(D,)`` for every channel. ``known``: per channel the Hessian at
+    ``rho`` already computed (a solve's last), or None; only the others are computed.
     """
     rho = np.asarray(rho, dtype=float).reshape(basis.n_params, -1)
     C = system.n_channels
     rho = np.broadcast_to(rho, (basis.n_params, C))
-    used = system.used_monomials()
-    return np.stack([ChannelCost(system, basis, c, used).hessian(rho[:, c]) for c in range(C)])
+    known = [None] * C if known is None or len(known) == 0 else list(known)
+    if len(known) != C:
+        raise ValueError(f"hessian: known has {len(known)} entries for {C} channels")
+    used = system.used_monomials() if any(h is None for h in known) else None
+    return np.stack([ChannelCost(system, basis, c, used).hessian(rho[:, c]) if h is None else np.asarray(h)
+                     for c, h in enumerate(known)])
