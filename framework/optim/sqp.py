@@ -109,7 +109,7 @@ def minimize_sqp(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndar
                 H, H_at = np.asarray(hessian(x), dtype=float), x
             if convex_of is not H:             # a stale H serves several steps: made convex once
                 convex, convex_of = _convex(H), H
-            d = _binding_step(convex, g, x, lo, hi, M)
+            d = _binding_step(convex, g, x, lo, hi, M) if n >= BINDING_MIN_PARAMS else None
             if d is None:
                 d = _qp_step(convex, g, C, np.concatenate([lo - x, x - hi, M @ x - 1.0]))
             if np.max(np.abs(d), initial=0.0) <= xtol:
@@ -262,6 +262,13 @@ def _binding_step(H: np.ndarray, g: np.ndarray, x: np.ndarray, lo: np.ndarray, h
     multiplier = g + H @ d + M.T @ solution[4][2 * n:]
     held = np.where(x <= lo, multiplier, -multiplier)[binding]
     return d if np.all(held >= 0.0) else None
+
+
+#: :func:`minimize_sqp` tries :func:`_binding_step` from this many weights on: below, a whole QP
+#: costs less than the attempt (measured 2026-12-05, one QP with a fifth of the weights held:
+#: 12 weights 14 µs against 35 µs for the smaller QP and its check, 48: 86 against 81, 96: 593
+#: against 233, 296: 15.7 ms against 4.4 ms)
+BINDING_MIN_PARAMS = 64
 
 
 def _qp_step(H: np.ndarray, g: np.ndarray, C: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -214,3 +214,34 @@ def test_minimize_sqp_stops_where_the_gain_is_roundoff():
     assert res.f - 1.0 <= 2e-11
     np.testing.assert_allclose(res.x, a, atol=2.2e-3)
     np.testing.assert_array_equal(res.hessian, hess(res.x))
+
+
+def test_binding_step_equals_the_whole_qp():
+    """``_binding_step`` on 80 weights, 20 at 0 with the gradient pushing them there, two Σ <= 1
+    groups (one active): the step of the QP without the held weights equals quadprog's step on
+    the whole QP to 1e-12, held weights 0; where a held weight's multiplier is negative (the
+    gradient pushes it out once the others move) it declines (None) and the whole QP decides."""
+    from framework.optim.feasible import group_matrix
+    from framework.optim.sqp import _binding_step, _qp_step
+    rng = np.random.default_rng(4)
+    n = 80
+    A = rng.normal(size=(n, n))
+    H = A @ A.T / n + np.eye(n)
+    x = rng.uniform(0.05, 0.3, n)
+    x[:20] = 0.0
+    x[20:22] = 0.5                                     # group {20, 21} sums to 1: active
+    g = rng.normal(size=n)
+    g[:20] = 5.0 + np.abs(g[:20])
+    lo, hi = np.zeros(n), np.ones(n)
+    M = group_matrix([np.array([20, 21]), np.array([30, 31, 32])], n)
+    C = np.hstack([np.eye(n), -np.eye(n), -M.T])
+    whole = _qp_step(H, g, C, np.concatenate([lo - x, x - hi, M @ x - 1.0]))
+    held = _binding_step(H, g, x, lo, hi, M)
+    np.testing.assert_allclose(held, whole, rtol=0, atol=1e-12)
+    assert np.all(held[:20] == 0.0)
+    H[0, 20:] = H[20:, 0] = -2.0                       # weight 0 now pulled off its bound
+    H = H + n * np.eye(n)
+    g[20:] = -50.0
+    g[0] = 1e-3
+    assert _binding_step(H, g, x, lo, hi, M) is None
+    assert _qp_step(H, g, C, np.concatenate([lo - x, x - hi, M @ x - 1.0]))[0] > 0.0

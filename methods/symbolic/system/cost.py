@@ -111,7 +111,7 @@ def channel_cost_grad(system: GramSystem, basis: MonomialBasis, c: int, x: np.nd
     return ChannelCost(system, basis, c)(x)
 
 
-def hessian(system: GramSystem, basis: MonomialBasis, rho: np.ndarray, known=None) -> np.ndarray:
+def hessian(system: GramSystem, basis: MonomialBasis, rho: np.ndarray, known: list | None = None) -> np.ndarray:
     """Exact Hessian of the per-channel cost, ``(C, D, D)`` (:meth:`ChannelCost.hessian`).
 
     ``rho``: ``(D, C)``, or ``(D,)`` for every channel. ``known``: per channel the Hessian at

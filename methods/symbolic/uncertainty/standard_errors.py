@@ -113,7 +113,7 @@ class Uncertainty:
 
 
 def parameter_uncertainty(system: GramSystem, basis: MonomialBasis, rho: np.ndarray, *,
-                          meat: np.ndarray | None = None, hessians=None, rcond: float = RCOND,
+                          meat: np.ndarray | None = None, hessians: list | None = None, rcond: float = RCOND,
                           null_tol: float = NULL_TOL) -> Uncertainty:
     """Standard errors at the estimate ``rho``: ``sqrt(diag(H_c⁺ M_c H_c⁺))`` with the sandwich
     ``meat`` (:func:`~methods.symbolic.uncertainty.sandwich_meat.score_meat`), or
