@@ -97,7 +97,7 @@ def minimize_sqp(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndar
 
     H = None if start_hessian is None else np.asarray(start_hessian, dtype=float)
     H_at = None                     # the point the Hessian H was computed at (None: given)
-    convex = convex_of = None       # the QP's matrix (_convex) and the H it was made from
+    convex = None if H is None else _convex(H)       # the QP's matrix: once per H, which serves several steps
     last_step = np.inf
     linear = False                  # a fresh Hessian's step shrank slowly too: shrinking is no reason
     ratios: list[float] = []        # of the steps while they shrink linearly
@@ -107,8 +107,7 @@ def minimize_sqp(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndar
             fresh = H is None
             if fresh:
                 H, H_at = np.asarray(hessian(x), dtype=float), x
-            if convex_of is not H:             # a stale H serves several steps: made convex once
-                convex, convex_of = _convex(H), H
+                convex = _convex(H)
             d = _binding_step(convex, g, x, lo, hi, M) if n >= BINDING_MIN_PARAMS else None
             if d is None:
                 d = _qp_step(convex, g, C, np.concatenate([lo - x, x - hi, M @ x - 1.0]))
