@@ -27,8 +27,9 @@ bits per (row, monomial) cell (the bitmap and its ranks) and the summed cells. A
 a chunk of its pixels at a time, each chunk marking and summing only its pixels' events, so that
 a chunk's cells stay within :data:`CHUNK_CELLS` and its work arrays within
 :func:`~methods.symbolic.trace.tile_memory.work_budget` (a chunk whose summed cells would not fit
-is marked again in halves); each event's cell is recomputed where it is needed, never stored
-(:mod:`~methods.symbolic.trace.tile_memory` models the whole). The sums are copied to the host,
+is marked again in halves); each event's column is stored once, in a buffer of the tile's every
+slot, and its cell computed from it where it is needed (:mod:`~methods.symbolic.trace.tile_memory`
+models the whole). The sums are copied to the host,
 so that no host array holds Dr.Jit's (power-of-two) buffers. Key ranges above
 :data:`~methods.symbolic.trace.monomial_codes.TABLE_KEYS` (hundreds of parameters) have no key table:
 :func:`pixel_sums` returns None and the caller sums on the host
@@ -162,16 +163,18 @@ class _Tile:
         self.slots, self.spp, self.split = events.slots, spp, split
         self.pixel, self.block, self.first_quarter = _lane_cells(at // dr.opaque(mi.UInt32, events.slots),
                                                                  n, spp, split, blocks)
-        self.table = table
-        self.col = self.column(at)        # an expression: evaluated in each kernel that reads it
+        # each event's column, stored once (the row sums read it in their loop: looked up there
+        # through the key table, a 70-material street's pass took 42 % longer), in a buffer of the
+        # tile's every slot, so that Dr.Jit's allocator hands every tile the same one
+        E = dr.width(at)
+        self.columns = dr.empty(mi.UInt32, dr.width(events.mono))
+        dr.scatter(self.columns, dr.gather(mi.UInt32, table, dr.gather(mi.UInt32, events.mono, at)),
+                   dr.arange(mi.UInt32, E))
+        self.col = dr.gather(mi.UInt32, self.columns, dr.arange(mi.UInt32, E))
         # each summing row's event count and first event in ``at`` (exclusive prefix sum), tile-wide
         self.events_per_row = dr.zeros(mi.UInt32, n * min(blocks, 2))
         dr.scatter_add(self.events_per_row, mi.UInt32(1), self.block * dr.opaque(mi.UInt32, n) + self.pixel)
         self.first_event = dr.prefix_sum(self.events_per_row)
-
-    def column(self, slot):
-        """The tile column of the events in ``slot`` (the key table at their path keys)."""
-        return dr.gather(mi.UInt32, self.table, dr.gather(mi.UInt32, self.events.mono, slot))
 
     def sums(self, p0: int, m: int, budget: int) -> tuple | None:
         """``(indptr, cols, [values per channel])`` of pixels ``p0 .. p0 + m - 1``: the occupied
@@ -231,7 +234,7 @@ class _Tile:
         def body(j):
             e = first_event + j
             slot = dr.gather(mi.UInt32, self.at, e)
-            c = row_cell + self.column(slot)         # its cell, recomputed: no array of every event's
+            c = row_cell + dr.gather(mi.UInt32, self.columns, e)     # its cell: no array of every event's
             values = [dr.gather(mi.Float, v, slot) for v in self.events.values]
             add(c, values, True)
             if self.blocks == 4:                    # A₁, B₁: the first quarter's events again

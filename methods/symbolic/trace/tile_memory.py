@@ -9,11 +9,13 @@ bytes, ``E = n · spp · S`` the tile's event slots):
 * its events: a key and ``C`` values a slot, ``(1 + C) · P(4 E)``
   (:class:`~methods.symbolic.trace.events.EventBuffer`);
 * the slots that hold one, compacted (``dr.compress`` allocates for every slot): ``P(4 E)``;
-* the per-pixel sums' work arrays: their bitmap, ranks and summed cells, at most
-  :func:`work_budget` ``= P(4 E) / 2`` a chunk of pixels (:mod:`~methods.symbolic.trace.pixel_sums`),
-  or where the key range has no table, one gathered event array at a time, ``P(4 E)``, for the
-  host (:meth:`~methods.symbolic.trace.events.EventBuffer.compact`); counted twice, since their
-  sizes vary from tile to tile and the allocator keeps one freed buffer of each size;
+* with a key table (:mod:`~methods.symbolic.trace.pixel_sums`), the events' columns (a buffer of
+  every slot too, ``P(4 E)``) and the per-pixel sums' work arrays: their bitmap, ranks and summed
+  cells, at most :func:`work_budget` ``= P(4 E) / 2`` a chunk of pixels; without one, one
+  gathered event array at a time for the host, ``P(4 E)``
+  (:meth:`~methods.symbolic.trace.events.EventBuffer.compact`); the work and gathered arrays
+  counted twice, since their sizes vary from tile to tile and the allocator keeps one freed
+  buffer of each size;
 * each sample's lane offset ``P(4 n spp)``, each pixel's event counts ``2 P(8 n)`` and the path
   keys' table ``2 P(4 K)`` (``K`` the key range, :func:`key_table_bytes`).
 
@@ -52,6 +54,9 @@ def tile_device_bytes(pixels: int, spp: int, slots: int, n_channels: int, key_sp
     sample, ``n_channels`` values a slot and path keys below ``key_span`` (module docstring)."""
     lanes = int(pixels) * int(spp)
     events = allocated(4 * lanes * int(slots))                 # one event buffer (or the compacted slots)
-    work = 2 * (work_budget(lanes, slots) if key_span <= TABLE_KEYS else events)
-    return ((2 + int(n_channels)) * events + work + allocated(4 * lanes) + 2 * allocated(8 * int(pixels))
+    if key_span <= TABLE_KEYS:       # the events' columns, and the sums' work arrays
+        extra = events + 2 * work_budget(lanes, slots)
+    else:                            # the gathered arrays for the host
+        extra = 2 * events
+    return ((2 + int(n_channels)) * events + extra + allocated(4 * lanes) + 2 * allocated(8 * int(pixels))
             + key_table_bytes(key_span))
