@@ -79,7 +79,9 @@ def _pass_fn(problem, method, spp: int, cache_dir=None):
             return render_view_task(task, variant=variant)
         return render_view_task(dataclasses.replace(task, cache_dir=str(Path(cache_dir) / f"call{next(calls)}")),
                                 variant=variant)
-    run.tile_mib = tile_bytes(tile, spp, N, problem.n_channels, T, n_params=len(params)) / 2 ** 20
+    cam = problem.cameras[0]                  # a tile never holds more than the view
+    run.tile_mib = tile_bytes(min(tile, cam.width * cam.height), spp, N, problem.n_channels, T,
+                              n_params=len(params)) / 2 ** 20
     return run, x0
 
 
