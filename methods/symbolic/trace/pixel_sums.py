@@ -25,10 +25,11 @@ was 95 % of the pass; here the device does it, in three steps and one small host
 Memory on the device is that of the events, their compacted slots, and a chunk's work arrays: two
 bits per (row, monomial) cell (the bitmap and its ranks) and the summed cells. A tile is summed
 a chunk of its pixels at a time, each chunk marking and summing only its pixels' events, so that
-a chunk's cells stay within :data:`CHUNK_CELLS` and its work arrays within
+a chunk's cells stay within :data:`CHUNK_CELLS` and its summed cells within half of
 :func:`~methods.symbolic.trace.tile_memory.work_budget` (a chunk whose summed cells would not fit
-is marked again in halves); each event's column is stored once, in a buffer of the tile's every
-slot, and its cell computed from it where it is needed (:mod:`~methods.symbolic.trace.tile_memory`
+is marked again in halves; the bitmap is not cut to the budget, see :func:`_chunk_pixels`); each
+event's column is stored once, in a buffer of the tile's every slot, and its cell computed from
+it where it is needed (:mod:`~methods.symbolic.trace.tile_memory`
 models the whole). The sums are copied to the host,
 so that no host array holds Dr.Jit's (power-of-two) buffers. Key ranges above
 :data:`~methods.symbolic.trace.monomial_codes.TABLE_KEYS` (hundreds of parameters) have no key table:
@@ -87,7 +88,7 @@ def pixel_sums(events, *, n: int, spp: int, split: int, quarters: bool, span: in
         return None
     tile = _Tile(events, at, table, n=n, spp=spp, split=split, n_cols=len(codes), blocks=blocks)
     budget = work_budget(dr.width(events.mono) // events.slots, events.slots)
-    m, p0, chunks = _chunk_pixels(n, len(codes), blocks, budget), 0, []
+    m, p0, chunks = _chunk_pixels(n, len(codes), blocks), 0, []
     while p0 < n:
         size = min(m, n - p0)
         summed = tile.sums(p0, size, budget)
@@ -102,23 +103,16 @@ def pixel_sums(events, *, n: int, spp: int, split: int, quarters: bool, span: in
 # The cells' bitmap holds a bit per (row, tile monomial) and its ranks a 32-bit count per 32 bits:
 # 2 bits per cell, which a street of many materials makes large (a 70-material view of 40,000
 # pixels has 19,000 monomials: 370 MiB). A tile's pixels are summed in chunks of at most this many
-# cells (64 MiB of bitmap and ranks) and of work arrays within the tile's work budget, each over
-# the events of its pixels.
+# cells (64 MiB of bitmap and ranks), each over the events of its pixels.
 CHUNK_CELLS = 2 ** 28
 
 
-def _chunk_pixels(n: int, n_cols: int, blocks: int, budget: int) -> int:
-    """Pixels per chunk: the whole tile when its cells fit in :data:`CHUNK_CELLS` and its bitmap
-    and ranks (:func:`_bitmap_bytes`) in half of ``budget``."""
-    m = max(1, min(n, CHUNK_CELLS // (blocks * n_cols)))
-    while m > 1 and _bitmap_bytes(blocks * m * n_cols) > budget // 2:
-        m //= 2
-    return m
-
-
-def _bitmap_bytes(cells: int) -> int:
-    """Device bytes of a chunk's bitmap over ``cells`` cells, its words' counts and their ranks."""
-    return 3 * allocated(4 * -(-cells // 32))
+def _chunk_pixels(n: int, n_cols: int, blocks: int) -> int:
+    """Pixels per chunk: the whole tile when its cells fit in :data:`CHUNK_CELLS`. The bitmap is
+    not cut to the work budget: each chunk marks and ranks apart over the tile's events, and a
+    70-material street's views (19,000 monomials) cut so took 440-pixel chunks and a pass 48 %
+    longer (bench section 5, 6.4 -> 9.5 s)."""
+    return max(1, min(n, CHUNK_CELLS // (blocks * n_cols)))
 
 
 def _cells_bytes(total: int, rows: int, n_channels: int) -> int:
@@ -180,8 +174,8 @@ class _Tile:
         """``(indptr, cols, [values per channel])`` of pixels ``p0 .. p0 + m - 1``: the occupied
         (row, column) cells in CSR form over the chunk's ``blocks · m`` rows: row ``k``'s cells
         are ``indptr[k] .. indptr[k + 1] - 1``, with their columns (increasing) and summed
-        values (step 3); None when the bitmap and the summed cells would exceed ``budget`` bytes
-        and the chunk has more than one pixel (it is then summed in smaller chunks)."""
+        values (step 3); None when the summed cells would exceed half of ``budget`` bytes and the
+        chunk has more than one pixel (it is then summed in smaller chunks)."""
         first, size = dr.opaque(mi.UInt32, p0), dr.opaque(mi.UInt32, m)
         inside = (self.pixel >= first) & (self.pixel < first + size)       # unsigned: no wrap below p0
         cell = (self.block * size + self.pixel - first) * dr.opaque(mi.UInt32, self.n_cols) + self.col
@@ -191,10 +185,10 @@ class _Tile:
         if self.blocks == 4:
             _mark(words, cell + shift, inside & self.first_quarter)
         rank = _Ranks(words)
-        need = _bitmap_bytes(self.blocks * m * self.n_cols) + _cells_bytes(rank.total, self.blocks * m,
-                                                                           len(self.events.values))
-        if m > 1 and need > budget:
-            return None
+        if m > 1 and _cells_bytes(rank.total, self.blocks * m, len(self.events.values)) > budget // 2:
+            return None                # the summed cells take half the budget, the bitmap the other
+        if rank.total == 0:            # no event in these pixels (Dr.Jit cannot scatter to nothing)
+            return _no_sums(self.blocks * m, len(self.events.values))
         index = np.int32 if rank.total < 2 ** 31 else np.int64     # scipy's index type for this size
         cols = dr.zeros(mi.UInt32, rank.total)
         sums = [dr.zeros(mi.Float64, rank.total) for _ in self.events.values]

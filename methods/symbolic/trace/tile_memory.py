@@ -19,6 +19,12 @@ bytes, ``E = n · spp · S`` the tile's event slots):
 * each sample's lane offset ``P(4 n spp)``, each pixel's event counts ``2 P(8 n)`` and the path
   keys' table ``2 P(4 K)`` (``K`` the key range, :func:`key_table_bytes`).
 
+Not modelled: the bitmap of a tile with thousands of monomials (a street of many materials), two
+bits a (pixel, monomial) cell, which its chunks of at most
+:data:`~methods.symbolic.trace.pixel_sums.CHUNK_CELLS` cells keep below 192 MiB (three arrays of
+32 MiB rounded to 64) but not within the work budget (cut to it, the chunks made such a pass 48 %
+slower); with the 253-2,500 monomials of the bundled scenes' views it fits.
+
 A view's tiles hold the same number of lanes (its last tile's buffers are sized as the others',
 :class:`~methods.symbolic.trace.events.EventBuffer`), so the allocator reuses them from tile to
 tile and from view to view. Measured with Dr.Jit's allocation watermark
