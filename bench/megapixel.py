@@ -22,7 +22,7 @@ from pathlib import Path
 
 from bench.common import ROOT
 from bench.tables import f, table, yes
-from bench.render_ratio import HOST_TARGET, RATIO_TARGET, _host, device_peak
+from bench.render_ratio import HOST_TARGET, RATIO_TARGET, _host
 
 WIDTH, HEIGHT, VIEW = 1920, 1080, "street_002.png"
 
@@ -94,10 +94,8 @@ def markdown(r: dict) -> list[str]:
               "subprocess; timed as section 1. As a run with a cache does, the pass writes each tile's "
               "per-pixel coefficients to the cache while the next tile renders (timed with it) and the "
               "solve's standard errors read them back one tile at a time: the peak is bounded by the "
-              "tiles, not the image. Device peak: as section 1.", ""]
+              "tiles, not the image.", ""]
     body = [[r["size"], r["spp"], f(r["pass_s"], 1), f(r["render_s"], 1), f(r["ratio"], 2),
-             yes(r["ratio"] <= RATIO_TARGET), _host(r), f(r["solve_s"], 2), r["n_monomials"], f(r["maxrss_mib"], 0),
-             device_peak(r)]]
+             yes(r["ratio"] <= RATIO_TARGET), _host(r), f(r["solve_s"], 2), r["n_monomials"], f(r["maxrss_mib"], 0)]]
     return lines + table(["view", "spp", "pass (s)", "render (s)", "pass / render", f"<= {RATIO_TARGET}",
-                          f"host share (<= {HOST_TARGET:.0%})", "solve (s)", "monomials", "peak RSS (MiB)",
-                          "device peak / model / memory_mb (MiB), <= memory_mb"], body) + [""]
+                          f"host share (<= {HOST_TARGET:.0%})", "solve (s)", "monomials", "peak RSS (MiB)"], body) + [""]

@@ -18,12 +18,12 @@ from pathlib import Path
 
 from framework.config import compose
 from framework.experiment import prepare
-from framework.render.jit_timing import allocation_peak, kernel_split
+from framework.render.jit_timing import kernel_split
 from framework.render.mitsuba_scene import MitsubaScene, max_depth_for
 from methods._common import initial_guess, segment_groups
 from methods.symbolic.loop.refinement import solve_system
 from methods.symbolic.system.basis import MonomialBasis
-from methods.symbolic.system.polynomial_pass import render_view_task, tile_bytes, tile_pixels_for, view_task
+from methods.symbolic.system.polynomial_pass import render_view_task, tile_pixels_for, view_task
 from bench.tables import f, table, yes
 
 
@@ -50,12 +50,6 @@ def _host_share(fn) -> float:
     return max(0.0, wall - kernels) / wall
 
 
-def _device_peak_mib(fn) -> float:
-    """MiB Dr.Jit's allocator held at most during one call of ``fn`` (device memory on a ``cuda_*``
-    variant), from an emptied allocator cache (:func:`~framework.render.jit_timing.allocation_peak`)."""
-    return allocation_peak(fn)[0] / 2 ** 20
-
-
 def _pass_fn(problem, method, spp: int, cache_dir=None):
     """A no-argument function running the method's polynomial pass of view 0 at ``spp``; with
     ``cache_dir`` its tiles are stored there as they are rendered (as a run with a cache does),
@@ -63,7 +57,7 @@ def _pass_fn(problem, method, spp: int, cache_dir=None):
     params = problem.parameters
     x0, _ = initial_guess(method.options, problem)
     N, T = problem.settings.max_bounces, problem.settings.tail_bounces
-    tile = tile_pixels_for(method.options.memory_mb, spp, N, problem.n_channels, T, n_params=len(params))
+    tile = tile_pixels_for(method.options.memory_mb, spp, N, problem.n_channels, T)
     key = {"bench": "pass", "scene": problem.scene.content_hash, "view": problem.cameras[0].name, "spp": spp,
            "tile_pixels": tile, "tail_bounces": T}
     task = view_task(problem, params, x0, N, 0, spp=spp, seed=int(problem.seed), prob_floor=method.options.prob_floor,
@@ -79,9 +73,6 @@ def _pass_fn(problem, method, spp: int, cache_dir=None):
             return render_view_task(task, variant=variant)
         return render_view_task(dataclasses.replace(task, cache_dir=str(Path(cache_dir) / f"call{next(calls)}")),
                                 variant=variant)
-    cam = problem.cameras[0]                  # a tile never holds more than the view
-    run.tile_mib = tile_bytes(min(tile, cam.width * cam.height), spp, N, problem.n_channels, T,
-                              n_params=len(params)) / 2 ** 20
     return run, x0
 
 
@@ -100,7 +91,6 @@ def measure_spp(problem, method, spp: int, reps: int, cache_dir=None) -> dict:
     pass_fn, x0 = _pass_fn(problem, method, spp, cache_dir)
     t_pass, (system, coefficients) = _timed(pass_fn, reps)
     host = _host_share(pass_fn)
-    device_mib = _device_peak_mib(pass_fn)
     basis = MonomialBasis(len(problem.parameters), problem.settings.max_bounces, system.codes)
     t_render, _ = _timed(_render_fn(problem, spp, x0), reps)
     # the default std (sandwich) reads the view's per-pixel coefficients: time it with them
@@ -109,7 +99,6 @@ def measure_spp(problem, method, spp: int, reps: int, cache_dir=None) -> dict:
     t_solve, fit = _timed(lambda: solve_system(system, basis, view0.parameters, x0, view0, method.options,
                                                views=views, groups=segment_groups(view0.parameters)), reps)
     return {"spp": spp, "pass_s": t_pass, "render_s": t_render, "ratio": t_pass / t_render, "host_share": host,
-            "device_peak_mib": device_mib, "tile_model_mib": pass_fn.tile_mib, "memory_mb": method.options.memory_mb,
             "solve_s": t_solve, "solve_share": t_solve / t_render, "solve_share_pass": t_solve / t_pass,
             "solve_stages_s": fit.stages_s, "solver_evaluations": fit.solve.n_evals,
             "n_monomials": basis.size, "n_params": len(problem.parameters)}
@@ -157,33 +146,13 @@ def markdown(r: dict) -> list[str]:
              f"(PSD projection, solver multi-start, sandwich uncertainty from the per-pixel coefficients), median "
              f"the same way; its stages (PSD projection, the solver with its evaluation count) are those of "
              f"the last run. Host share = the pass's wall time outside Dr.Jit's kernels (wall minus the "
-             f"kernels' execution time in Dr.Jit's kernel history), one run after the median's. Device peak = "
-             f"the most memory Dr.Jit's allocator held during one more run of the pass (its cache of freed "
-             f"buffers emptied before; the GPU's memory on a `cuda_*` variant), against its model for one tile "
-             f"(methods/symbolic/trace/tile_memory.py) and method.memory_mb = {_memory(r)}.", ""]
+             f"kernels' execution time in Dr.Jit's kernel history), one run after the median's.", ""]
     rows = [[f"{x['spp']}" + (f" (default, T = {x['tail']})" if x.get("tail") else ""), f(x["pass_s"], 2), f(x["render_s"], 3), f(x["ratio"], 2),
              yes(x["ratio"] <= RATIO_TARGET), _host(x), f(x["solve_s"], 3), _stages(x), f"{100 * x['solve_share']:.1f} %",
-             f"{100 * x['solve_share_pass']:.1f} %", yes(x["solve_share"] <= SOLVE_TARGET), device_peak(x)]
-            for x in r["rows"]]
+             f"{100 * x['solve_share_pass']:.1f} %", yes(x["solve_share"] <= SOLVE_TARGET)] for x in r["rows"]]
     return lines + table(["spp", "pass (s)", "render (s)", "pass / render", f"<= {RATIO_TARGET}",
                           f"host share (<= {HOST_TARGET:.0%} at 256 spp)", "solve (s)", "of which PSD / solver (evals)", "solve / render", "solve / pass",
-                          f"solve/render <= {SOLVE_TARGET:.0%}", "device peak / model / memory_mb (MiB), <= memory_mb"],
-                         rows) + [""]
-
-
-def device_peak(row: dict) -> str:
-    """The pass's device peak, its model and ``memory_mb``, and whether the peak stays within it
-    (n/a in sections measured before the bench recorded it)."""
-    if row.get("device_peak_mib") is None:
-        return "n/a"
-    return (f"{row['device_peak_mib']:.1f} / {row['tile_model_mib']:.1f} / {row['memory_mb']:g}, "
-            f"{yes(row['device_peak_mib'] <= row['memory_mb'])}")
-
-
-def _memory(r: dict) -> str:
-    """The rows' ``method.memory_mb`` (n/a before the bench recorded it)."""
-    mb = {row.get("memory_mb") for row in r["rows"]} - {None}
-    return ", ".join(f"{m:g} MiB" for m in sorted(mb)) or "n/a"
+                          f"solve/render <= {SOLVE_TARGET:.0%}"], rows) + [""]
 
 
 def _host(row: dict) -> str:

@@ -154,8 +154,7 @@ def view_systems(problem, params, x0, *, max_bounces: int, spp: int, seed: int =
     """Each view's own ``(GramSystem, TiledCoefficients)`` as :func:`polynomial_pass` renders them
     (same seeds and tiles): the pass itself keeps only their sum."""
     from methods.symbolic.system.polynomial_pass import render_view_task, tile_pixels_for, view_task
-    tile = tile_pixels_for(memory_mb, spp, max_bounces, problem.n_channels, tail_bounces,
-                           n_params=len(problem.parameters))
+    tile = tile_pixels_for(memory_mb, spp, max_bounces, problem.n_channels, tail_bounces)
     return [render_view_task(view_task(problem, params, x0, max_bounces, i, spp=spp, seed=seed, prob_floor=prob_floor,
                                        tile_pixels=tile, cross_gram=cross_gram, tail_bounces=tail_bounces),
                              variant=problem.settings.variant)

@@ -1,4 +1,4 @@
-"""Dr.Jit's kernel compilation time, measured apart from the work, and what a call costs it.
+"""Dr.Jit's kernel compilation time, measured apart from the work.
 
 The first run in a process pays for compiling every kernel it launches (LLVM code generation
 and the backend's compile); later runs of a sweep find them in Dr.Jit's cache. Comparing methods
@@ -10,8 +10,6 @@ their small load time) (Dr.Jit's kernel history, drained by a background
 thread every :data:`DRAIN_S` seconds so its intermediate representations do not pile up);
 kernels compiled in Dask workers are not counted. It also counts those kernels
 (:attr:`CompileTimer.kernels`): a loop that compiles again at every iteration shows there.
-:func:`kernel_split` splits a call's time into its kernels' and the host's; :func:`allocation_peak`
-measures the memory Dr.Jit's allocator holds for a call.
 """
 from __future__ import annotations
 
@@ -98,26 +96,3 @@ def kernel_split(fn) -> tuple[float, float, object]:
     finally:
         dr.set_flag(flag, was)
     return wall, kernels, out
-
-
-def allocation_peak(fn) -> tuple[int, object]:
-    """``(bytes, out)``: the most memory Dr.Jit's allocator held for the active variant's backend
-    while ``fn()`` ran, beyond what live arrays held before it, and its output.
-
-    The allocator's cache of freed buffers is emptied first, so the figure is what ``fn`` itself
-    allocates (each buffer at its power-of-two size, freed ones it kept for reuse included): device
-    memory on a ``cuda_*`` variant, host memory on an ``llvm_*`` one. 0 without Dr.Jit's
-    allocation statistics (``drjit.detail.malloc_watermark``)."""
-    import drjit as dr
-    import mitsuba as mi
-    watermark = getattr(dr.detail, "malloc_watermark", None)
-    if watermark is None:
-        return 0, fn()
-    backend = dr.JitBackend.CUDA if mi.variant().startswith("cuda") else dr.JitBackend.LLVM
-    dr.sync_thread()
-    dr.flush_malloc_cache()
-    dr.detail.malloc_clear_statistics()          # the watermark restarts at what is held now
-    before = watermark(backend)
-    out = fn()
-    dr.sync_thread()
-    return max(0, watermark(backend) - before), out

@@ -174,11 +174,9 @@ class SymbolicOptions(StartOptions):
         "10: see methods/symbolic/loop/richardson.py)", choice("auto", "none", "richardson"), default="auto")
     irls: IrlsOptions = option("the robust rounds", default_factory=IrlsOptions)
     memory_mb: float = option(
-        "Dr.Jit memory (the GPU's on a `cuda_*` variant) of one tile of the pass: its event buffers, "
-        "their compaction and the per-pixel sums' work arrays, each buffer at the power of two Dr.Jit's "
-        "allocator rounds it to (sets the tile size; methods/symbolic/trace/tile_memory.py). With a cache, "
-        "each tile's per-pixel coefficients go to the cache as they are rendered and are read back one "
-        "tile at a time, so a large view costs disk, not memory; with `cache.dir=null` they are held in "
+        "memory for the event buffers of one tile of the pass (sets the tile size). With a cache, each "
+        "tile's per-pixel coefficients go to the cache as they are rendered and are read back one tile "
+        "at a time, so a large view costs disk, not memory; with `cache.dir=null` they are held in "
         "memory", number(0.0, lo_open=True), default=512)
     solver: SolverOptions = option("the solve", default_factory=SolverOptions)
     relight: RelightOptions = option("relit images", default_factory=RelightOptions)

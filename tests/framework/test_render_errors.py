@@ -123,20 +123,16 @@ def test_camera_pose_errors(tiny_scene):
 
 @pytest.mark.slow
 def test_memory_errors(tiny_scene, monkeypatch):
-    """render.spp=4194304 used to crash the process. The smallest tile (64 pixels) has 2^28 lanes
-    x 3 event slots (N_max = 2), so each of its 4-byte event arrays takes 3 GiB, allocated as
-    4 GiB (a power of two): a key and 3 values, the compacted slots, their columns and the sums'
-    work arrays (twice half of one) make 7 x 4 GiB, the lanes' offsets 1 GiB, the rest a few KiB:
-    29697 MiB. Below 512 MiB: 65536 spp (7 x 64 MiB + 16 MiB; 131072 spp needs 7 x 128 MiB). At
-    4096 spp the tile is the whole 16x16 view: 2^20 lanes, arrays of 12 MiB allocated as 16 MiB:
-    7 x 16 + 4 MiB + a few KiB = 117 MiB."""
+    """render.spp=4194304 used to crash the process: the smallest tile (64 pixels) would need
+    64 x 4194304 samples x 3 events (N_max = 2) x 16 bytes x 3 copies = 36864 MiB. At 4096 spp
+    the tile is the whole 16x16 view: 256 x 4096 x 3 x 16 x 3 bytes = 144 MiB."""
     problem = make_problem(tiny_scene, None, "render.spp=4194304", "render.tail_bounces=0")
-    with pytest.raises(ConfigError, match=r"render.spp=4194304 needs 29697 MiB for the smallest tile of the "
+    with pytest.raises(ConfigError, match=r"render.spp=4194304 needs 36864 MiB for the smallest tile of the "
                                           r"polynomial pass \(64 pixels\), above method.memory_mb=512: lower "
-                                          r"render.spp to at most 65536 or raise method.memory_mb to at least 29697"):
+                                          r"render.spp to at most 58254 or raise method.memory_mb to at least 36864"):
         run_symbolic(problem)
     monkeypatch.setattr(checks, "available_memory_bytes", lambda: 2**20)
-    with pytest.raises(ConfigError, match=r"the polynomial pass's tiles \(1 at once\) need 117 MiB, but this "
+    with pytest.raises(ConfigError, match=r"the polynomial pass's tiles \(1 at once\) need 144 MiB, but this "
                                           r"machine has 1 MiB available: lower method.memory_mb \(smaller tiles\) "
                                           r"or render.spp"):
         run_symbolic(make_problem(tiny_scene, None, "render.spp=4096", "render.tail_bounces=0"))

@@ -93,7 +93,7 @@ def test_a_task_storing_its_tiles_returns_their_loaders(problem, tmp_path):
     """``render_view_task`` with a cache folder (what the bench's megapixel pass and a Dask worker
     on this machine run) returns loaders reading each stored tile back: the same blocks."""
     x0 = np.full((len(problem.parameters), 3), 0.5)
-    tile = tile_pixels_for(TINY_MEMORY_MB, 16, 3, 3, 2, n_params=len(problem.parameters))
+    tile = tile_pixels_for(TINY_MEMORY_MB, 16, 3, 3, 2)
     task = lambda **kw: view_task(problem, problem.parameters, x0, 3, 0, spp=16, seed=0, prob_floor=0.1,
                                   tile_pixels=tile, cross_gram=True, tail_bounces=2, **kw)
     variant = problem.settings.variant

@@ -38,101 +38,66 @@ from methods.symbolic.system.view_systems import weighted_system
 from methods.symbolic.trace.events import event_slots
 from methods.symbolic.trace.integrator import integrator_class
 from methods.symbolic.trace.monomial_codes import check_key_range
-from methods.symbolic.trace.tile_memory import allocated, tile_device_bytes
 
 log = logging.getLogger(__name__)
+BYTES_COPIES = 3   # an event buffer lives in Dr.Jit, compacted on the device, and in numpy
 MIN_TILE_PIXELS = 64
-#: the event buffers (one key and ``C`` values a slot) take at most this share of ``memory_mb``:
-#: their compacted slots and the per-pixel sums' work arrays need as much again, and Dr.Jit's
-#: allocator rounds each buffer up to a power of two (:mod:`~methods.symbolic.trace.tile_memory`)
-EVENTS_SHARE = 1 / 3
 
 
 def event_bytes_per_pixel(spp: int, max_bounces: int, n_channels: int, tail_bounces: int = 0, *,
                           n_scales: int = 0, n_parts: int = 0) -> int:
-    """Bytes of one pixel's event buffers in a tile: ``spp × (N_max + T + 1)`` event slots
-    (``spp × (2 (N_max + T) + 1)`` with ``n_scales`` unknown emitter scales: a vertex's two
-    contributions kept apart; ``n_parts`` times that with ``n_parts`` environments split) of one
-    monomial index and ``C`` values, 4 bytes each."""
-    return spp * event_slots(max_bounces, tail_bounces, n_scales, n_parts) * 4 * (1 + n_channels)
+    """Bytes of one pixel's event buffers in a tile.
 
-
-def tile_bytes(pixels: int, spp: int, max_bounces: int, n_channels: int, tail_bounces: int = 0, *,
-               n_params: int, n_scales: int = 0, n_parts: int = 0) -> int:
-    """Peak device bytes of a tile of ``pixels`` pixels (:func:`~methods.symbolic.trace.tile_memory.tile_device_bytes`,
-    the path keys below ``(D + 1)^N_max (G + 1)`` for ``D = n_params``)."""
-    slots = event_slots(max_bounces, tail_bounces, n_scales, n_parts)
-    span = (int(n_params) + 1) ** int(max_bounces) * (int(n_scales) + 1)
-    return tile_device_bytes(pixels, spp, slots, n_channels, span)
+    A pixel holds ``spp × (N_max + T + 1)`` event slots (``spp × (2 (N_max + T) + 1)`` with
+    ``n_scales`` unknown emitter scales: a vertex's two contributions kept apart; ``n_parts`` times
+    that with ``n_parts`` environments split) of one monomial index and ``C`` values
+    (4 bytes each), held about three times (Dr.Jit buffers, their compacted copy, numpy arrays).
+    The path state itself never reaches memory (the tile's paths run as one kernel): measured,
+    a 256-pixel tile at 4096 spp peaked 124 MiB above the process's start, this estimate 192 MiB.
+    """
+    return spp * event_slots(max_bounces, tail_bounces, n_scales, n_parts) * 4 * (1 + n_channels) * BYTES_COPIES
 
 
 def tile_pixels_for(memory_mb: float, spp: int, max_bounces: int, n_channels: int, tail_bounces: int = 0, *,
-                    n_params: int, n_scales: int = 0, n_parts: int = 0) -> int:
-    """Largest tile whose event buffers take at most :data:`EVENTS_SHARE` of ``memory_mb`` and
-    whose device memory (:func:`tile_bytes`) fits in it, at least :data:`MIN_TILE_PIXELS` pixels
-    (:func:`check_pass_memory` says when even that many do not fit).
-
-    Parameters
-    ----------
-    memory_mb : float
-        ``method.memory_mb``, MiB.
-    spp, max_bounces, n_channels, tail_bounces, n_scales, n_parts
-        The pass's samples per pixel, ``N_max``, channels, ``T``, unknown emitter scales and split
-        environments (:func:`event_bytes_per_pixel`).
-    n_params : int
-        ``D``, the weights the pass estimates (the range of the path keys).
-    """
-    sizes = dict(n_params=n_params, n_scales=n_scales, n_parts=n_parts)
+                    n_scales: int = 0, n_parts: int = 0) -> int:
+    """Largest tile whose event buffers (:func:`event_bytes_per_pixel`) fit in ``memory_mb``
+    (at least :data:`MIN_TILE_PIXELS` pixels)."""
     per_pixel = event_bytes_per_pixel(spp, max_bounces, n_channels, tail_bounces, n_scales=n_scales, n_parts=n_parts)
-    budget = memory_mb * MiB
-    n = max(MIN_TILE_PIXELS, int(EVENTS_SHARE * budget // per_pixel))
-    # each step down halves the events' allocation: the model is a staircase in the pixels
-    while n > MIN_TILE_PIXELS and tile_bytes(n, spp, max_bounces, n_channels, tail_bounces, **sizes) > budget:
-        slot_bytes = per_pixel // (1 + n_channels)
-        n = max(MIN_TILE_PIXELS, min(n - 1, allocated(n * slot_bytes) // 2 // slot_bytes))
-    return n
+    return max(MIN_TILE_PIXELS, int(memory_mb * MiB // per_pixel))
 
 
 def check_pass_memory(memory_mb: float, spp: int, max_bounces: int, n_channels: int, tail_bounces: int = 0,
-                      *, pixels: int, n_params: int, tasks_here: int = 1, n_scales: int = 0, n_parts: int = 0) -> None:
+                      *, pixels: int, tasks_here: int = 1, n_scales: int = 0, n_parts: int = 0) -> None:
     """Raise :class:`ConfigError` before the pass allocates tiles that cannot fit.
 
     The tile never drops below :data:`MIN_TILE_PIXELS`, so past some ``spp`` even the smallest
-    tile exceeds ``memory_mb`` (at ``render.spp=4194304`` a 64-pixel tile with N_max = 2 needs 25 GiB);
-    and the chosen tile, ``tasks_here`` of them at once (:attr:`SerialExecutor.tasks_here`), must
-    fit in the memory this machine has available (:func:`framework.render.checks.check_memory`).
+    tile exceeds ``memory_mb`` (at ``render.spp=4194304`` a 64-pixel tile needs 36 GiB); and the
+    chosen tile, ``tasks_here`` of them at once (:attr:`SerialExecutor.tasks_here`), must fit
+    in the memory this machine has available (:func:`framework.render.checks.check_memory`).
 
     Parameters
     ----------
-    memory_mb, spp, max_bounces, n_channels, tail_bounces, n_params, n_scales, n_parts
+    memory_mb, spp, max_bounces, n_channels, tail_bounces, n_scales, n_parts
         As :func:`tile_pixels_for`.
     pixels : int
         Pixels of the largest view to render (a tile never holds more).
     tasks_here : int
         Views rendered at once on this machine (0: elsewhere, only ``memory_mb`` is checked).
     """
-    sizes = dict(n_params=n_params, n_scales=n_scales, n_parts=n_parts)
+    per_pixel = event_bytes_per_pixel(spp, max_bounces, n_channels, tail_bounces, n_scales=n_scales, n_parts=n_parts)
     smallest = min(MIN_TILE_PIXELS, pixels)
-    need = tile_bytes(smallest, spp, max_bounces, n_channels, tail_bounces, **sizes)
-    if need > memory_mb * MiB:
-        most_spp = _most_spp(memory_mb * MiB, smallest, max_bounces, n_channels, tail_bounces, **sizes)
+    if smallest * per_pixel > memory_mb * MiB:
+        need = -(-smallest * per_pixel // MiB)
+        most_spp = int(memory_mb * MiB // (smallest * per_pixel // spp))
         lower = f"lower render.spp to at most {most_spp} or " if most_spp >= 1 else ""
-        raise ConfigError(f"render.spp={spp} needs {-(-need // MiB)} MiB for the smallest tile of the polynomial pass "
+        raise ConfigError(f"render.spp={spp} needs {need} MiB for the smallest tile of the polynomial pass "
                           f"({smallest} pixels), above method.memory_mb={memory_mb:g}: "
-                          f"{lower}raise method.memory_mb to at least {-(-need // MiB)}")
+                          f"{lower}raise method.memory_mb to at least {need}")
     if tasks_here:
-        tile = min(tile_pixels_for(memory_mb, spp, max_bounces, n_channels, tail_bounces, **sizes), pixels)
-        check_memory(tile_bytes(tile, spp, max_bounces, n_channels, tail_bounces, **sizes) * tasks_here,
-                     f"the polynomial pass's tiles ({tasks_here} at once)",
+        tile = min(tile_pixels_for(memory_mb, spp, max_bounces, n_channels, tail_bounces, n_scales=n_scales,
+                                   n_parts=n_parts), pixels)
+        check_memory(tile * per_pixel * tasks_here, f"the polynomial pass's tiles ({tasks_here} at once)",
                      "lower method.memory_mb (smaller tiles) or render.spp")
-
-
-def _most_spp(budget: float, pixels: int, max_bounces: int, n_channels: int, tail_bounces: int, **sizes) -> int:
-    """The largest power of two of spp whose tile of ``pixels`` pixels fits in ``budget`` bytes (0: none)."""
-    spp = 0
-    while spp < 2 ** 40 and tile_bytes(pixels, 2 * spp or 1, max_bounces, n_channels, tail_bounces, **sizes) <= budget:
-        spp = 2 * spp or 1
-    return spp
 
 
 def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, *, spp: int,
@@ -202,10 +167,8 @@ def polynomial_pass(problem, parameters, guesses: np.ndarray, max_bounces: int, 
     t0 = time.perf_counter()
     if todo:
         check_pass_memory(memory_mb, spp, max_bounces, C, tail_bounces, tasks_here=executor.tasks_here,
-                          n_params=len(parameters),
                           pixels=max(cam.width * cam.height for _, cam, _, _ in todo), n_scales=G, n_parts=n_parts)
-        tile = tile_pixels_for(memory_mb, spp, max_bounces, C, tail_bounces, n_params=len(parameters), n_scales=G,
-                               n_parts=n_parts)
+        tile = tile_pixels_for(memory_mb, spp, max_bounces, C, tail_bounces, n_scales=G, n_parts=n_parts)
         # workers on this machine store their tiles in the cache folder themselves; those of a
         # remote scheduler cannot reach it and send them back (tasks_here 0)
         worker_cache = cache.dir if executor.tasks_here else None

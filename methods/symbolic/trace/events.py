@@ -46,20 +46,14 @@ def lane_pixel(lane, n: int, spp: int, split: int):
 
 class EventBuffer:
     """Device buffers of a tile's events: slot ``k`` of lane ``l`` holds the ``k``-th
-    (path key, value) of that lane's path; slots no contribution reached keep :data:`EMPTY`.
+    (path key, value) of that lane's path; slots no contribution reached keep :data:`EMPTY`."""
 
-    ``capacity``: the lanes the buffers are sized for (default ``lanes``): a view's last, smaller
-    tile takes buffers of its other tiles' size, which Dr.Jit's allocator then hands it again,
-    where buffers of its own size would be allocated beside them
-    (:mod:`~methods.symbolic.trace.tile_memory`); the lanes beyond ``lanes`` stay empty."""
-
-    def __init__(self, lanes: int, slots: int, n_channels: int, capacity: int | None = None):
+    def __init__(self, lanes: int, slots: int, n_channels: int):
         self.slots = slots
-        size = max(int(lanes), int(capacity or 0)) * slots
-        self.mono = dr.full(mi.UInt32, EMPTY, size)
+        self.mono = dr.full(mi.UInt32, EMPTY, lanes * slots)
         # values are read only where a key was stored with them: left uninitialised (a memset of
         # every slot cost 3 % of a 256-spp pass)
-        self.values = [dr.empty(mi.Float, size) for _ in range(n_channels)]
+        self.values = [dr.empty(mi.Float, lanes * slots) for _ in range(n_channels)]
         self._lane_base = dr.arange(mi.UInt32, lanes) * slots
 
     def store(self, slot, mono, value, active):
@@ -92,11 +86,9 @@ class EventBuffer:
             events = (empty, empty.astype(np.int64), [np.zeros(0, np.float32) for _ in self.values])
             return (events, 0, empty) if samples else (events, 0)
         lanes = at // dr.opaque(mi.UInt32, self.slots)
-        # one event array at a time on the device, each copied out (on the LLVM backend numpy()
-        # shares Dr.Jit's buffer, which would otherwise stay allocated beside the next)
-        rows = np.array(lane_pixel(lanes, n, spp, split).numpy()).view(np.int32)
+        rows = lane_pixel(lanes, n, spp, split).numpy().view(np.int32)
         cols = dr.gather(mi.UInt32, self.mono, at).numpy().astype(np.int64)
-        vals = [np.array(dr.gather(mi.Float, v, at).numpy()) for v in self.values]
+        vals = [dr.gather(mi.Float, v, at).numpy() for v in self.values]
         first_b = int(np.searchsorted(at.numpy(), n * split * self.slots))
         if not samples:
             return (rows, cols, vals), first_b

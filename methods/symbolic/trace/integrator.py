@@ -84,8 +84,7 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
     its events are summed per pixel and monomial on the device (:mod:`methods.symbolic.trace.pixel_sums`;
     on the host, :mod:`methods.symbolic.trace.events`, for key ranges too wide for a key table) into
     sparse matrices, so memory is ``tile_pixels × spp × (N_max + T + 1)``
-    events, never pixels × N_e (:mod:`methods.symbolic.trace.tile_memory` models a tile's device
-    memory, which ``method.memory_mb`` bounds).
+    events, never pixels × N_e.
 
     Kernel selection probabilities
     (:func:`~methods.symbolic.trace.integrator_tables.selection_probabilities`):

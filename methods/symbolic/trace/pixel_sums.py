@@ -22,16 +22,9 @@ was 95 % of the pass; here the device does it, in three steps and one small host
    scheduling-dependent order. The columns, the sums and each row's first rank (``indptr``) are
    copied out: each block is a canonical CSR matrix as it arrives.
 
-Memory on the device is that of the events, their compacted slots, and a chunk's work arrays: two
-bits per (row, monomial) cell (the bitmap and its ranks) and the summed cells. A tile is summed
-a chunk of its pixels at a time, each chunk marking and summing only its pixels' events, so that
-a chunk's cells stay within :data:`CHUNK_CELLS` and its summed cells within half of
-:func:`~methods.symbolic.trace.tile_memory.work_budget` (a chunk whose summed cells would not fit
-is marked again in halves; the bitmap is not cut to the budget, see :func:`_chunk_pixels`); each
-event's column is stored once, in a buffer of the tile's every slot, and its cell computed from
-it where it is needed (:mod:`~methods.symbolic.trace.tile_memory`
-models the whole). The sums are copied to the host,
-so that no host array holds Dr.Jit's (power-of-two) buffers. Key ranges above
+Memory on the device is that of the events plus two bits per (row, monomial) cell (the bitmap and
+its ranks); a tile whose cells exceed :data:`CHUNK_CELLS` is summed a chunk of its pixels at a
+time, each chunk marking and summing only its pixels' events. Key ranges above
 :data:`~methods.symbolic.trace.monomial_codes.TABLE_KEYS` (hundreds of parameters) have no key table:
 :func:`pixel_sums` returns None and the caller sums on the host
 (:func:`~methods.symbolic.trace.events.tile_matrices`). Both sum the float32 values in float64, in
@@ -46,7 +39,6 @@ import scipy.sparse as sp
 
 from methods.symbolic.trace.events import lane_pixel
 from methods.symbolic.trace.monomial_codes import TABLE_KEYS
-from methods.symbolic.trace.tile_memory import allocated, work_budget
 
 
 def pixel_sums(events, *, n: int, spp: int, split: int, quarters: bool, span: int, columns) -> tuple | None:
@@ -87,37 +79,23 @@ def pixel_sums(events, *, n: int, spp: int, split: int, quarters: bool, span: in
     if blocks * len(codes) >= 2 ** 32:              # a chunk's cells are 32-bit (never seen: 2³² monomials)
         return None
     tile = _Tile(events, at, table, n=n, spp=spp, split=split, n_cols=len(codes), blocks=blocks)
-    budget = work_budget(dr.width(events.mono) // events.slots, events.slots)
-    m, p0, chunks = _chunk_pixels(n, len(codes), blocks), 0, []
-    while p0 < n:
-        size = min(m, n - p0)
-        summed = tile.sums(p0, size, budget)
-        if summed is None:                         # its summed cells do not fit: half the pixels
-            m = max(1, size // 2)
-            continue
-        chunks.append(_matrices(summed, size, len(codes), spp, split, blocks))
-        p0 += size
+    m = _chunk_pixels(n, len(codes), blocks)
+    chunks = [_matrices(tile.sums(p0, min(m, n - p0)), min(m, n - p0), len(codes), spp, split, blocks)
+              for p0 in range(0, n, m)]
     return codes, chunks[0] if len(chunks) == 1 else _stacked(chunks)
 
 
 # The cells' bitmap holds a bit per (row, tile monomial) and its ranks a 32-bit count per 32 bits:
-# 2 bits per cell, which a street of many materials makes large (a 70-material view of 40,000
-# pixels has 19,000 monomials: 370 MiB). A tile's pixels are summed in chunks of at most this many
-# cells (64 MiB of bitmap and ranks), each over the events of its pixels.
+# 2 bits per cell, which ``method.memory_mb`` (it sizes the events) does not count, and a street of
+# many materials makes large (a 70-material view of 40,000 pixels has 19,000 monomials: 370 MiB).
+# A tile's pixels are summed in chunks of at most this many cells (64 MiB of bitmap and ranks),
+# each over the events of its pixels.
 CHUNK_CELLS = 2 ** 28
 
 
 def _chunk_pixels(n: int, n_cols: int, blocks: int) -> int:
-    """Pixels per chunk: the whole tile when its cells fit in :data:`CHUNK_CELLS`. The bitmap is
-    not cut to the work budget: each chunk marks and ranks apart over the tile's events, and a
-    70-material street's views (19,000 monomials) cut so took 440-pixel chunks and a pass 48 %
-    longer (bench section 5, 6.4 -> 9.5 s)."""
+    """Pixels per chunk: the whole tile when its cells fit in :data:`CHUNK_CELLS`."""
     return max(1, min(n, CHUNK_CELLS // (blocks * n_cols)))
-
-
-def _cells_bytes(total: int, rows: int, n_channels: int) -> int:
-    """Device bytes of a chunk's ``total`` summed cells (columns, float64 sums) and row starts."""
-    return allocated(4 * total) + n_channels * allocated(8 * total) + allocated(4 * rows)
 
 
 def _stacked(chunks: list) -> tuple:
@@ -157,25 +135,17 @@ class _Tile:
         self.slots, self.spp, self.split = events.slots, spp, split
         self.pixel, self.block, self.first_quarter = _lane_cells(at // dr.opaque(mi.UInt32, events.slots),
                                                                  n, spp, split, blocks)
-        # each event's column, stored once (the row sums read it in their loop: looked up there
-        # through the key table, a 70-material street's pass took 42 % longer), in a buffer of the
-        # tile's every slot, so that Dr.Jit's allocator hands every tile the same one
-        E = dr.width(at)
-        self.columns = dr.empty(mi.UInt32, dr.width(events.mono))
-        dr.scatter(self.columns, dr.gather(mi.UInt32, table, dr.gather(mi.UInt32, events.mono, at)),
-                   dr.arange(mi.UInt32, E))
-        self.col = dr.gather(mi.UInt32, self.columns, dr.arange(mi.UInt32, E))
+        self.col = dr.gather(mi.UInt32, table, dr.gather(mi.UInt32, events.mono, at))
         # each summing row's event count and first event in ``at`` (exclusive prefix sum), tile-wide
         self.events_per_row = dr.zeros(mi.UInt32, n * min(blocks, 2))
         dr.scatter_add(self.events_per_row, mi.UInt32(1), self.block * dr.opaque(mi.UInt32, n) + self.pixel)
         self.first_event = dr.prefix_sum(self.events_per_row)
 
-    def sums(self, p0: int, m: int, budget: int) -> tuple | None:
+    def sums(self, p0: int, m: int) -> tuple:
         """``(indptr, cols, [values per channel])`` of pixels ``p0 .. p0 + m - 1``: the occupied
         (row, column) cells in CSR form over the chunk's ``blocks · m`` rows: row ``k``'s cells
         are ``indptr[k] .. indptr[k + 1] - 1``, with their columns (increasing) and summed
-        values (step 3); None when the summed cells would exceed half of ``budget`` bytes and the
-        chunk has more than one pixel (it is then summed in smaller chunks)."""
+        values (step 3)."""
         first, size = dr.opaque(mi.UInt32, p0), dr.opaque(mi.UInt32, m)
         inside = (self.pixel >= first) & (self.pixel < first + size)       # unsigned: no wrap below p0
         cell = (self.block * size + self.pixel - first) * dr.opaque(mi.UInt32, self.n_cols) + self.col
@@ -185,22 +155,16 @@ class _Tile:
         if self.blocks == 4:
             _mark(words, cell + shift, inside & self.first_quarter)
         rank = _Ranks(words)
-        if m > 1 and _cells_bytes(rank.total, self.blocks * m, len(self.events.values)) > budget // 2:
-            return None                # the summed cells take half the budget, the bitmap the other
-        if rank.total == 0:            # no event in these pixels (Dr.Jit cannot scatter to nothing)
-            return _no_sums(self.blocks * m, len(self.events.values))
         index = np.int32 if rank.total < 2 ** 31 else np.int64     # scipy's index type for this size
         cols = dr.zeros(mi.UInt32, rank.total)
         sums = [dr.zeros(mi.Float64, rank.total) for _ in self.events.values]
-        self._row_sums(p0, m, shift, rank, cols, sums)
+        self._row_sums(p0, m, cell, shift, rank, cols, sums)
         starts = rank(dr.arange(mi.UInt32, self.blocks * m) * dr.opaque(mi.UInt32, self.n_cols), True)   # rows' first
         dr.eval(cols, sums, starts)
         indptr = np.append(starts.numpy().astype(index), index(rank.total))
-        # copies: on the LLVM backend numpy() shares Dr.Jit's buffer, which would then live as
-        # long as the coefficients (at its power-of-two size, and counted as the device's)
-        return indptr, cols.numpy().astype(index), [np.array(v.numpy()) for v in sums]
+        return indptr, cols.numpy().astype(index), [v.numpy() for v in sums]
 
-    def _row_sums(self, p0: int, m: int, shift, rank, cols, sums) -> None:
+    def _row_sums(self, p0: int, m: int, cell, shift, rank, cols, sums) -> None:
         """Each occupied cell's column and sum, written at its rank: one lane per summing row of
         the chunk walks that row's events in slot order, so each cell is summed by one lane in
         one order: the same seed gives the same bits on any backend and thread count (atomic adds
@@ -216,7 +180,6 @@ class _Tile:
         first_slot = (dr.select(in_b, dr.opaque(mi.UInt32, n * self.split), 0) + pixel * per_pixel) * slots
         quarter = dr.opaque(mi.UInt32, (self.spp // 4) * self.slots)
         n_cols = dr.opaque(mi.UInt32, self.n_cols)
-        row_cell = local * n_cols                  # the chunk row's first cell (rows are block-major)
 
         def add(c, values, active):
             # a lane's cells are its row's alone: no two lanes of a packet reach the same one
@@ -228,7 +191,7 @@ class _Tile:
         def body(j):
             e = first_event + j
             slot = dr.gather(mi.UInt32, self.at, e)
-            c = row_cell + dr.gather(mi.UInt32, self.columns, e)     # its cell: no array of every event's
+            c = dr.gather(mi.UInt32, cell, e)
             values = [dr.gather(mi.Float, v, slot) for v in self.events.values]
             add(c, values, True)
             if self.blocks == 4:                    # A₁, B₁: the first quarter's events again
