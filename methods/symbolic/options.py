@@ -174,7 +174,9 @@ class SymbolicOptions(StartOptions):
         "10: see methods/symbolic/loop/richardson.py)", choice("auto", "none", "richardson"), default="auto")
     irls: IrlsOptions = option("the robust rounds", default_factory=IrlsOptions)
     memory_mb: float = option(
-        "memory for the event buffers of one tile of the pass (sets the tile size). With a cache, each "
+        "sets the tile size of the pass: its event buffers take a third of it (Dr.Jit's allocation of "
+        "a view's tiles, power-of-two rounded, was measured at up to 2.2 times it: docs/design-notes.md). "
+        "With a cache, each "
         "tile's per-pixel coefficients go to the cache as they are rendered and are read back one tile "
         "at a time, so a large view costs disk, not memory; with `cache.dir=null` they are held in "
         "memory", number(0.0, lo_open=True), default=512)
