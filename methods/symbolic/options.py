@@ -176,10 +176,9 @@ class SymbolicOptions(StartOptions):
     memory_mb: float = option(
         "sets the tile size of the pass: its event buffers take a third of it (Dr.Jit's allocation of "
         "a view's tiles, power-of-two rounded, was measured at up to 2.2 times it: docs/design-notes.md). "
-        "With a cache, each "
-        "tile's per-pixel coefficients go to the cache as they are rendered and are read back one tile "
-        "at a time, so a large view costs disk, not memory; with `cache.dir=null` they are held in "
-        "memory", number(0.0, lo_open=True), default=512)
+        "With a cache, each tile's per-pixel coefficients go to the cache as they are rendered and are "
+        "read back one tile at a time, so a large view costs disk, not memory; with `cache.dir=null` "
+        "they are held in memory", number(0.0, lo_open=True), default=512)
     solver: SolverOptions = option("the solve", default_factory=SolverOptions)
     relight: RelightOptions = option("relit images", default_factory=RelightOptions)
 
