@@ -11,7 +11,10 @@ fit (bundled urban_canyon_survey, 2026-12-05), and caught nothing the CRC does n
 """
 from __future__ import annotations
 
+import functools
 import hashlib
+import importlib.metadata
+import importlib.util
 import json
 import os
 import tempfile
@@ -25,6 +28,38 @@ from framework.errors import ConfigError
 def key_digest(key: dict) -> str:
     """Stable hex digest of a JSON-able key (sorted keys)."""
     return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[:24]
+
+
+@functools.cache
+def code_version(*modules: str) -> str:
+    """Digest of the code that makes a cache entry: the bytes of every ``.py`` file of
+    ``modules`` (dotted names; a package counts with everything below it) and the installed
+    Mitsuba and Dr.Jit versions.
+
+    Put in a key, it makes an entry written by other code a miss: a pass cached before an edit of
+    its sampling was otherwise read back by the edited code (measured: the 296-weight street's
+    solve timed 79.4 s against 70.7 s on passes of an older commit). Any edit counts, a comment's
+    too: a needless render is cheaper than a stale one.
+    """
+    h = hashlib.sha256()
+    for name in modules:
+        for relative, path in _source_files(name):
+            h.update(f"{name}/{relative}".encode())
+            h.update(hashlib.sha256(path.read_bytes()).digest())
+    for dist in ("mitsuba", "drjit"):
+        h.update(f"{dist}=={importlib.metadata.version(dist)}".encode())
+    return h.hexdigest()[:16]
+
+
+def _source_files(name: str) -> list[tuple[str, Path]]:
+    """``(path relative to the package, path)`` of the ``.py`` files of module or package ``name``."""
+    spec = importlib.util.find_spec(name)
+    if spec is None or spec.origin is None:
+        raise ValueError(f"code_version: {name!r} is not a module with source files")
+    if not spec.submodule_search_locations:
+        return [(Path(spec.origin).name, Path(spec.origin))]
+    root = Path(spec.origin).parent
+    return sorted((f.relative_to(root).as_posix(), f) for f in root.rglob("*.py"))
 
 
 #: the member earlier versions stored their own SHA-256 in: read past, never written

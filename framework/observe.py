@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from framework.cache import Cache
+from framework.cache import Cache, code_version
 from framework.memory import release_freed_memory
 from framework.render.checks import check_memory, check_views, film_bytes
 from framework.render.mitsuba_scene import MitsubaScene
@@ -119,4 +119,5 @@ def _key(scene: Scene, cam: Camera, obs, variant: str) -> dict:
     lens = list(photometry.vignetting_profile) if photometry is not None and photometry.vignetting == "known" else None
     return {"scene": scene.content_hash, "view": cam.name, "spp": int(obs.spp),
             "max_depth": int(obs.max_depth), "noise": float(obs.noise), "seed": int(obs.seed),
-            "variant": variant, "vignetting": lens, "version": 2}
+            "variant": variant, "vignetting": lens,
+            "code": code_version("framework.observe", "framework.render", "framework.scene")}

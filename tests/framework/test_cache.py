@@ -51,3 +51,33 @@ def test_entry_of_an_earlier_version_loads_without_its_checksum(tmp_path):
     path.parent.mkdir(parents=True)
     np.savez(path, __checksum__=np.array("0" * 64), data=np.ones(3))
     assert list(cache.load("tile", KEY)) == ["data"]
+
+
+def _package(root, name, files):
+    for rel, text in files.items():
+        (root / name / rel).parent.mkdir(parents=True, exist_ok=True)
+        (root / name / rel).write_text(text)
+
+
+def test_code_version_follows_the_named_code(tmp_path, monkeypatch):
+    """An edit anywhere below a named package, or of a named module, changes the digest; an edit
+    of code not named does not (fresh module names per test: ``code_version`` is memoised)."""
+    from framework.cache import code_version
+    _package(tmp_path, "cv_pkg", {"__init__.py": "", "sub/__init__.py": "", "sub/deep.py": "x = 1\n"})
+    _package(tmp_path, "cv_other", {"__init__.py": "y = 1\n"})
+    monkeypatch.syspath_prepend(str(tmp_path))
+    before = code_version("cv_pkg")
+    assert code_version("cv_pkg") == before and len(before) == 16
+    (tmp_path / "cv_other" / "__init__.py").write_text("y = 2\n")
+    code_version.cache_clear()
+    assert code_version("cv_pkg") == before
+    (tmp_path / "cv_pkg" / "sub" / "deep.py").write_text("x = 2\n")
+    code_version.cache_clear()
+    assert code_version("cv_pkg") != before
+    assert code_version("cv_pkg.sub.deep") != code_version("cv_pkg")
+
+
+def test_code_version_errors():
+    from framework.cache import code_version
+    with pytest.raises(ValueError, match="no_such_module_here"):
+        code_version("no_such_module_here")

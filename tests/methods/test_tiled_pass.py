@@ -118,6 +118,16 @@ def test_a_missing_tile_renders_the_view_again(problem, tmp_path):
     _assert_same(memory, _everything(problem, again))
 
 
+def test_a_pass_stored_by_other_code_is_rendered_again(problem, tmp_path, monkeypatch):
+    """The pass's key holds the digest of its code (``PASS_CODE``): after an edit of it (here its
+    digest replaced) the stored tiles are not read back."""
+    import methods.symbolic.system.pass_cache as pass_cache
+    _pass(problem, Cache(tmp_path))
+    assert len(_pass(problem, Cache(tmp_path)).from_cache) == 2
+    monkeypatch.setattr(pass_cache, "code_version", lambda *modules: "edited")
+    assert _pass(problem, Cache(tmp_path)).from_cache == []
+
+
 def test_the_system_is_taken_once(problem):
     passed = _pass(problem, Cache(None))
     passed.take_system()
