@@ -29,5 +29,6 @@ class OptimResult:
     history: list[float] = field(default_factory=list)
     status: str = ""
     n_eval: int = 0
-    #: the curvature the solver computed at ``x`` itself, when its last one was there (SQP), else None
+    #: the curvature the solver computed at ``x`` itself, or at the start of a last step too small to
+    #: matter (SQP, :data:`~framework.optim.sqp.HESSIAN_REUSE_STEP`), else None
     hessian: np.ndarray | None = None

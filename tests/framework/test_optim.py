@@ -216,6 +216,35 @@ def test_minimize_sqp_stops_where_the_gain_is_roundoff():
     np.testing.assert_array_equal(res.hessian, hess(res.x))
 
 
+@pytest.mark.parametrize("ftol_rel, kept", [(1e-12, True), (1e-8, False)])
+def test_minimize_sqp_hands_back_the_hessian_its_last_tiny_step_started_from(ftol_rel, kept):
+    """f = 1 + Σ (x - a)² + Σ (x - a)³ from 0.5: Newton steps on fresh Hessians until one gains less
+    than ``ftol_rel`` (``FTOL_REACHED``). At 1e-12 that last step moves a weight 1.2e-7 (measured):
+    ``hessian`` is the Hessian computed where it started, within 6 · 1.2e-7 of the one at ``x``; at
+    1e-8 it moves one 1.3e-5, beyond :data:`~framework.optim.sqp.HESSIAN_REUSE_STEP`: None."""
+    from framework.optim import minimize_sqp
+    from framework.optim.sqp import HESSIAN_REUSE_STEP
+    a = np.array([0.3, 0.2, 0.7, 0.4])
+    at = []
+
+    def f(x, need=True):
+        return float(1.0 + np.sum((x - a) ** 2) + np.sum((x - a) ** 3)), 2 * (x - a) + 3 * (x - a) ** 2
+
+    def hess(x):
+        at.append(x.copy())
+        return np.diag(2 + 6 * (x - a))
+
+    res = minimize_sqp(f, hess, np.full(4, 0.5), ftol_rel=ftol_rel, xtol=1e-14)
+    step = np.max(np.abs(res.x - at[-1]))
+    assert res.status == "FTOL_REACHED" and step > 0.0
+    assert (step <= HESSIAN_REUSE_STEP) == kept
+    if kept:
+        np.testing.assert_array_equal(res.hessian, np.diag(2 + 6 * (at[-1] - a)))
+        np.testing.assert_allclose(res.hessian, np.diag(2 + 6 * (res.x - a)), atol=6 * step)
+    else:
+        assert res.hessian is None
+
+
 def test_binding_step_equals_the_whole_qp():
     """``_binding_step`` on 80 weights, 20 at 0 with the gradient pushing them there, two Σ <= 1
     groups (one active): the step of the QP without the held weights equals quadprog's step on

@@ -54,8 +54,9 @@ class SolveResult:
         The independent parameter blocks solved one after the other (:func:`parameter_blocks`).
     hessians : list
         Per channel the ``(D, D)`` exact Hessian at ``estimate`` where the SQP solve ended on one
-        computed there (one block holding every parameter), else None: the standard errors need
-        it at that point (:func:`~methods.symbolic.uncertainty.standard_errors.parameter_uncertainty`).
+        computed there, or where its last step started when that step was below
+        :data:`~framework.optim.sqp.HESSIAN_REUSE_STEP` (one block holding every parameter), else
+        None: the standard errors need it at that point (:func:`~methods.symbolic.uncertainty.standard_errors.parameter_uncertainty`).
     iterates : list of (float, numpy.ndarray)
         At each evaluation: its ``time.perf_counter()`` and the ``(D, C)`` estimate the solve
         would return if it stopped there (per channel the best point seen so far; channels not

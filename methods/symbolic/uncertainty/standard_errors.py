@@ -133,7 +133,8 @@ def parameter_uncertainty(system: GramSystem, basis: MonomialBasis, rho: np.ndar
         (:func:`~methods.symbolic.uncertainty.sandwich_meat.score_meat`); None: the
         residual-only formula.
     hessians : list, optional
-        Per channel the exact Hessian at ``rho`` where the solve already computed it there
+        Per channel the exact Hessian at ``rho`` where the solve already computed it there, or
+        within a negligible last step of it
         (:attr:`~methods.symbolic.fit.solve.SolveResult.hessians`), or None; the others are
         computed (a 296-weight street: 0.45 s each).
     rcond, null_tol : float
