@@ -394,6 +394,39 @@ def test_event_csr_matches_scipy_coo():
     assert all(m.nnz == 0 and m.shape == (60, 7) for m in _csr(rows[:0], cols[:0], vals[:, :0], (60, 7)))
 
 
+def test_a_views_last_smaller_tile_reuses_the_full_tiles_buffers():
+    """Dr.Jit's allocator (its watermark) rounds a buffer to a power of two and hands a freed one
+    only to a request of that size: a 100,000-lane tile's event buffers (8 slots, RGB) peak at
+    16 MiB, and a 30,000-lane last tile sized as itself adds 4 MiB beside them (measured, Dr.Jit
+    1.5); sized as the full tile (``capacity``) it takes them again, and its extra lanes hold no
+    event."""
+    import drjit as dr
+    from methods.symbolic.trace.events import EventBuffer
+    MiB = 2 ** 20
+
+    def written(n, capacity):
+        events = EventBuffer(n, 8, 3, capacity=capacity)
+        for a in [events.mono] + events.values:          # one event, as the trace writes them
+            dr.scatter(a, type(a)(1), mi.UInt32(0))
+        dr.eval(events.mono, events.values)
+        return events
+
+    def peak(capacity, lanes=(100_000, 30_000)):
+        dr.flush_malloc_cache()
+        dr.detail.malloc_clear_statistics()
+        base = dr.detail.malloc_watermark(dr.JitBackend.LLVM)
+        for n in lanes:
+            written(n, capacity)         # freed at once: its buffers go to the allocator's cache
+        return (dr.detail.malloc_watermark(dr.JitBackend.LLVM) - base) / MiB
+
+    one_tile = peak(None, lanes=(100_000,))
+    assert one_tile == 16.0
+    assert peak(None) == one_tile + 4.0
+    assert peak(100_000) == one_tile
+    padded = written(30_000, 100_000)
+    assert dr.width(padded.mono) == 800_000 and dr.count(padded.nonempty())[0] == 1
+
+
 def test_config_errors():
     with pytest.raises(ConfigError, match=r"max_bounces=0.*\[1"):
         PolynomialPathIntegrator.create([], [[("diffuse", 0)]], 1, np.ones((1, 3)), max_bounces=0)

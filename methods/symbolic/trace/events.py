@@ -46,14 +46,20 @@ def lane_pixel(lane, n: int, spp: int, split: int):
 
 class EventBuffer:
     """Device buffers of a tile's events: slot ``k`` of lane ``l`` holds the ``k``-th
-    (path key, value) of that lane's path; slots no contribution reached keep :data:`EMPTY`."""
+    (path key, value) of that lane's path; slots no contribution reached keep :data:`EMPTY`.
 
-    def __init__(self, lanes: int, slots: int, n_channels: int):
+    ``capacity``: the lanes the buffers are sized for (default ``lanes``; the lanes beyond
+    ``lanes`` stay empty). Dr.Jit's allocator rounds a buffer up to a power of two and hands a
+    freed one again only to a request of that size, so a view's last, smaller tile would allocate
+    its buffers beside its other tiles' cached ones; sized as they are, it takes them again."""
+
+    def __init__(self, lanes: int, slots: int, n_channels: int, capacity: int | None = None):
         self.slots = slots
-        self.mono = dr.full(mi.UInt32, EMPTY, lanes * slots)
+        size = max(int(lanes), int(capacity or 0)) * slots
+        self.mono = dr.full(mi.UInt32, EMPTY, size)
         # values are read only where a key was stored with them: left uninitialised (a memset of
         # every slot cost 3 % of a 256-spp pass)
-        self.values = [dr.empty(mi.Float, lanes * slots) for _ in range(n_channels)]
+        self.values = [dr.empty(mi.Float, size) for _ in range(n_channels)]
         self._lane_base = dr.arange(mi.UInt32, lanes) * slots
 
     def store(self, slot, mono, value, active):

@@ -130,7 +130,10 @@ class CoefficientTiles:
         pix = lane_pixel(dr.arange(mi.UInt32, n * spp), n, spp, split) + dr.opaque(mi.UInt32, start)
         tile_footprint = None if footprint is None else TileFootprint(footprint.footprint(start, stop), start)
         ray, weight = camera_rays(sensor, sampler, pix, tile_footprint)
-        events = EventBuffer(n * spp, self.event_slots(), self.n_channels)
+        # sized as the view's full tile: every tile then reuses the same device buffers
+        width, height = (int(v) for v in sensor.film().crop_size())
+        events = EventBuffer(n * spp, self.event_slots(), self.n_channels,
+                             capacity=min(self.tile_pixels, width * height) * spp)
         β = mi.Spectrum(weight) * dr.opaque(mi.Float, 1.0 / spp)      # box filter: 1/spp per sample
         self._trace(scene, sampler, mi.Ray3f(ray), β, mi.Bool(True), events.store)
         if self.device_sums:
