@@ -114,10 +114,14 @@ def lens_falloff(scene: Scene, camera: Camera) -> np.ndarray | float:
     return factor.reshape(int(camera.height), int(camera.width), 1)
 
 
+#: the code a cached observation depends on (:func:`~framework.cache.code_version`): the scene's
+#: loading, the renderer and this module
+OBSERVED_CODE = ("framework.observe", "framework.render", "framework.scene")
+
+
 def _key(scene: Scene, cam: Camera, obs, variant: str) -> dict:
     photometry = getattr(scene, "photometry", None)
     lens = list(photometry.vignetting_profile) if photometry is not None and photometry.vignetting == "known" else None
     return {"scene": scene.content_hash, "view": cam.name, "spp": int(obs.spp),
             "max_depth": int(obs.max_depth), "noise": float(obs.noise), "seed": int(obs.seed),
-            "variant": variant, "vignetting": lens,
-            "code": code_version("framework.observe", "framework.render", "framework.scene")}
+            "variant": variant, "vignetting": lens, "code": code_version(*OBSERVED_CODE)}

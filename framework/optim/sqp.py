@@ -166,8 +166,8 @@ def minimize_sqp(fun_and_grad: Callable[[np.ndarray, bool], tuple[float, np.ndar
     except StopOptimization:
         res.status = "FORCED_STOP"
     res.x, res.f = x, f
-    if H_at is not None and (np.array_equal(H_at, x) or res.status == "FTOL_REACHED"
-                             and np.max(np.abs(x - H_at), initial=0.0) <= HESSIAN_REUSE_STEP):
+    if H_at is not None and (np.array_equal(H_at, x) or (res.status == "FTOL_REACHED"
+                             and np.max(np.abs(x - H_at), initial=0.0) <= HESSIAN_REUSE_STEP)):
         res.hessian = H_last
     return res
 

@@ -13,6 +13,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from framework.cache import Cache, code_version
+from framework.observe import OBSERVED_CODE
 from methods.symbolic.system.coefficients import TiledCoefficients, ViewCoefficients
 from methods.symbolic.system.emitter_groups import unknown_emitters
 from methods.symbolic.system.gram import GramSystem
@@ -86,11 +87,10 @@ def tile_loader(cache: Cache, key: dict, k: int, C: int) -> "TileLoader":
     return TileLoader(cache.dir, tile_key(key, k), C)
 
 
-#: the code a cached pass depends on (:func:`~framework.cache.code_version`): an edit of any of it,
-#: or another Mitsuba or Dr.Jit, renders the pass again. The solver's packages are left out, so
-#: that solving again reads the pass back
-PASS_CODE = ("framework.observe", "framework.render", "framework.scene", "methods.symbolic.trace",
-             "methods.symbolic.system")
+#: the code a cached pass depends on (:func:`~framework.cache.code_version`): the observations'
+#: and the pass's own packages. An edit of any of it, or another Mitsuba or Dr.Jit, renders the
+#: pass again; the solver's packages are left out, so that solving again reads the pass back
+PASS_CODE = OBSERVED_CODE + ("methods.symbolic.trace", "methods.symbolic.system")
 
 
 def tile_key(key: dict, k: int) -> dict:
@@ -108,7 +108,7 @@ def view_key(problem, cam, parameters, guesses, spp, seed, prob_floor, max_bounc
             "tail_bounces": int(tail_bounces), "code": code_version(*PASS_CODE), "camera": camera_key(cam),
             "footprint": [footprint, _distortion(cam) if footprint else None],
             "unknown_scales": unknown_emitters(problem.scene),
-            **({"quarters": True} if quarters else {})}     # absent by default: earlier caches stay valid
+            "quarters": bool(quarters)}
 
 
 def footprint_kernel(problem, cam) -> str | None:
