@@ -174,10 +174,10 @@ class SymbolicOptions(StartOptions):
         "10: see methods/symbolic/loop/richardson.py)", choice("auto", "none", "richardson"), default="auto")
     irls: IrlsOptions = option("the robust rounds", default_factory=IrlsOptions)
     memory_mb: float = option(
-        "sets the tile size of the pass: its event buffers take a third of it (Dr.Jit's allocation of "
-        "a view's tiles, power-of-two rounded, was measured at 0.4-0.9 times it with a cache, except at "
-        "low spp on small budgets, where the summed cells outweigh the events: up to 1.1 times it at 16 "
-        "spp, 1.6 at 4 spp; docs/design-notes.md). "
+        "sets the tile size of the pass: its event buffers take a third of it, and the per-pixel "
+        "sums of a tile are done in chunks that take at most an eighth of that (Dr.Jit's allocation "
+        "of a view's tiles, power-of-two rounded, was measured at most 0.86 times it with a cache, at "
+        "4 to 256 spp and 16 to 512 MiB; docs/design-notes.md). "
         "With a cache, each tile's per-pixel coefficients go to the cache as they are rendered and are "
         "read back one tile at a time, so a large view costs disk, not memory; with `cache.dir=null` "
         "they are held in memory", number(0.0, lo_open=True), default=512)

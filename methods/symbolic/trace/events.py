@@ -62,6 +62,10 @@ class EventBuffer:
         self.values = [dr.empty(mi.Float, size) for _ in range(n_channels)]
         self._lane_base = dr.arange(mi.UInt32, lanes) * slots
 
+    def nbytes(self) -> int:
+        """Bytes of the buffers (as requested: the allocator rounds each up to a power of two)."""
+        return dr.width(self.mono) * 4 * (1 + len(self.values))
+
     def store(self, slot, mono, value, active):
         """Write ``value`` (a Spectrum) with path key ``mono`` in slot ``slot`` of each active lane
         where it is not zero (an occluded next-event estimate, a miss: most of the slots)."""

@@ -132,13 +132,13 @@ class CoefficientTiles:
         ray, weight = camera_rays(sensor, sampler, pix, tile_footprint)
         # sized as the view's full tile: every tile then reuses the same device buffers
         width, height = (int(v) for v in sensor.film().crop_size())
-        events = EventBuffer(n * spp, self.event_slots(), self.n_channels,
-                             capacity=min(self.tile_pixels, width * height) * spp)
+        capacity = min(self.tile_pixels, width * height) * spp
+        events = EventBuffer(n * spp, self.event_slots(), self.n_channels, capacity=capacity)
         β = mi.Spectrum(weight) * dr.opaque(mi.Float, 1.0 / spp)      # box filter: 1/spp per sample
         self._trace(scene, sampler, mi.Ray3f(ray), β, mi.Bool(True), events.store)
         if self.device_sums:
             summed = pixel_sums(events, n=n, spp=spp, split=split, quarters=quarters, span=self._key_span(),
-                                columns=self._columns)
+                                columns=self._columns, tile_bytes=events.nbytes() // capacity * self.tile_pixels * spp)
             if summed is not None:
                 return summed
         (rows, keys, vals), first_b, *sample = events.compact(n, spp, split, samples=quarters)
