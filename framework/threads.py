@@ -52,3 +52,33 @@ def two_at_a_time(items: Iterable) -> Iterator[tuple]:
     for first in items:
         second = next(items, None)
         yield (first,) if second is None else (first, second)
+
+
+class Chain:
+    """Steps ``value = step(value)``, from ``value``, run one after another in a background thread
+    while the caller goes on: :meth:`then` waits for the step in flight (at most one: what it holds
+    stays bounded) and starts the next; :meth:`result` waits for the last and raises what a step
+    raised. The steps run in the order given, so the result does not depend on timing. A context
+    manager: its thread ends on leaving it."""
+
+    def __init__(self, value=None, name: str = "chain"):
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix=name)
+        self._value, self._pending = value, None
+
+    def then(self, step: Callable[[object], object]) -> None:
+        self._pending = self._pool.submit(step, self._wait())
+
+    def _wait(self):
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            self._value = pending.result()
+        return self._value
+
+    def result(self):
+        return self._wait()
+
+    def __enter__(self) -> "Chain":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._pool.shutdown()          # after an error too: the step in flight ends first

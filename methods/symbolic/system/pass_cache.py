@@ -14,6 +14,7 @@ import scipy.sparse as sp
 
 from framework.cache import Cache, code_version
 from framework.observe import OBSERVED_CODE
+from framework.threads import Chain
 from methods.symbolic.system.coefficients import TiledCoefficients, ViewCoefficients
 from methods.symbolic.system.emitter_groups import unknown_emitters
 from methods.symbolic.system.gram import GramSystem
@@ -51,29 +52,20 @@ def stored_view(cache: Cache, key: dict, starts: list, n_rows: int, C: int) -> T
 class TileWriter:
     """``store(k, block)`` of :func:`_render_view` that writes each tile to the cache in a
     background thread while the next tile renders (measured on the 1920x1080 view: the writes
-    were 7 of the pass's 70 s), one tile in flight at most; :meth:`close` waits for the last
-    and raises what a write raised."""
+    were 7 of the pass's 70 s), one tile in flight at most (:class:`~framework.threads.Chain`);
+    :meth:`close` waits for the last and raises what a write raised."""
 
     def __init__(self, cache: Cache, key: dict, C: int):
-        from concurrent.futures import ThreadPoolExecutor
         self.cache, self.key, self.C = cache, key, int(C)
-        self._pool, self._pending = ThreadPoolExecutor(1, thread_name_prefix="tile-writer"), None
+        self._writes = Chain(name="tile-writer")
 
     def __call__(self, k: int, block: ViewCoefficients) -> "TileLoader":
-        self._wait()
-        self._pending = self._pool.submit(store_tile, self.cache, self.key, k, block, self.C)
+        self._writes.then(lambda _: store_tile(self.cache, self.key, k, block, self.C))
         return tile_loader(self.cache, self.key, k, self.C)
 
-    def _wait(self) -> None:
-        pending, self._pending = self._pending, None
-        if pending is not None:
-            pending.result()
-
     def close(self) -> None:
-        try:
-            self._wait()
-        finally:
-            self._pool.shutdown()
+        with self._writes:
+            self._writes.result()
 
 
 def store_tile(cache: Cache, key: dict, k: int, block: ViewCoefficients, C: int) -> "TileLoader":

@@ -15,6 +15,7 @@ Render once, solve many: each view's coefficients are cached on disk
 """
 from __future__ import annotations
 
+import functools
 import logging
 import time
 from dataclasses import dataclass
@@ -29,6 +30,7 @@ from framework.memory import release_freed_memory
 from framework.observe import inversion_seed
 from framework.render.checks import MiB, check_memory
 from framework.render.mitsuba_scene import MitsubaScene
+from framework.threads import Chain
 from methods.symbolic.system.coefficients import PassResult, TiledCoefficients, ViewCoefficients
 from methods.symbolic.system.emitter_groups import split_environments, unknown_emitters
 from methods.symbolic.system.gram import GramSystem
@@ -321,7 +323,8 @@ def _scene_and_integrator(task: ViewTask, variant: str):
 
 def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True, store=None, footprint=None,
                  quarters=False) -> tuple[GramSystem, TiledCoefficients]:
-    """Tile by tile: each tile's sparse coefficients, and the view's Gram system from them.
+    """Tile by tile: each tile's sparse coefficients, and the view's Gram system from them (each
+    tile's formed in a background thread while the next tile renders, summed in the tiles' order).
 
     ``cross``: the samples of each pixel are split into two independent halves
     (:meth:`PolynomialPathIntegrator.coefficients_halves`, one render) whose cross product makes
@@ -339,20 +342,28 @@ def _render_view(integrator, ms, i, cam, observed, spp, seed, cross=True, store=
     halves = cross and spp >= 2
     split = (spp // 2) / spp if halves else 0.5
     starts = list(range(0, n_pix, integrator.tile_pixels))
-    system, blocks = empty_system(C), []
-    for k, start in enumerate(tqdm(starts, desc=f"polynomial pass {cam.name}", unit="tile", leave=False)):
-        stop = min(n_pix, start + integrator.tile_pixels)
-        tile = dict(spp=spp, seed=seed, pixel_range=(start, stop), footprint=footprint)
-        if halves:
-            codes, a, b, _, *firsts = integrator.coefficients_halves(ms.scene, i, quarters=quarters, mean=False,
-                                                                     **tile)
-            block = ViewCoefficients(a, b, split, codes, *firsts)
-        else:
-            codes, gamma = integrator.coefficients_sparse(ms.scene, i, **tile)
-            block = ViewCoefficients(gamma, None, split, codes)
-        # the Gram system from the kept coefficients, as a cached view's is rebuilt: the same bits
-        system += weighted_system(block, y[start:stop], None)
-        if store is not None:
-            block = store(k, block)
-        blocks.append(block)
-    return system, TiledCoefficients(starts, blocks, n_pix)
+    blocks = []
+    with Chain(empty_system(C), name="tile-gram") as gram:
+        for k, start in enumerate(tqdm(starts, desc=f"polynomial pass {cam.name}", unit="tile", leave=False)):
+            stop = min(n_pix, start + integrator.tile_pixels)
+            tile = dict(spp=spp, seed=seed, pixel_range=(start, stop), footprint=footprint)
+            if halves:
+                codes, a, b, _, *firsts = integrator.coefficients_halves(ms.scene, i, quarters=quarters, mean=False,
+                                                                         **tile)
+                block = ViewCoefficients(a, b, split, codes, *firsts)
+            else:
+                codes, gamma = integrator.coefficients_sparse(ms.scene, i, **tile)
+                block = ViewCoefficients(gamma, None, split, codes)
+            # the Gram system from the kept coefficients, as a cached view's is rebuilt: the same bits;
+            # formed while the next tile renders, and summed in the tiles' order
+            gram.then(functools.partial(_plus_tile, block=block, y=y[start:stop]))
+            if store is not None:
+                block = store(k, block)
+            blocks.append(block)
+        return gram.result(), TiledCoefficients(starts, blocks, n_pix)
+
+
+def _plus_tile(system: GramSystem, *, block: ViewCoefficients, y: np.ndarray) -> GramSystem:
+    """``system`` plus the Gram system of a tile's coefficients (in place)."""
+    system += weighted_system(block, y, None)
+    return system
