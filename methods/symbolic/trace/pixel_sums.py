@@ -30,9 +30,9 @@ most an eighth of a full tile's event buffers (:data:`SUMS_SHARE`), each chunk m
 own pixels' events (two contiguous ranges of the compacted slots), and a chunk's cells, counted
 from its ranks, in parts of pixels whose cells take at most as much (at the default budget a
 tile is mostly one chunk and one part).
-Key ranges above
-:data:`~methods.symbolic.trace.monomial_codes.TABLE_KEYS` (hundreds of parameters) have no key table:
-:func:`pixel_sums` returns None and the caller sums on the host
+
+Key ranges above :data:`~methods.symbolic.trace.monomial_codes.TABLE_KEYS` (hundreds of parameters)
+have no key table: :func:`pixel_sums` returns None and the caller sums on the host
 (:func:`~methods.symbolic.trace.events.tile_matrices`). Both sum the float32 values in float64, in
 another order: they agree to float32 rounding (``tests/methods/test_polynomial_integrator.py``).
 """
@@ -66,7 +66,8 @@ def pixel_sums(events, *, n: int, spp: int, split: int, quarters: bool, span: in
         distinct keys and each key's column.
     tile_bytes : int, optional
         Bytes of a full tile's event buffers (``method.memory_mb``'s share; default those of
-        ``events``): a chunk's summed cells take at most ``tile_bytes /`` :data:`SUMS_SHARE`.
+        ``events``): a chunk's bitmap, and apart a part of its summed cells, take at most
+        ``tile_bytes /`` :data:`SUMS_SHARE` each.
 
     Returns
     -------
