@@ -11,7 +11,8 @@ from reports.doc import Doc
 
 #: ``(solve_stages_s key, label)`` of the parts of the symbolic method's solve, in report order
 #: (the stages are disjoint and add up to ``timings_s.solve``; docs/results.md)
-SOLVE_PARTS = (("psd", "projection of the Gram matrices (PSD)"),
+SOLVE_PARTS = (("known", "known weights substituted into the Gram system (a calibration panel)"),
+               ("psd", "projection of the Gram matrices (PSD)"),
                ("solver", "solver"),
                ("uncertainty", "standard errors (the sandwich)"),
                ("field_setup", "photographs: pixel weights, gains' and lens' coefficients"),

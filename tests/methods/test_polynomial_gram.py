@@ -126,15 +126,15 @@ def test_psd_projection():
 
 @pytest.mark.parametrize("negatives", [3, 37])
 def test_psd_projection_from_the_smaller_eigenspace(negatives):
-    """``_psd_projection`` equals ``V max(λ, 0) Vᵀ`` (to 1e-12 of eigenvalues of order 1) whether
+    """``psd_projection`` equals ``V max(λ, 0) Vᵀ`` (to 1e-12 of eigenvalues of order 1) whether
     it subtracts the few negative eigenvalues' part or sums the few positive ones'."""
-    from methods.symbolic.system.gram import _psd_projection
+    from methods.symbolic.system.dense_gram import psd_projection
     rng = np.random.default_rng(negatives)
     Q, _ = np.linalg.qr(rng.normal(size=(40, 40)))
     lam = np.concatenate([-rng.uniform(0.1, 2.0, negatives), rng.uniform(0.1, 2.0, 40 - negatives)])
     m = (Q * lam) @ Q.T
     expected = (Q * np.maximum(lam, 0.0)) @ Q.T
-    np.testing.assert_allclose(_psd_projection(m), expected, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(psd_projection(m), expected, rtol=0, atol=1e-12)
 
 
 def test_dense_triangle_equals_scipy_triu():

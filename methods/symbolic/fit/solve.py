@@ -269,8 +269,10 @@ def parameter_blocks(system: GramSystem, basis: MonomialBasis, segments_params: 
     adjacency[first[monomials[keep]] * D + params[keep]] = True
     for ps in segments_params:
         adjacency[ps[0] * D + np.asarray(ps[1:], dtype=np.int64)] = True
-    for g in system.G:
-        g = g.tocsr()
+    for c in range(system.n_channels):
+        if _components(adjacency, D)[0] == 1:   # before a dense system's triangle is cut
+            break
+        g = system.G[c].tocsr()
         for lo, hi in _row_chunks(g.indptr, PAIRS_PER_CHUNK):    # bounded temporaries
             if _components(adjacency, D)[0] == 1:
                 break

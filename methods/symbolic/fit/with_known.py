@@ -8,6 +8,7 @@ expanded back over every parameter, a known weight at its value with std 0.
 from __future__ import annotations
 
 import dataclasses
+import time
 
 import numpy as np
 
@@ -35,10 +36,12 @@ def fit_with_known(solve, system, basis: MonomialBasis, params, x0: np.ndarray, 
                    evaluated_at=values.copy(), solve=None, iterates=[], correlation={
                        "labels": [], "matrix": [], "averaged_over_channels": True},
                    sigma2=None, std_method="known", stages_s={})
+    t_known = time.perf_counter()
     if not np.array_equal(system.codes, basis.codes):
         system = system.reindexed(basis.codes)
     reduced = sub.system(system)
     del system
+    t_known = time.perf_counter() - t_known
     position = {int(j): i for i, j in enumerate(sub.free)}
     free_params = [dataclasses.replace(params[j], index=i) for i, j in enumerate(sub.free)]
     free_groups = [[position[j] for j in g if j in position] for g in groups]
@@ -52,5 +55,5 @@ def fit_with_known(solve, system, basis: MonomialBasis, params, x0: np.ndarray, 
         return fit.replace(estimate=sub.expand(fit.estimate), std=sub.expand(fit.std, known=0.0),
                            observable=observable, evaluated_at=sub.expand(fit.evaluated_at),
                            iterates=[(at, sub.expand(x)) for at, x in fit.iterates])
-    out = expanded(fit)
+    out = expanded(fit).replace(stages_s={**fit.stages_s, "known": fit.stages_s.get("known", 0.0) + t_known})
     return out if fit.deferred_std is None else out.replace(deferred_std=lambda: expanded(fit.deferred_std()))

@@ -50,6 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from methods.symbolic.system import dense_gram
 from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.system.coefficients import ViewCoefficients
 from methods.symbolic.system.gram import GramSystem
@@ -210,11 +211,12 @@ class Substitution:
     def system(self, system: GramSystem) -> GramSystem:
         """``(Mᵀ G M, Mᵀ b, yy)`` per channel of a system over (a subset of) ``old_codes``."""
         rows = self._rows(system.codes)
-        G, b = [], np.zeros((system.n_channels, len(self.codes)))
-        for c in range(system.n_channels):
-            M = self.matrix(c, rows)
-            G.append(sandwich(system.G[c], M))           # Mᵀ G M from G's triangle
-            b[c] = M.T @ system.b[c]
+        M = [self.matrix(c, rows) for c in range(system.n_channels)]
+        b = np.stack([m.T @ bc for m, bc in zip(M, system.b)])
+        if system.dense is not None:
+            return GramSystem(None, b, system.yy.copy(), system.n_pixels, self.codes,
+                              dense=dense_gram.sandwich(system.dense, M))
+        G = [sandwich(g, m) for g, m in zip(system.G, M)]           # Mᵀ G M from G's triangle
         return GramSystem(G, b, system.yy.copy(), system.n_pixels, self.codes)
 
     def view(self, coeffs):

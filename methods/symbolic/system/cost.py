@@ -44,12 +44,27 @@ class ChannelCost:
     def __init__(self, system: GramSystem, basis: MonomialBasis, c: int, used: np.ndarray | None = None):
         self.basis = basis
         self.used = system.used_monomials() if used is None else np.asarray(used)
-        self.G = principal(system.G[c], self.used)
-        self.diagonal = self.G.diagonal()
         self.b = system.b[c][self.used]
         self.yy = float(system.yy[c])
         self._last = None          # (x, r, μ) of the last residual: the Hessian follows the gradient
-        self._dense = None         # the whole G_c, dense, made at first use (small, full systems)
+        self._dense = None         # the whole G_c, dense: made at first use, or the system's own
+        if system.dense is not None:
+            self._from_dense(system, c)
+        else:
+            self.G = principal(system.G[c], self.used)
+            self.nnz, self.diagonal = self.G.nnz, self.G.diagonal()
+
+    def _from_dense(self, system: GramSystem, c: int) -> None:
+        """G_c on the used monomials from a system held dense: that matrix itself (shared, never
+        written) where the dense products are the cheaper (:meth:`_dense_copy`), else its triangle."""
+        every = len(self.used) == system.n_monomials
+        d = system.dense[c] if every else system.dense[c][np.ix_(self.used, self.used)]
+        self.nnz = (np.count_nonzero(d) + np.count_nonzero(d.diagonal())) // 2
+        self.diagonal = d.diagonal().copy()
+        if self._dense_copy():
+            self.G, self._dense = None, d
+        else:
+            self.G = principal(system.G[c], self.used)
 
     def _residual(self, x: np.ndarray) -> np.ndarray:
         """``(size,)`` residual ``G_c μ - b_c`` on the used monomials, 0 elsewhere, and ``μ_used``."""
@@ -87,7 +102,7 @@ class ChannelCost:
         """Whether the residual and the Gauss-Newton matrix use a dense copy of G (class docstring)."""
         N = len(self.used)
         return N <= DENSE_HESSIAN_MONOMIALS and \
-            N * N * self.basis.n_params <= DENSE_HESSIAN_FLOPS_PER_ENTRY * max(self.G.nnz, 1)
+            N * N * self.basis.n_params <= DENSE_HESSIAN_FLOPS_PER_ENTRY * max(self.nnz, 1)
 
     def _residual_curvature(self, x: np.ndarray) -> np.ndarray:
         """``(D, D)`` second-order part ``2 Σ_m (G_c μ - b_c)_m ∇²μ_m`` of the Hessian

@@ -22,7 +22,10 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from framework.threads import run_threads
-from methods.symbolic.system.upper_triangle import dense_symmetric, dense_triangle, principal, spread, triangle, upper
+from methods.symbolic.system import dense_gram
+from methods.symbolic.system.dense_gram import Triangles, psd_projection
+from methods.symbolic.system.upper_triangle import dense_symmetric, dense_triangle, mirror_upper, principal, spread, \
+    triangle, upper
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +65,10 @@ class GramSystem:
         merging them.
     psd_skipped : tuple of int
         Sizes of the components :meth:`psd` left unprojected (above its limit).
+    dense : list of numpy.ndarray or None
+        The whole symmetric ``(N, N)`` matrices, when the system is held dense
+        (:meth:`from_dense`, :mod:`~methods.symbolic.system.dense_gram`): ``G`` is then given as
+        None and cut from them where a step asks for it (:class:`~methods.symbolic.system.dense_gram.Triangles`).
     """
 
     G: list
@@ -70,11 +77,18 @@ class GramSystem:
     n_pixels: int = 0
     codes: np.ndarray | None = None
     psd_skipped: tuple = ()
+    dense: list | None = None
 
     def __post_init__(self):
         if self.codes is None:
             self.codes = np.arange(self.b.shape[1], dtype=np.int64)
-        self.G = [upper(g) for g in self.G]
+        if self.dense is not None:
+            self.dense = list(self.dense)
+            for d in self.dense:            # shared by the systems made from it: never written
+                d.setflags(write=False)
+            self.G = Triangles(self.dense)
+        else:
+            self.G = [upper(g) for g in self.G]
 
     @classmethod
     def zeros(cls, codes, n_channels: int) -> "GramSystem":
@@ -86,10 +100,10 @@ class GramSystem:
 
     @classmethod
     def from_dense(cls, G: np.ndarray, b: np.ndarray, yy: np.ndarray, n_pixels: int, codes) -> "GramSystem":
-        """A system from ``(C, N, N)`` dense symmetric matrices ``G`` (their upper triangles are
-        kept, exact zeros left out, the channels on threads), ``b`` ``(C, N)``, ``yy`` ``(C,)``."""
-        return cls(run_threads([lambda g=g: dense_triangle(g) for g in G]), np.asarray(b, np.float64),
-                   np.asarray(yy, np.float64), int(n_pixels), np.asarray(codes, np.int64))
+        """A system held dense (``dense``) from ``(C, N, N)`` symmetric matrices ``G``, taken
+        over (their upper triangles count: each is mirrored in place), ``b`` ``(C, N)``, ``yy`` ``(C,)``."""
+        return cls(None, np.asarray(b, np.float64), np.asarray(yy, np.float64), int(n_pixels),
+                   np.asarray(codes, np.int64), dense=[mirror_upper(g) for g in G])
 
     @property
     def n_monomials(self) -> int:
@@ -102,7 +116,13 @@ class GramSystem:
     @property
     def nnz(self) -> int:
         """Stored entries of G (one triangle), all channels."""
+        if self.dense is not None:       # the triangle's non-zeros, from the whole matrix's
+            return int(sum((np.count_nonzero(d) + np.count_nonzero(d.diagonal())) // 2 for d in self.dense))
         return int(sum(g.nnz for g in self.G))
+
+    def diagonals(self) -> np.ndarray:
+        """``(C, N)``: the diagonal of each ``G_c``."""
+        return np.stack([d.diagonal() for d in (self.dense if self.dense is not None else self.G)])
 
     def matrix(self, c: int) -> sp.csr_matrix:
         """The whole symmetric ``G_c`` (both triangles): for inspection and tests."""
@@ -200,6 +220,10 @@ class GramSystem:
         eigen-decomposition of its size and is left unprojected (logged, and listed in
         ``psd_skipped``).
         """
+        if self.dense is not None:
+            dense, skipped = dense_gram.psd(self.dense, limit)
+            _log_skipped(skipped, limit)
+            return GramSystem(None, self.b.copy(), self.yy.copy(), self.n_pixels, self.codes, tuple(skipped), dense)
         G, skipped, last = [], [], None
         for g in self.G:
             g = g.tocsr()
@@ -208,9 +232,7 @@ class GramSystem:
             projected, big = _psd_components(g, limit, last[1])
             G.append(projected)
             skipped += big
-        if skipped:
-            log.warning("PSD projection skipped for %d component(s) of G with %s monomials (limit %d)",
-                        len(skipped), sorted(set(skipped)), limit)
+        _log_skipped(skipped, limit)
         return GramSystem(G, self.b.copy(), self.yy.copy(), self.n_pixels, self.codes, tuple(skipped))
 
     def _empty_within(self, other: "GramSystem") -> bool:
@@ -219,14 +241,18 @@ class GramSystem:
                 and not self.yy.any() and bool(np.isin(self.codes, other.codes).all()))
 
     def nbytes(self) -> int:
-        """Bytes of the system's arrays (its matrices, ``b`` and ``yy``)."""
-        return sum(_bytes(g) for g in self.G) + self.b.nbytes + self.yy.nbytes
+        """Bytes of the system's arrays (its matrices, dense and those cut, ``b`` and ``yy``)."""
+        G = self.G.cut() if self.dense is not None else self.G
+        dense = sum(d.nbytes for d in self.dense) if self.dense is not None else 0
+        return dense + sum(_bytes(g) for g in G if g is not None) + self.b.nbytes + self.yy.nbytes
 
     def used_monomials(self) -> np.ndarray:
         """Indices of the monomials some pixel depends on (a non-zero row of G or entry of b, any
         channel). The others do not change the cost: a solver may leave them out."""
         used = np.any(self.b != 0, axis=0)
-        for g in self.G:                   # a triangle's entry (m, n) is in row m and column n
+        for d in self.dense or ():         # symmetric: a non-zero row is a non-zero column
+            used |= np.any(d != 0, axis=1)
+        for g in (self.G if self.dense is None else ()):                   # a triangle's entry (m, n) is in row m and column n
             used |= np.diff(g.indptr) > 0
             used[g.indices] = True
         return np.flatnonzero(used)
@@ -236,12 +262,19 @@ class GramSystem:
         The matrices share their values with this system's (only the indices are new)."""
         codes = np.asarray(codes, np.int64)
         if np.array_equal(codes, self.codes):
+            if self.dense is not None:     # shared, as the sparse matrices are: never changed in place
+                return GramSystem(None, self.b.copy(), self.yy.copy(), self.n_pixels, codes, dense=self.dense)
             return GramSystem(list(self.G), self.b.copy(), self.yy.copy(), self.n_pixels, codes)
         pos = np.searchsorted(codes, self.codes)
         N = len(codes)
-        G = [spread(g, pos, N) for g in self.G]
         b = np.zeros((self.n_channels, N))
         b[:, pos] = self.b
+        if self.dense is not None:
+            dense = [np.zeros((N, N)) for _ in self.dense]
+            for out, d in zip(dense, self.dense):
+                out[np.ix_(pos, pos)] = d
+            return GramSystem(None, b, self.yy.copy(), self.n_pixels, codes, dense=dense)
+        G = [spread(g, pos, N) for g in self.G]
         return GramSystem(G, b, self.yy.copy(), self.n_pixels, codes)
 
     def __add__(self, other: "GramSystem") -> "GramSystem":
@@ -260,6 +293,8 @@ class GramSystem:
             return NotImplemented
         if other.n_channels != self.n_channels:
             raise ValueError(f"cannot add systems of {self.n_channels} and {other.n_channels} channels")
+        if self.dense is not None:          # a sum is sparse: the triangles cut, the dense let go
+            self.G, self.dense = list(self.G), None
         if self._empty_within(other):            # the sum is ``other``: no sparse sum to build
             self.G, self.b, self.yy = list(other.G), other.b.copy(), other.yy.copy()
             self.n_pixels, self.codes = other.n_pixels, np.asarray(other.codes, np.int64)
@@ -300,7 +335,10 @@ class GramSystem:
             ``(C,)`` costs (sum them for the total, eq. 6 squared with p = 2).
         """
         mu = np.asarray(mu, dtype=np.float64).reshape(self.n_channels, self.n_monomials)
-        quad = np.array([2.0 * (m @ (g @ m)) - g.diagonal() @ (m * m) for g, m in zip(self.G, mu)])
+        if self.dense is not None:
+            quad = np.array([m @ (d @ m) for d, m in zip(self.dense, mu)])
+        else:
+            quad = np.array([2.0 * (m @ (g @ m)) - g.diagonal() @ (m * m) for g, m in zip(self.G, mu)])
         return quad - 2 * np.einsum("ci,ci->c", self.b, mu) + self.yy
 
 
@@ -341,7 +379,7 @@ def _psd_components(g: sp.csr_matrix, limit: int, components: tuple | None = Non
             skipped.append(len(idx))
             kept[idx] = True
             continue
-        block = np.triu(_psd_projection(dense_symmetric(principal(g, idx))))
+        block = np.triu(psd_projection(dense_symmetric(principal(g, idx))))
         r, c = np.nonzero(block)
         rows.append(idx[r]), cols.append(idx[c]), vals.append(block[r, c])
     coo = g.tocoo()
@@ -359,7 +397,7 @@ def _one_component(g: sp.csr_matrix, idx: np.ndarray, single: np.ndarray) -> sp.
     increasing) and 1 x 1 ones (``single``): the component's triangle made from its dense
     projection row by row and moved into place, no sort of its entries (the general path's COO
     assembly took 0.25 of a survey fit's 0.8 s around its eigen-decompositions, 2026-12-05)."""
-    out = spread(dense_triangle(_psd_projection(dense_symmetric(principal(g, idx)))), idx, g.shape[0])
+    out = spread(dense_triangle(psd_projection(dense_symmetric(principal(g, idx)))), idx, g.shape[0])
     d = np.maximum(g.diagonal()[single], 0.0)
     if not d.any():
         return out
@@ -368,18 +406,10 @@ def _one_component(g: sp.csr_matrix, idx: np.ndarray, single: np.ndarray) -> sp.
     return out
 
 
-def _psd_projection(m: np.ndarray) -> np.ndarray:
-    """The symmetric ``m`` with its negative eigenvalues set to 0: ``m + W Wᵀ`` with ``W`` the
-    eigenvectors of the negative ones scaled by ``√-λ``, or ``U Uᵀ`` with the positive ones, whichever
-    has fewer columns (one symmetric rank-k product, half a general one: bundled urban_canyon_survey's
-    2,568 monomials have 973 negative eigenvalues)."""
-    w, V = np.linalg.eigh(m)
-    negative = w < 0.0
-    if 2 * np.count_nonzero(negative) < len(w):
-        W = V[:, negative] * np.sqrt(-w[negative])
-        return m + W @ W.T
-    U = V[:, ~negative] * np.sqrt(w[~negative])
-    return U @ U.T
+def _log_skipped(skipped: list, limit: int) -> None:
+    if skipped:
+        log.warning("PSD projection skipped for %d component(s) of G with %s monomials (limit %d)",
+                    len(skipped), sorted(set(skipped)), limit)
 
 
 def _bytes(g: sp.csr_matrix) -> int:

@@ -119,7 +119,8 @@ def dense_sum(parts, codes: np.ndarray) -> GramSystem:
     """:func:`summed_views` as dense matrices over ``codes`` (the union of the blocks' codes) from
     the row blocks ``parts`` (``(block, y, w)``, :func:`row_blocks`), each with its ``factors``:
     a block's products ``H_k`` are added to its lens's, expanded once at the end
-    (:mod:`~methods.symbolic.system.row_factors`), and the triangles cut once.
+    (:mod:`~methods.symbolic.system.row_factors`), and the system held dense
+    (:meth:`GramSystem.from_dense <methods.symbolic.system.gram.GramSystem.from_dense>`).
 
     The work is six tasks on threads, each channel's blocks in two halves (:data:`DENSE_SPLITS`),
     each half summed in its blocks' order and the halves added in theirs: the sum is the same

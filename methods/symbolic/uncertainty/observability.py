@@ -38,7 +38,7 @@ def observable_parameters(system: GramSystem, basis: MonomialBasis, *, rtol: flo
     numpy.ndarray
         ``(D,)`` bool.
     """
-    diag = np.max([g.diagonal() for g in system.G], axis=0)       # (N,) Σ_i γ_im², worst channel
+    diag = np.max(system.diagonals(), axis=0)                      # (N,) Σ_i γ_im², worst channel
     scale = float(diag.max()) if diag.size else 0.0
     if scale <= 0.0:
         return np.zeros(basis.n_params, dtype=bool)
@@ -77,5 +77,9 @@ def restrict_system(system: GramSystem, basis: MonomialBasis, keep: np.ndarray
     # a monotone renumbering keeps the codes sorted (ordered by degree, then largest parameter)
     codes = (renumber[basis.digits[idx]] * (len(kept) + 1) ** np.arange(basis.max_degree)).sum(axis=1)
     sub = MonomialBasis(len(kept), basis.max_degree, codes)
+    b, yy = system.b[:, idx].copy(), system.yy.copy()
+    if system.dense is not None:
+        rows = np.ix_(idx, idx)
+        return GramSystem(None, b, yy, system.n_pixels, sub.codes, dense=[d[rows] for d in system.dense]), sub, idx
     G = [principal(g, idx) for g in system.G]
-    return GramSystem(G, system.b[:, idx].copy(), system.yy.copy(), system.n_pixels, sub.codes), sub, idx
+    return GramSystem(G, b, yy, system.n_pixels, sub.codes), sub, idx
