@@ -55,5 +55,5 @@ def fit_with_known(solve, system, basis: MonomialBasis, params, x0: np.ndarray, 
         return fit.replace(estimate=sub.expand(fit.estimate), std=sub.expand(fit.std, known=0.0),
                            observable=observable, evaluated_at=sub.expand(fit.evaluated_at),
                            iterates=[(at, sub.expand(x)) for at, x in fit.iterates])
-    out = expanded(fit).replace(stages_s={**fit.stages_s, "known": fit.stages_s.get("known", 0.0) + t_known})
+    out = expanded(fit).replace(stages_s={**fit.stages_s, "known": t_known})
     return out if fit.deferred_std is None else out.replace(deferred_std=lambda: expanded(fit.deferred_std()))

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.system.dense_gram import triangle_nnz
 from methods.symbolic.system.gram import GramSystem
 from methods.symbolic.system.upper_triangle import dense_symmetric, principal, sandwich, symmetric_dot
 
@@ -59,7 +60,7 @@ class ChannelCost:
         written) where the dense products are the cheaper (:meth:`_dense_copy`), else its triangle."""
         every = len(self.used) == system.n_monomials
         d = system.dense[c] if every else system.dense[c][np.ix_(self.used, self.used)]
-        self.nnz = (np.count_nonzero(d) + np.count_nonzero(d.diagonal())) // 2
+        self.nnz = triangle_nnz(d)
         self.diagonal = d.diagonal().copy()
         if self._dense_copy():
             self.G, self._dense = None, d

@@ -21,6 +21,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+
 from methods.symbolic.system.upper_triangle import dense_triangle, mirror_upper
 
 
@@ -46,6 +47,12 @@ class Triangles(Sequence):
     def cut(self) -> list:
         """Whichever triangles exist already (None for the others), for their bytes."""
         return list(self._cut)
+
+
+def triangle_nnz(d: np.ndarray) -> int:
+    """Non-zeros of the upper triangle (diagonal included) of the symmetric ``d``: what its
+    CSR triangle would store."""
+    return (np.count_nonzero(d) + np.count_nonzero(d.diagonal())) // 2
 
 
 def psd_projection(m: np.ndarray) -> np.ndarray:

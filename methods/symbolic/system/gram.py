@@ -23,7 +23,7 @@ from scipy.sparse.csgraph import connected_components
 
 from framework.threads import run_threads
 from methods.symbolic.system import dense_gram
-from methods.symbolic.system.dense_gram import Triangles, psd_projection
+from methods.symbolic.system.dense_gram import Triangles, psd_projection, triangle_nnz
 from methods.symbolic.system.upper_triangle import dense_symmetric, dense_triangle, mirror_upper, principal, spread, \
     triangle, upper
 
@@ -116,8 +116,8 @@ class GramSystem:
     @property
     def nnz(self) -> int:
         """Stored entries of G (one triangle), all channels."""
-        if self.dense is not None:       # the triangle's non-zeros, from the whole matrix's
-            return int(sum((np.count_nonzero(d) + np.count_nonzero(d.diagonal())) // 2 for d in self.dense))
+        if self.dense is not None:
+            return int(sum(triangle_nnz(d) for d in self.dense))
         return int(sum(g.nnz for g in self.G))
 
     def diagonals(self) -> np.ndarray:
@@ -250,11 +250,13 @@ class GramSystem:
         """Indices of the monomials some pixel depends on (a non-zero row of G or entry of b, any
         channel). The others do not change the cost: a solver may leave them out."""
         used = np.any(self.b != 0, axis=0)
-        for d in self.dense or ():         # symmetric: a non-zero row is a non-zero column
-            used |= np.any(d != 0, axis=1)
-        for g in (self.G if self.dense is None else ()):                   # a triangle's entry (m, n) is in row m and column n
-            used |= np.diff(g.indptr) > 0
-            used[g.indices] = True
+        if self.dense is not None:
+            for d in self.dense:           # symmetric: a non-zero row is a non-zero column
+                used |= np.any(d != 0, axis=1)
+        else:
+            for g in self.G:               # a triangle's entry (m, n) is in row m and column n
+                used |= np.diff(g.indptr) > 0
+                used[g.indices] = True
         return np.flatnonzero(used)
 
     def reindexed(self, codes: np.ndarray) -> "GramSystem":
