@@ -7,8 +7,8 @@ import pickle
 
 import pytest
 
-from methods.symbolic.system.pixel_matrices import (FactoredColumns, expanded_columns, scale_columns, scale_rows,
-                                                    stored_per_row)
+from methods.symbolic.system.pixel_matrices import (FactoredColumns, expanded_columns, product_into, scale_columns,
+                                                    scale_rows, stored_per_row)
 
 
 def test_scale_rows_by_hand():
@@ -125,3 +125,48 @@ def test_moved_columns_equals_the_permutation_product():
     assert not out.has_sorted_indices
     assert np.array_equal(out.toarray(), (m @ P).toarray() * 2.5)
     assert moved_columns(m, position, 0.0).nnz == 0
+
+
+def _product_operands(seed: int):
+    """A CSR ``p`` (30 x 40) with empty rows and an explicit zero, and ``q`` (40 x 25) with
+    unsorted indices (as :func:`expanded_columns` leaves them)."""
+    rng = np.random.default_rng(seed)
+    p = sp.random(30, 40, density=0.15, format="csr", random_state=rng)
+    p.data[p.indptr[3]:p.indptr[4]] = 0.0
+    p.eliminate_zeros()                                # row 3 empty
+    p.data[0] = 0.0                                    # stored, but zero
+    q = expanded_columns(sp.random(40, 5, density=0.5, format="csr", random_state=rng),
+                         rng.uniform(0.5, 2.0, (5, 40)), np.arange(25).reshape(5, 5), 25)
+    return p, q
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_product_into_adds_the_product(seed):
+    """``dense += p @ q`` in place: against numpy's product of the dense operands, to 1e-12."""
+    p, q = _product_operands(seed)
+    start = np.random.default_rng(9).standard_normal((30, 25))
+    dense = start.copy()
+    product_into(dense, p, q)
+    np.testing.assert_allclose(dense, start + p.toarray() @ q.toarray(), rtol=1e-12, atol=1e-12)
+
+
+def test_product_into_above_the_bound_takes_scipys_product(monkeypatch):
+    """Above the bound the product is scipy's ``p @ q``: the same sum, bit for bit (the same
+    kernel on the same operands)."""
+    import methods.symbolic.system.pixel_matrices as pm
+    p, q = _product_operands(3)
+    direct = np.zeros((30, 25))
+    product_into(direct, p, q)
+    monkeypatch.setattr(pm, "PRODUCT_BOUND_ENTRIES", 0)
+    fallback = np.zeros((30, 25))
+    product_into(fallback, p, q)
+    np.testing.assert_array_equal(direct, fallback)
+
+
+def test_product_into_errors():
+    """The dense target must be C-contiguous and of the product's shape."""
+    p, q = _product_operands(0)
+    with pytest.raises(ValueError, match="C-contiguous 30 x 25"):
+        product_into(np.zeros((25, 30)).T, p, q)
+    with pytest.raises(ValueError, match="C-contiguous 30 x 25"):
+        product_into(np.zeros((30, 26)), p, q)

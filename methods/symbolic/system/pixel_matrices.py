@@ -206,3 +206,54 @@ def rows_times(p, s: np.ndarray):
     if sp.issparse(p):
         return scale_rows(p, s)
     return p * (s if p.ndim == 1 else s[:, None])
+
+
+#: largest bound on a product's non-zeros :func:`product_into` allocates for (12 bytes each);
+#: above it the product takes scipy's own two passes
+PRODUCT_BOUND_ENTRIES = 32 * 2**20
+
+
+def product_into(dense: np.ndarray, p, q) -> None:
+    """``dense += p @ q`` for CSR ``p`` ``(M, K)`` and ``q`` ``(K, N)``, in place.
+
+    scipy's ``p @ q`` runs its product kernel twice: once to count the result's non-zeros
+    (``csr_matmat_maxnnz``), once to form them (``csr_matmat``). Here the count is a bound, row
+    ``i`` at most ``min(N, Σ_k nnz(q_k))`` over the ``k`` of ``p``'s row ``i`` (``O(nnz(p))``),
+    the kernel runs once into buffers of that size, and each row's entries are added where they
+    sit in ``dense`` (the kernel emits each of a row's columns once, unsorted). The same kernel
+    on the same operands: the same values as ``p @ q``. On the field path's lens products
+    (bundled urban_canyon_survey, 2026-12-06) the counting pass was a third of the products' CPU
+    time. Above :data:`PRODUCT_BOUND_ENTRIES` (or where scipy lacks the kernel) ``p @ q``, its
+    entries added the same way.
+    """
+    if not dense.flags.c_contiguous or dense.shape != (p.shape[0], q.shape[1]):
+        raise ValueError(f"dense must be a C-contiguous {p.shape[0]} x {q.shape[1]} array (got {dense.shape})")
+    p, q = p.tocsr(), q.tocsr()
+    M, N = p.shape[0], q.shape[1]
+    work = np.diff(q.indptr)[p.indices]
+    reach = np.concatenate([[0], np.cumsum(work, dtype=np.int64)])
+    bound = int(np.minimum(reach[p.indptr[1:]] - reach[p.indptr[:-1]], N).sum())
+    kernel = _product_kernel()
+    if kernel is None or bound > PRODUCT_BOUND_ENTRIES:
+        m = (p @ q).tocsr()
+        m.sum_duplicates()          # canonical: a repeated entry would be added once
+        indptr, indices, data = m.indptr, m.indices, m.data
+    else:
+        index = np.int32 if max(bound, M, N, p.shape[1]) < 2**31 and p.nnz < 2**31 and q.nnz < 2**31 \
+            else np.int64
+        indptr, indices, data = np.empty(M + 1, index), np.empty(bound, index), np.empty(bound)
+        kernel(M, N, p.indptr.astype(index, copy=False), p.indices.astype(index, copy=False),
+               p.data.astype(np.float64, copy=False), q.indptr.astype(index, copy=False),
+               q.indices.astype(index, copy=False), q.data.astype(np.float64, copy=False), indptr, indices, data)
+    nnz = int(indptr[-1])
+    rows = np.repeat(np.arange(M), np.diff(indptr))
+    dense.reshape(-1)[rows * dense.shape[1] + indices[:nnz]] += data[:nnz]
+
+
+def _product_kernel():
+    """scipy's CSR product kernel (``scipy.sparse._sparsetools.csr_matmat``), or None."""
+    try:
+        from scipy.sparse._sparsetools import csr_matmat
+    except ImportError:
+        return None
+    return csr_matmat

@@ -12,8 +12,8 @@ views before the expansion: one sparse product of ``K k²`` pairs a pixel instea
 (7 against 16), and the expansion once for all the views of a lens.
 
 :class:`RowFactors` keeps what this needs (the coefficients before the expansion, their codes,
-the appended parameters, the basis ``e`` and ``α``); :func:`factored_products` forms one block's
-``H_k``, :func:`expanded_gram` the blocks of ``G`` from their sum.
+the appended parameters, the basis ``e`` and ``α``); :func:`add_factored_products` adds one block's
+``H_k`` to their sum, :func:`expanded_gram` forms the blocks of ``G`` from it.
 """
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from methods.symbolic.system.pixel_matrices import expanded_columns
+from methods.symbolic.system.pixel_matrices import expanded_columns, product_into
 from methods.symbolic.trace.monomial_codes import appended_codes
 
 #: largest ``|s_t s_u - Σ_k α_tuk e_k|`` accepted, relative to the largest product
@@ -97,10 +97,14 @@ class RowFactors:
         return np.stack([appended_codes(codes, j, self.n_params, self.max_degree) for j in self.appended])
 
 
-def factored_products(factors: RowFactors, c: int, weights: np.ndarray | None, codes: np.ndarray) -> sp.csr_matrix:
-    """``H_k = Aᵀ diag(w e_k) B`` of channel ``c`` (``B = A`` without halves) over the sorted base
-    ``codes`` (a superset of the block's), stacked: row ``k U + m``, column ``m'`` for ``U``
-    codes; not symmetrised (the cross Gram's ½(H + Hᵀ) is taken on the sum)."""
+def add_factored_products(D: np.ndarray, factors: RowFactors, c: int, weights: np.ndarray | None,
+                          codes: np.ndarray) -> None:
+    """``D += [H_0ᵀ | H_1ᵀ | ...]`` with ``H_k = Aᵀ diag(w e_k) B`` of channel ``c`` (``B = A``
+    without halves) over the sorted base ``codes`` (a superset of the block's): ``D`` is
+    ``(U, K U)`` for ``U`` codes, column ``k U + m`` holding ``H_k``'s row ``m``. Formed as
+    ``Bᵀ [diag(w e_0) A | ...]``, the orientation in which scipy's kernel writes the rows of ``D``
+    in order (:func:`~methods.symbolic.system.pixel_matrices.product_into`); not symmetrised (the
+    cross Gram's ½(H + Hᵀ) is taken on the sum, and makes ``Hᵀ`` as good as ``H``)."""
     A = factors.a[c]
     B = A if factors.b is None else factors.b[c]
     K, n = factors.basis.shape
@@ -108,7 +112,7 @@ def factored_products(factors: RowFactors, c: int, weights: np.ndarray | None, c
     scales = factors.basis if weights is None else factors.basis * np.asarray(weights, np.float64).reshape(1, n)
     stacked = expanded_columns(A, scales, np.arange(K)[:, None] * U + at[None, :], K * U)
     B = B.tocsr()
-    return stacked.T @ sp.csr_matrix((B.data, at[B.indices], B.indptr), shape=(B.shape[0], U))
+    product_into(D, sp.csr_matrix((B.data, at[B.indices], B.indptr), shape=(B.shape[0], U)).T.tocsr(), stacked)
 
 
 def expanded_gram(H: np.ndarray, alpha: np.ndarray):
