@@ -33,7 +33,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from framework.memory import reused_memory
 from framework.results import per_channel
 from framework.threads import run_threads
 from methods.symbolic.fit.fit import Fit, StageClock, reconstruction_fields, with_std
@@ -260,7 +259,6 @@ def field_views(result, problem, params, x0: np.ndarray, options: FieldOptions
     return views, extra, np.vstack(starts), lens, light
 
 
-@reused_memory()
 def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, solve, *,
               start: dict | None = None, estimate_only: bool = False) -> Fit:
     """Fit ρ (and the gains) to the weighted pixels, reweighting them (IRLS) from the stored
@@ -274,10 +272,6 @@ def fit_field(result, params, x0: np.ndarray, problem, options: FieldOptions, so
     outliers drag); ``estimate_only``: the rounds' estimate alone, without standard errors, fit
     quality and excluded pixels' reasons (the bias correction's half refits). Each round's
     standard errors are deferred (:attr:`Fit.deferred_std`): only the last round's are computed.
-    The fit's temporaries reuse each other's memory (:func:`~framework.memory.reused_memory`): its
-    dense systems are made again every round, channel and step (bundled urban_canyon_survey, passes
-    from the cache, alternated: solve 73.9, 68.2, 68.9 s without, 63.2, 64.4, 65.1 s with;
-    2026-12-06).
     """
     from methods._common import segment_groups
     from methods.symbolic.system.basis import MonomialBasis
