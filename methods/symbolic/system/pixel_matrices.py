@@ -239,8 +239,7 @@ def product_into(dense: np.ndarray, p, q) -> None:
         m.sum_duplicates()          # canonical: a repeated entry would be added once
         indptr, indices, data = m.indptr, m.indices, m.data
     else:
-        index = np.int32 if max(bound, M, N, p.shape[1]) < 2**31 and p.nnz < 2**31 and q.nnz < 2**31 \
-            else np.int64
+        index = np.int32 if max(bound, M, N, p.shape[1], p.nnz, q.nnz) < 2**31 else np.int64
         indptr, indices, data = np.empty(M + 1, index), np.empty(bound, index), np.empty(bound)
         kernel(M, N, p.indptr.astype(index, copy=False), p.indices.astype(index, copy=False),
                p.data.astype(np.float64, copy=False), q.indptr.astype(index, copy=False),
