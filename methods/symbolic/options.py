@@ -180,7 +180,10 @@ class SymbolicOptions(StartOptions):
         "4 to 256 spp and 16 to 512 MiB; docs/design-notes.md). "
         "With a cache, each tile's per-pixel coefficients go to the cache as they are rendered and are "
         "read back one tile at a time, so a large view costs disk, not memory; with `cache.dir=null` "
-        "they are held in memory", number(0.0, lo_open=True), default=512)
+        "they are held in memory. It does not bound the solve: on the field path (pixel weights, gains, "
+        "robust rounds, a lens, unknown light) the run keeps the memory its arrays free for the next "
+        "ones until its last fit, so its resident size stays at its high-water mark until then "
+        "(docs/design-notes.md, fresh pages)", number(0.0, lo_open=True), default=512)
     solver: SolverOptions = option("the solve", default_factory=SolverOptions)
     relight: RelightOptions = option("relit images", default_factory=RelightOptions)
 
