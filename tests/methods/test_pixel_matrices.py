@@ -150,6 +150,13 @@ def test_product_into_adds_the_product(seed):
     np.testing.assert_allclose(dense, start + p.toarray() @ q.toarray(), rtol=1e-12, atol=1e-12)
 
 
+def test_product_into_finds_scipys_kernel():
+    """The kernel is scipy's private ``_sparsetools.csr_matmat``: a scipy that moved it would
+    make every product take the fallback's two passes unnoticed, so its absence fails here."""
+    from methods.symbolic.system.pixel_matrices import _product_kernel
+    assert _product_kernel() is not None
+
+
 def test_product_into_above_the_bound_takes_scipys_product(monkeypatch):
     """Above the bound the product is scipy's ``p @ q``: the same sum, bit for bit (the same
     kernel on the same operands)."""
