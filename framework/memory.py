@@ -86,4 +86,4 @@ def reused_memory():
             libc.mallopt(_M_MMAP_MAX, _MMAP_MAX_DEFAULT)
             libc.mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_SETTLED)
             libc.mallopt(_M_TRIM_THRESHOLD, _TRIM_SETTLED)
-            libc.malloc_trim(0)
+            release_freed_memory()
