@@ -94,6 +94,15 @@ class SymbolicOptions(StartOptions):
         "`cluster` for photographs (a scene's `images/`, any encoding; joint cost), `sandwich` for "
         "observations the run renders itself",
         choice("auto", "sandwich", "residual", "cluster"), default="auto")
+    std_device: str = option(
+        "where the `sandwich` and `cluster` std form their per-pixel scores' products with the "
+        "coefficients (a pass over every stored coefficient per weight; the scores' outer products "
+        "stay on the host, in BLAS): `device` on the run's Dr.Jit device (a `cuda_*` variant's GPU, "
+        "an `llvm_*` one's CPU threads), `host` with scipy; `auto`: `device` on a `cuda_*` variant, "
+        "`host` on an `llvm_*` one, where scipy's products took a quarter of the time of Dr.Jit's "
+        "(docs/design-notes.md). Both give the same values (the same sums in the same order); with "
+        "more than 64 weights the scores are sparse and formed on the host either way",
+        choice("auto", "device", "host"), default="auto")
     refine: int = option(
         "cap on further passes, each re-rendered at the previous estimate (one render each): the "
         "tail's linearisation and the kernel selection move to the estimate", number(0, 8, integer=True), default=3)

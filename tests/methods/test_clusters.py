@@ -129,3 +129,31 @@ def test_cluster_std_in_a_run(tmp_path):
     np.testing.assert_array_equal(cluster.estimate, pixel.estimate)
     ratio = cluster.std / pixel.std
     assert np.all((0.5 <= ratio) & (ratio <= 2.0)), ratio
+
+
+def test_std_device_in_a_run(tmp_path, monkeypatch):
+    """``method.std_device=device`` against ``host`` on the tiny scene, cluster and pixel sandwich:
+    the device forms the products (and only with ``device``), the same estimates, and the same std
+    to 1e-10 (the scores' products are the same sums in the same order,
+    tests/methods/test_device_products.py; equal to the bit on the CPU this was written on)."""
+    from factory import run_symbolic, tiny_problem
+    from methods.symbolic.uncertainty import sandwich_meat
+
+    launched = []
+
+    def counted(pairs):
+        launched.append(len(pairs))
+        return device_products(pairs)
+
+    device_products = sandwich_meat.device_products
+    monkeypatch.setattr(sandwich_meat, "device_products", counted)
+    problem = tiny_problem(tmp_path / "s", n_views=2, spp=16, obs_spp=64)
+    for std in ("cluster", "sandwich"):
+        host = run_symbolic(problem, std=std, refine=0, std_device="host")
+        assert not launched
+        device = run_symbolic(problem, std=std, refine=0, std_device="device")
+        assert launched
+        launched.clear()
+        np.testing.assert_array_equal(device.estimate, host.estimate)
+        assert np.all(np.isfinite(host.std))
+        np.testing.assert_allclose(device.std, host.std, rtol=1e-10)

@@ -49,3 +49,32 @@ def test_dense_and_sparse_scores_give_the_same_meat(monkeypatch, options):
         meats.append(score_meat(basis, rho, views, np.arange(len(codes)), codes, **kwargs))
     assert np.abs(meats[0]).max() > 0
     np.testing.assert_allclose(meats[0], meats[1], rtol=0, atol=1e-12 * np.abs(meats[0]).max())
+
+
+@pytest.mark.parametrize("options", ["plain", "clusters", "owned", "poses", "no halves"])
+def test_device_and_host_products_give_the_same_meat(options):
+    """The meat with the scores' products formed on the device (the tests' ``llvm_ad_rgb``) and on
+    the host, halves (but for ``no halves``) and pixel weights throughout, with each of the
+    clusters, the owners and the pose terms: equal to 1e-12 of its largest entry (the products are the same sums in the same
+    order, tests/methods/test_device_products.py; the same bits on the CPU this was written on)."""
+    rng = np.random.default_rng(12)
+    basis, codes, views, extras = _views(rng)
+    rho = rng.uniform(0.1, 0.6, (P, C))
+    kwargs = {"clusters": {"clusters": [e[0] for e in extras]}, "owned": {"owned": [e[1] for e in extras]},
+              "poses": {"poses": [e[2] for e in extras]}}.get(options, {})
+    if options == "no halves":
+        views = [(ViewCoefficients(coeffs.a, None, 1.0, codes) if isinstance(coeffs, ViewCoefficients)
+                  else TiledCoefficients([0, 50], [ViewCoefficients(b.a, None, 1.0, codes) for _, b in coeffs.blocks()],
+                                         ROWS), y, w) for coeffs, y, w in views]
+    host, device = (score_meat(basis, rho, views, np.arange(len(codes)), codes, device=d, **kwargs)
+                    for d in (False, True))
+    assert np.abs(host).max() > 0
+    np.testing.assert_allclose(device, host, rtol=0, atol=1e-12 * np.abs(host).max())
+
+
+def test_scores_on_device_follows_the_variant():
+    """``method.std_device``: ``auto`` forms the products on the host under the tests' ``llvm_ad_rgb``
+    (on a ``cuda_*`` variant on the device), ``device`` and ``host`` as they say."""
+    from methods.symbolic.uncertainty.sandwich_meat import scores_on_device
+
+    assert [scores_on_device(s) for s in ("auto", "device", "host")] == [False, True, False]

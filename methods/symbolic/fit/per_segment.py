@@ -206,14 +206,15 @@ def estimating_jacobian(systems: list, basis: MonomialBasis, blocks: list[list[i
 
 
 def fit_per_segment(system, basis: MonomialBasis, params, x0: np.ndarray, problem, *, views, groups,
-                    xtol: float, psd: bool = True) -> Fit:
+                    xtol: float, psd: bool = True, std_device: bool = False) -> Fit:
     """The per-segment fit of one pass: a :class:`~methods.symbolic.fit.fit.Fit` whose
     ``evaluated_at`` holds the guess where a block is held and whose ``per_segment`` says the
     sweeps, whether they converged and the held parameters.
 
     ``system``: the pass's summed system (its size bounds the blocks'); ``views``: a function
     giving ``(coefficients, y, weights or None)`` per view in ``problem.cameras`` order;
-    ``psd``: each block's system projected onto the PSD matrices (:meth:`GramSystem.psd`).
+    ``psd``: each block's system projected onto the PSD matrices (:meth:`GramSystem.psd`);
+    ``std_device``: the scores' products on the run's device (:func:`~methods.symbolic.uncertainty.sandwich_meat.score_meat`).
     """
     D, C = basis.n_params, problem.n_channels
     blocks = parameter_blocks(params, groups)
@@ -238,7 +239,7 @@ def fit_per_segment(system, basis: MonomialBasis, params, x0: np.ndarray, proble
     at = sol.estimate
     t_unc = time.perf_counter()
     meat = score_meat(basis, at, views(), np.arange(basis.size), basis.codes, owned=owned,
-                      poses=pose_terms(problem, views()))
+                      poses=pose_terms(problem, views()), device=std_device)
     bread = estimating_jacobian(systems, basis, blocks, at)
     sigma2 = _residual_variance([s for b, s in zip(blocks, systems) if s is not None and params[b[0]].segment >= 0],
                                 basis, at, int(free.sum()))

@@ -16,9 +16,11 @@ import functools
 import numpy as np
 import scipy.sparse as sp
 
+from framework.render.backend import jit_backend
 from framework.threads import run_threads, two_at_a_time
 from methods.symbolic.misfit.clusters import cr1_factor
 from methods.symbolic.system.basis import MonomialBasis
+from methods.symbolic.system.device_products import device_products
 from methods.symbolic.system.pixel_matrices import dense_jacobian, rows_times, stored_per_row
 from methods.symbolic.system.view_systems import row_blocks
 
@@ -30,8 +32,15 @@ from methods.symbolic.system.view_systems import row_blocks
 SCORE_CHUNK_NNZ = 1 << 20
 
 
+def scores_on_device(std_device: str) -> bool:
+    """Whether ``method.std_device`` (``auto``, ``device``, ``host``) forms the scores' products on
+    the run's device: ``auto`` where the active variant is a ``cuda_*`` one."""
+    return std_device == "device" or (std_device == "auto" and jit_backend() == "cuda")
+
+
 def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray, codes: np.ndarray, *,
-               owned: list | None = None, clusters: list | None = None, poses=None) -> np.ndarray:
+               owned: list | None = None, clusters: list | None = None, poses=None, device: bool = False
+               ) -> np.ndarray:
     """``(C, D, D)`` sandwich meat ``M_c = Σ_p (s_p - s̄)(s_p - s̄)ᵀ`` over every pixel of every view.
 
     ``s_p`` is pixel ``p``'s term of the gradient of the (cross-Gram) cost at ``rho``:
@@ -77,6 +86,14 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
         Per view, in turn, None (its camera exact) or ``(G, Σ)``: the ``(n, C, k)`` change of each pixel's
         residual per unit of the pose's ``k`` parameters and their ``(k, k)`` covariance
         (:func:`~methods.symbolic.misfit.registration.pose_sensitivity`).
+    device : bool
+        Form the scores' products with the coefficients (``A μ``, ``A J``: a pass over every stored
+        coefficient per parameter) on the active Mitsuba variant's device
+        (:mod:`methods.symbolic.system.device_products`), the rest (the scores' combination and
+        their outer products, ``O(pixels × D²)`` in BLAS) on the host; False: all on the host
+        (scipy). The same values on a CPU (the same sums in the same order). Only for at most
+        :data:`~methods.symbolic.system.pixel_matrices.DENSE_JACOBIAN_COLUMNS` parameters, whose
+        scores are dense; with more the host forms them either way.
 
     Returns
     -------
@@ -113,8 +130,9 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
                 member = None if rows is None else sp.csr_matrix(
                     (np.ones(len(rows)), (rows, np.arange(len(rows)))), shape=(n_groups, len(rows)))
                 G = None if pose is None else pose[0][start + lo:start + hi]
+                products = _on_device(block, (lo, hi), mu_v, J_v, codes_v, C) if device else [None] * C
                 tasks += [functools.partial(_chunk_terms, block, (lo, hi), y, w_pix, mu_v, J_v, codes_v, own, c,
-                                            member, G) for c in range(C)]
+                                            member, G, products[c]) for c in range(C)]
             # on threads: the sparse products release the GIL. Three channels on two cores leave
             # one idle a third of the time, two chunks' six tasks do not (bundled
             # urban_canyon_survey's first pass, 2026-12-05: its meat 3.3 s a chunk at a time, 2.8 s
@@ -135,6 +153,16 @@ def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray
                 pose_meat[c] += T[c] @ pose[1] @ T[c].T
     meat = outer - np.einsum("ci,cj->cij", total, total) / max(groups, 1)
     return (meat if clusters is None else cr1_factor(groups, n, D) * meat) + pose_meat
+
+
+def _on_device(block, rows: tuple[int, int], mu, J, codes, C: int) -> list:
+    """Per channel the products of a block's ``rows`` (:func:`_products`) formed on the run's
+    device (:func:`_device_products`, in this thread: the tasks only combine them), or None (to
+    be formed on the host) where ``J`` is sparse: many parameters, whose sparse scores the host
+    keeps sparse."""
+    if not dense_jacobian(J[0]):
+        return [None] * C
+    return _device_products([_operands(block, rows, mu, J, codes, c) for c in range(C)])
 
 
 def _own_monomials(view, mu: np.ndarray, J: list, codes: np.ndarray) -> tuple:
@@ -166,10 +194,13 @@ def _row_chunks(block) -> list[tuple[int, int]]:
     return list(zip(edges[:-1].tolist(), edges[1:].tolist()))
 
 
-def _chunk_terms(block, rows: tuple[int, int], y, w_pix, mu, J, codes, own, c: int, member, G):
+def _chunk_terms(block, rows: tuple[int, int], y, w_pix, mu, J, codes, own, c: int, member, G, products=None):
     """One task of :func:`score_meat`: the scores of a block's ``rows`` in channel ``c``
-    (:func:`_score`) reduced by :func:`_block_terms` (``G``: the rows' pose sensitivity or None)."""
-    s, ds = _score(block, rows, y, w_pix, mu, J, codes, own, c, slope=G is not None)
+    (:func:`_score`; ``products`` as :func:`_products` gives them, or None to form them here, on the host)
+    reduced by :func:`_block_terms` (``G``: the rows' pose sensitivity or None)."""
+    if products is None:
+        products = _products(*_operands(block, rows, mu, J, codes, c))
+    s, ds = _score(products, y[:, c], w_pix, own, slope=G is not None)
     return _block_terms(s, ds, member, None if G is None else G[:, c])
 
 
@@ -182,12 +213,11 @@ def _block_terms(s: sp.csr_matrix, ds: sp.csr_matrix | None, member: sp.csr_matr
     return np.asarray(s.sum(axis=0)).ravel(), _array(s.T @ s) if member is None else member @ s, slope
 
 
-def _score(block, rows: tuple[int, int], y, w_pix, mu, J, codes, own, c: int, *, slope: bool = False
-           ) -> tuple[sp.csr_matrix, sp.csr_matrix | None]:
-    """The ``(n, D)`` scores ``s_p`` in channel ``c`` of a block's ``rows`` ``[lo, hi)``, dense for
-    few parameters (:func:`~methods.symbolic.system.pixel_matrices.dense_jacobian`), else CSR,
-    and (``slope``) their derivatives ``∂s_p/∂r_p`` by the pixel's residual, else None
-    (:func:`score_meat`; the task copies only its own channel's rows)."""
+def _operands(block, rows: tuple[int, int], mu, J, codes, c: int) -> tuple:
+    """``(A, B, μ, J)`` of channel ``c`` of a block's ``rows`` ``[lo, hi)``: the rows of its
+    coefficient matrices (``B`` None without halves; the task copies only its own channel's rows),
+    and ``μ`` and ``J`` on the block's monomials, ``J`` dense for few parameters
+    (:func:`~methods.symbolic.system.pixel_matrices.dense_jacobian`), else CSR."""
     lo, hi = rows
     cut = (lambda m: m) if (lo, hi) == (0, block.n_rows) else (lambda m: m[lo:hi])   # noqa: E731
     at = np.searchsorted(codes, block.codes)                 # the block's columns in ``codes``
@@ -195,23 +225,47 @@ def _score(block, rows: tuple[int, int], y, w_pix, mu, J, codes, own, c: int, *,
     # sparse scores: a pixel's paths touch a few of the D parameters, so sᵀs costs
     # Σ_p nnz(s_p)² instead of pixels × D² (dense); dense ones for few parameters, the
     # coefficients times a dense J (one pass over their entries, no sparse product)
-    dense = dense_jacobian(J_v)
-    J_v = J_v.toarray() if dense else J_v
-    form = np.asarray if dense else (lambda m: m.tocsr())       # noqa: E731
-    A = cut(block.a[c])
-    ra, aJ = A @ mu_v - y[:, c], form(A @ J_v)
-    if block.b is None:
+    J_v = J_v.toarray() if dense_jacobian(J_v) else J_v
+    return cut(block.a[c]), None if block.b is None else cut(block.b[c]), mu_v, J_v
+
+
+def _products(A, B, mu, J) -> list[tuple]:
+    """``[(A μ, A J), (B μ, B J)]`` (``B`` None: the first only) on the host, ``M J`` dense where
+    ``J`` is, else CSR."""
+    form = np.asarray if isinstance(J, np.ndarray) else (lambda m: m.tocsr())       # noqa: E731
+    return [(M @ mu, form(M @ J)) for M in (A, B) if M is not None]
+
+
+def _device_products(operands: list[tuple]) -> list[list[tuple]]:
+    """:func:`_products` of each of ``operands`` (``(A, B, μ, J)`` with a dense ``J``, as
+    :func:`_operands` gives them) on the run's device, all in one evaluation
+    (:func:`~methods.symbolic.system.device_products.device_products`: ``M [J | μ]``)."""
+    pairs = [(M, np.column_stack([J, mu])) for A, B, mu, J in operands for M in (A, B) if M is not None]
+    out = iter(device_products(pairs))
+    return [[(p[:, -1], p[:, :-1]) for p in (next(out) for M in (A, B) if M is not None)]
+            for A, B, _, _ in operands]
+
+
+def _score(products: list[tuple], y: np.ndarray, w_pix, own, *, slope: bool = False
+           ) -> tuple[sp.csr_matrix, sp.csr_matrix | None]:
+    """The ``(n, D)`` scores ``s_p`` in one channel of a block's rows from the products
+    ``[(A μ, A J), (B μ, B J)]`` (:func:`_products`; dense for a dense ``J``, else CSR) and the
+    rows' observed pixels ``y``, and (``slope``) their derivatives ``∂s_p/∂r_p`` by the pixel's
+    residual, else None (:func:`score_meat`)."""
+    (A_mu, aJ), *halves = products
+    ra = A_mu - y
+    if not halves:
         s = rows_times(aJ, 2.0 * ra)
         ds = 2.0 * aJ if slope else None
     else:
-        B = cut(block.b[c])
-        rb, bJ = B @ mu_v - y[:, c], form(B @ J_v)
+        (B_mu, bJ), = halves
+        rb = B_mu - y
         s = rows_times(aJ, rb) + rows_times(bJ, ra)
         ds = aJ + bJ if slope else None
     if w_pix is not None:            # the weighted cost's term: w_p times the unweighted one
         s, ds = rows_times(s, w_pix), None if ds is None else rows_times(ds, w_pix)
     if own is not None:              # estimating equations: a pixel scores its owners only
-        own = own.toarray() if dense else own
+        own = own if sp.issparse(s) else own.toarray()
         s, ds = _elementwise(s, own), None if ds is None else _elementwise(ds, own)
     return s, ds
 
