@@ -12,9 +12,10 @@ never fitted against the floor: a street view of ``urban_canyon_field``, the mor
 ``urban_canyon_survey``). ``--jobs N`` (default 2) runs the accuracy sections (:data:`bench.common.SHARED`) N at a
 time, each in its own process, after the timed ones have run alone. ``--variant``
 (default ``auto``: CUDA when usable, else LLVM) is the Mitsuba backend of every run; each stored
-section records its variant and device. Each
+section records its variant, device and machine. Each
 section's numbers are stored in ``bench/results/<section>.json`` (with the date, the commit and
-the wall time of the run that measured them) and BENCHMARKS.md is rendered from every stored
+the wall time of the run that measured them; a CUDA run's in ``bench/results/gpu/``, drawn in
+BENCHMARKS.md's GPU part after the CPU's sections) and BENCHMARKS.md is rendered from every stored
 section, so ``--sections field`` re-measures one section and keeps the others; each section of
 BENCHMARKS.md states when it was measured. ``--quick`` stores under the run folder instead and
 writes ``--out`` (default: the run folder's BENCHMARKS.md), never the committed results.
@@ -139,7 +140,8 @@ def main(argv=None) -> int:
     stamp = datetime.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     root = Path(args.runs) if args.runs else ROOT / "bench" / "runs" / f"{stamp}{'_quick' if args.quick else ''}"
     root.mkdir(parents=True, exist_ok=True)
-    store = root / "results" if args.quick else RESULTS
+    on_gpu = sizes.variant.startswith("cuda")
+    store = (root / "results" if args.quick else RESULTS) / ("gpu" if on_gpu else "")
     store.mkdir(parents=True, exist_ok=True)
     machine = describe(sizes.variant)
     log(f"bench ({sizes.name}) into {root}")
@@ -154,10 +156,13 @@ def main(argv=None) -> int:
         in_processes(shared, args, root)
     if args.store_only:
         return 0
-    stored = {n: json.loads((store / f"{n}.json").read_text()) for n in SECTIONS if (store / f"{n}.json").is_file()}
+    cpu_store = store.parent if on_gpu else store
+    stored, gpu = read_stored(cpu_store), read_stored(cpu_store / "gpu")
+    if on_gpu:          # the machine table is the CPU sections' machine, as they recorded it
+        machine = next((rec["machine"] for rec in stored.values() if "machine" in rec), machine)
     command = "python -m bench" + (" --quick" if args.quick else "")
     out = Path(args.out) if args.out else (root / "BENCHMARKS.md" if args.quick else ROOT / "BENCHMARKS.md")
-    out.write_text(render(machine, command, sizes, stored), encoding="utf-8")
+    out.write_text(render(machine, command, sizes, stored, gpu), encoding="utf-8")
     log(f"wrote {out}")
     block = readme_block(stored)
     if block is not None and not args.quick and args.out is None:
@@ -165,6 +170,12 @@ def main(argv=None) -> int:
         readme.write_text(with_readme_block(readme.read_text(encoding="utf-8"), block), encoding="utf-8")
         log(f"wrote {readme}'s results table")
     return 0
+
+
+def read_stored(store: Path) -> dict:
+    """The sections stored in ``store`` (``bench/results``, or its ``gpu/`` for ``--variant cuda``), in
+    :data:`SECTIONS` order."""
+    return {n: json.loads((store / f"{n}.json").read_text()) for n in SECTIONS if (store / f"{n}.json").is_file()}
 
 
 def drop_cache(root: Path, name: str) -> None:
@@ -181,8 +192,8 @@ def measured(name: str, sizes, root: Path, machine: dict, resume: bool) -> dict:
     data = measure(name, sizes, root, resume=resume)
     return {"section": name, "sizes": sizes.name, "sizes_values": dataclasses.asdict(sizes),
             "date": machine["date"], "git": machine["git"], "variant": machine["variant"],
-            "device": machine["device"], "wall_s": time.perf_counter() - t0, "start": start, "end": time.time(),
-            "data": data}
+            "device": machine["device"], "machine": machine, "wall_s": time.perf_counter() - t0, "start": start,
+            "end": time.time(), "data": data}
 
 
 def in_processes(names: list[str], args, root: Path) -> None:

@@ -55,15 +55,26 @@ def measured_sizes(record: dict, sizes):
                                           for k, v in values.items() if k in known})
 
 
-def render(machine: dict, command: str, sizes, stored: dict) -> str:
-    """The whole BENCHMARKS.md text from the stored sections (:mod:`bench.__main__`)."""
+def render(machine: dict, command: str, sizes, stored: dict, gpu: dict | None = None) -> str:
+    """The whole BENCHMARKS.md text from the stored sections (:mod:`bench.__main__`): those measured
+    on a CPU (``stored``), then those measured on a GPU (``gpu``: ``python -m bench --variant cuda``),
+    each section as its module draws it, under its own heading and stamp."""
+    lines = section_machine(machine, command, sizes, stored) + _sections(stored, sizes)
+    if gpu:
+        lines += section_gpu(gpu) + _sections(gpu, sizes, on_gpu=True)
+    return "\n".join(lines) + "\n"
+
+
+def _sections(stored: dict, sizes, *, on_gpu: bool = False) -> list[str]:
+    """The stored sections' lines, each stamped (:func:`~bench.tables.stamped`); ``on_gpu``: their
+    headings one level down, under :func:`section_gpu`'s, and pass / render against the GPU's target."""
     data = {name: rec["data"] for name, rec in stored.items()}
     at = {name: measured_sizes(rec, sizes) for name, rec in stored.items()}
-    lines = section_machine(machine, command, sizes, stored)
     cmp = data.get("compare") or {"rows": [], "lr": [], "report": ""}
+    target = render_ratio.GPU_RATIO_TARGET if on_gpu else render_ratio.RATIO_TARGET
     parts = {
-        "ratio": lambda: render_ratio.markdown(data["ratio"]),
-        "megapixel": lambda: megapixel.markdown(data["megapixel"]),
+        "ratio": lambda: render_ratio.markdown(data["ratio"], target=target),
+        "megapixel": lambda: megapixel.markdown(data["megapixel"], target=target),
         "memory": lambda: memory.markdown(data["memory"], at["memory"]),
         "compare": lambda: (compare.markdown(cmp["rows"], at["compare"], cmp["report"], path=cmp.get("path"))
                             + compare.lr_sweep_markdown(cmp["rows"], cmp["lr"])),
@@ -77,10 +88,27 @@ def render(machine: dict, command: str, sizes, stored: dict) -> str:
         "misfit": lambda: misfit.markdown(data["misfit"]),
         "holdout": lambda: holdout.markdown(data["holdout"]),
     }
+    lines = []
     for name, part in parts.items():
         if name in data:
-            lines += stamped(part(), stored[name])
-    return "\n".join(lines) + "\n"
+            text = part()
+            if on_gpu and text:
+                text = ["#" + text[0]] + text[1:]
+            lines += stamped(text, stored[name])
+    return lines
+
+
+def section_gpu(gpu: dict) -> list[str]:
+    """The heading of the sections measured on a GPU and the machines they ran on."""
+    machines = {(rec.get("machine") or {}).get("cpu", "unknown CPU"): rec for rec in gpu.values()}
+    rows = [[rec["device"], cpu, (rec.get("machine") or {}).get("cores", "?"), rec["variant"]]
+            for cpu, rec in machines.items()]
+    return ["## On a GPU", "",
+            "The sections below ran with `python -m bench --variant cuda` (stored in "
+            "`bench/results/gpu/<section>.json`), on the machine each line under a heading names; the "
+            "sections above are this project's CPU. Compare a GPU figure with a CPU one only as the "
+            "ratios each section states (pass / render, method time), never as absolute times.", ""] + \
+        table(["device", "CPU", "cores", "variant"], rows) + [""]
 
 
 README = "README.md"

@@ -84,8 +84,8 @@ if __name__ == "__main__":
 # BENCHMARKS.md
 # ----------------------------------------------------------------------------------------------
 
-def markdown(r: dict) -> list[str]:
-    """Section 1b: the 1920x1080 view (:mod:`bench.megapixel`)."""
+def markdown(r: dict, *, target: float = RATIO_TARGET) -> list[str]:
+    """Section 1b: the 1920x1080 view (:mod:`bench.megapixel`; ``target``: pass / render's)."""
     lines = ["## 1b. A megapixel view", ""]
     if "error" in r:
         return lines + [f"Failed: `{str(r['error'])[-300:]}`", ""]
@@ -96,6 +96,6 @@ def markdown(r: dict) -> list[str]:
               "solve's standard errors read them back one tile at a time: the peak is bounded by the "
               "tiles, not the image.", ""]
     body = [[r["size"], r["spp"], f(r["pass_s"], 1), f(r["render_s"], 1), f(r["ratio"], 2),
-             yes(r["ratio"] <= RATIO_TARGET), _host(r), f(r["solve_s"], 2), r["n_monomials"], f(r["maxrss_mib"], 0)]]
-    return lines + table(["view", "spp", "pass (s)", "render (s)", "pass / render", f"<= {RATIO_TARGET}",
+             yes(r["ratio"] <= target), _host(r), f(r["solve_s"], 2), r["n_monomials"], f(r["maxrss_mib"], 0)]]
+    return lines + table(["view", "spp", "pass (s)", "render (s)", "pass / render", f"<= {target}",
                           f"host share (<= {HOST_TARGET:.0%})", "solve (s)", "monomials", "peak RSS (MiB)"], body) + [""]

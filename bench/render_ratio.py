@@ -131,9 +131,12 @@ def run(sizes, cache_dir, log=print) -> dict:
 # ----------------------------------------------------------------------------------------------
 
 RATIO_TARGET, SOLVE_TARGET, HOST_TARGET = 1.3, 0.05, 0.10
+#: pass / render on a GPU, where the device's kernels are short and the host's part weighs more
+GPU_RATIO_TARGET = 1.5
 
 
-def markdown(r: dict) -> list[str]:
+def markdown(r: dict, *, target: float = RATIO_TARGET) -> list[str]:
+    """Section 1 (``target``: pass / render's, :data:`GPU_RATIO_TARGET` for a GPU's run)."""
     n_e, d = r["rows"][0]["n_monomials"], r["rows"][0]["n_params"]
     lines = ["## 1. Symbolic pass vs plain render", "",
              f"urban_canyon, view {r['view']} ({r['size']}), {r['segments']} segments x "
@@ -148,9 +151,9 @@ def markdown(r: dict) -> list[str]:
              f"the last run. Host share = the pass's wall time outside Dr.Jit's kernels (wall minus the "
              f"kernels' execution time in Dr.Jit's kernel history), one run after the median's.", ""]
     rows = [[f"{x['spp']}" + (f" (default, T = {x['tail']})" if x.get("tail") else ""), f(x["pass_s"], 2), f(x["render_s"], 3), f(x["ratio"], 2),
-             yes(x["ratio"] <= RATIO_TARGET), _host(x), f(x["solve_s"], 3), _stages(x), f"{100 * x['solve_share']:.1f} %",
+             yes(x["ratio"] <= target), _host(x), f(x["solve_s"], 3), _stages(x), f"{100 * x['solve_share']:.1f} %",
              f"{100 * x['solve_share_pass']:.1f} %", yes(x["solve_share"] <= SOLVE_TARGET)] for x in r["rows"]]
-    return lines + table(["spp", "pass (s)", "render (s)", "pass / render", f"<= {RATIO_TARGET}",
+    return lines + table(["spp", "pass (s)", "render (s)", "pass / render", f"<= {target}",
                           f"host share (<= {HOST_TARGET:.0%} at 256 spp)", "solve (s)", "of which PSD / solver (evals)", "solve / render", "solve / pass",
                           f"solve/render <= {SOLVE_TARGET:.0%}"], rows) + [""]
 

@@ -27,8 +27,11 @@ def yes(ok) -> str:
 
 
 def stamped(lines: list[str], rec: dict) -> list[str]:
-    """A section's lines with the date and commit of its measurement under its heading."""
+    """A section's lines with the date and commit of its measurement under its heading (and its
+    device, measured on a GPU)."""
     if not lines:
         return lines
-    note = f"_Measured {rec['date']} at commit {rec['git']} ({rec['sizes']} sizes, {rec['wall_s'] / 60:.1f} min)._"
+    where = f" on {rec['device']}" if str(rec.get("variant", "")).startswith("cuda") else ""
+    note = (f"_Measured {rec['date']} at commit {rec['git']}{where} ({rec['sizes']} sizes, "
+            f"{rec['wall_s'] / 60:.1f} min)._")
     return lines[:1] + ["", note] + lines[1:]

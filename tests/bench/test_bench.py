@@ -44,14 +44,19 @@ def test_ratio_and_memory_on_tiny_scene(tiny_scene, tmp_path):
     assert out["rc"] == 0 and out["maxrss_mib"] > 10 and (tmp_path / "r" / "results.json").is_file()
 
 
+def _fake_ratio() -> dict:
+    """Section 1's data as bench.render_ratio stores it, made up."""
+    return {"rows": [{"spp": 4, "pass_s": 2.0, "render_s": 0.1, "ratio": 20.0, "solve_s": 0.01,
+                      "solve_share": 0.1, "solve_share_pass": 0.005, "n_monomials": 455, "n_params": 12}],
+            "view": "v", "size": "8x8", "max_bounces": 3, "reps": 1, "segments": 6,
+            "kernels": ["diffuse", "specular"], "channels": ["Y"], "observe_spp": 8}
+
+
 def test_markdown_renders_from_fake_numbers():
     import os
     sizes = dataclasses.replace(QUICK)
     assert tree_rss(__import__("psutil").Process(os.getpid())) > 0
-    ratio = {"rows": [{"spp": 4, "pass_s": 2.0, "render_s": 0.1, "ratio": 20.0, "solve_s": 0.01,
-                       "solve_share": 0.1, "solve_share_pass": 0.005, "n_monomials": 455, "n_params": 12}],
-             "view": "v", "size": "8x8", "max_bounces": 3, "reps": 1, "segments": 6,
-             "kernels": ["diffuse", "specular"], "channels": ["Y"], "observe_spp": 8}
+    ratio = _fake_ratio()
     mem = [{"views": n, "image": s, "executor": ex, "rc": 0, "wall_s": 1.0, "maxrss_mib": 100.0 + n + s,
             "tree_peak_mib": 100.0, "timings_s": {"render": 1.0, "solve": 0.1}}
            for s in (32, 64) for n, ex in ((4, "serial"), (1, "serial"), (4, "dask"))]
@@ -195,3 +200,30 @@ def test_a_stored_section_leaves_no_pass_cache(tmp_path, monkeypatch):
     assert not (tmp_path / "survey" / "cache").exists() and not (tmp_path / "ratio" / "cache").exists()
     assert (tmp_path / "survey" / "runs" / "b" / "results.json").is_file()
     assert (tmp_path / "cache" / "observed" / "o.npz").is_file()
+
+
+def test_gpu_sections_render_after_the_cpus(tmp_path):
+    """A section measured with ``--variant cuda`` (stored under ``bench/results/gpu/``) is drawn in
+    the GPU part, after the CPU's sections, its heading one level down and its stamp naming the
+    device; the CPU's own section 1 stays where it was."""
+    import json
+
+    from bench.__main__ import read_stored
+    machine = {"cpu": "c", "cores": 2, "ram_gib": 1.0, "variant": "llvm_ad_rgb", "mitsuba": "m", "drjit": "d",
+               "python": "p", "platform": "x", "date": "today", "git": "g"}
+    cpu = {"date": "today", "git": "g", "sizes": "quick", "wall_s": 60.0, "variant": "llvm_ad_rgb (rgb scenes)",
+           "device": "CPU", "data": _fake_ratio()}
+    gpu = {**cpu, "variant": "cuda_ad_rgb (rgb scenes)", "device": "NVIDIA H200", "git": "h",
+           "machine": {**machine, "cpu": "Xeon", "cores": 16}}
+    (tmp_path / "gpu").mkdir()
+    (tmp_path / "ratio.json").write_text(json.dumps(cpu))
+    (tmp_path / "gpu" / "ratio.json").write_text(json.dumps(gpu))
+    stored, on_gpu = read_stored(tmp_path), read_stored(tmp_path / "gpu")
+    assert list(stored) == list(on_gpu) == ["ratio"]
+    text = markdown.render(machine, "python -m bench", QUICK, stored, on_gpu)
+    cpu_at, gpu_at = text.index("## 1. Symbolic pass vs plain render"), text.index("## On a GPU")
+    assert cpu_at < gpu_at < text.index("### 1. Symbolic pass vs plain render")
+    assert "_Measured today at commit h on NVIDIA H200 (quick sizes, 1.0 min)._" in text
+    assert "_Measured today at commit g (quick sizes, 1.0 min)._" in text
+    assert "| NVIDIA H200 | Xeon | 16 | cuda_ad_rgb (rgb scenes) |" in text
+    assert "pass / render | <= 1.3 |" in text[:gpu_at] and "pass / render | <= 1.5 |" in text[gpu_at:]
