@@ -78,11 +78,11 @@ def run_rows(folder: Path) -> list[list]:
     """A row per results.json under ``folder``: run, variant, device, method, passes, solve, std and
     compile seconds, and the overrides that tell the runs apart."""
     rows = []
-    for path in sorted(folder.glob("*/results.json")):
+    for path in sorted(folder.rglob("results.json")):     # Hydra's sweep: <method>/<scene>/<overrides>/
         r = json.loads(path.read_text())
         t, s = r.get("timings_s", {}), r.get("settings", {})
         stages = r.get("solve_stages_s") or {}
-        rows.append([path.parent.name, s.get("variant", "?"), s.get("device", "?"),
+        rows.append([str(path.parent.relative_to(folder)), s.get("variant", "?"), s.get("device", "?"),
                      *(_s(t.get(k)) for k in ("method", "render", "solve")), _s(stages.get("uncertainty")),
                      _s(t.get("compile")), " ".join(_overrides(path.parent))])
     return rows

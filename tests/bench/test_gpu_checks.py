@@ -26,7 +26,7 @@ def test_summary_tables_every_run(tmp_path):
     """Each results.json under a step's folder is a row: variant, device, times, the sweep's
     distinguishing overrides; a missing stage reads n/a."""
     for run, where, unc in (("0", "host", 0.8), ("1", "device", None)):
-        folder = tmp_path / "all_views" / run
+        folder = tmp_path / "all_views" / "symbolic" / "urban_canyon" / run
         (folder / ".hydra").mkdir(parents=True)
         stages = {} if unc is None else {"uncertainty": unc}
         (folder / "results.json").write_text(json.dumps({
@@ -37,8 +37,8 @@ def test_summary_tables_every_run(tmp_path):
     text = gpu_checks.summary(tmp_path, [{"step": "all_views", "rc": 0, "wall_s": 12.0},
                                          {"step": "survey", "rc": None, "wall_s": 0.0}])
     assert "| all_views | 0 | 12 |" in text and "| survey | None | 0 |" in text
-    assert "| 0 | cuda_ad_rgb | NVIDIA H200 | 4.20 | 2.50 | 1.10 | 0.80 | 1.30 | seed=0 method.std_device=host |" in text
-    assert "| 1 | cuda_ad_rgb | NVIDIA H200 | 4.20 | 2.50 | 1.10 | n/a | 1.30 | seed=0 method.std_device=device |" in text
+    assert "| symbolic/urban_canyon/0 | cuda_ad_rgb | NVIDIA H200 | 4.20 | 2.50 | 1.10 | 0.80 | 1.30 | seed=0 method.std_device=host |" in text
+    assert "| symbolic/urban_canyon/1 | cuda_ad_rgb | NVIDIA H200 | 4.20 | 2.50 | 1.10 | n/a | 1.30 | seed=0 method.std_device=device |" in text
 
 
 def test_steps_name_the_backend_everywhere(tmp_path):
