@@ -16,7 +16,9 @@ order of what matters most, so a slow step costs the ones after it and never the
 
 ``OUT`` receives ``summary.md`` (a table per step: every run's variant, device, method, passes,
 solve, std and compile times), each step's log, and the runs' results.json files, all in
-``checks.tar.gz`` too. With ``--quick`` (the bench's toy sizes, small views: to try the script on
+``checks.tar.gz`` too, and ``bench-results/`` (the stored sections): put those in
+``bench/results/gpu/`` of the project's checkout and run ``python -m bench --render-only`` there to
+draw them in BENCHMARKS.md beside the CPU's, under the CPU machine's table. With ``--quick`` (the bench's toy sizes, small views: to try the script on
 a CPU with ``--backend llvm``) the numbers mean nothing.
 """
 from __future__ import annotations

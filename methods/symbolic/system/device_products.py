@@ -42,7 +42,7 @@ def device_products(pairs: list) -> list[np.ndarray]:
     Raises
     ------
     ValueError
-        If no JIT variant is active (``mi.set_variant('llvm_ad_rgb')`` or a ``cuda_*`` one), a
+        If no JIT variant (``llvm_*`` or ``cuda_*``) is active, a
         matrix is neither CSR nor factored, or the shapes do not match.
     """
     if not (mi.variant() or "").startswith(("llvm", "cuda")):
