@@ -101,7 +101,7 @@ class SymbolicOptions(StartOptions):
         "an `llvm_*` one's CPU threads), `host` with scipy; `auto`: `device` on a `cuda_*` variant, "
         "`host` on an `llvm_*` one, where scipy's are faster (2 cores, all views: the std 1.8-2.0 s on the "
         "host against 2.8 s through Dr.Jit on urban_canyon, 5.5-5.8 s against 13.7-15.4 s on "
-        "urban_canyon_survey; docs/design-notes.md). Both give the same "
+        "urban_canyon_survey; docs/design-notes.md; results.json `options_resolved`). Both give the same "
         "values (the same sums in the same order); with "
         "more than 64 weights the scores are sparse and formed on the host either way",
         choice("auto", "device", "host"), default="auto")

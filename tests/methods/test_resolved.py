@@ -86,22 +86,33 @@ def test_consistency_only_with_robust_rounds_and_views_to_compare():
 
 def test_why_names_every_auto_option_and_no_other():
     out = resolved(_options(), PHOTOGRAPHS)
-    assert set(out.why) == {"boundary", "robust", "std", "align", "bias", "solver.starts"}
+    assert set(out.why) == {"boundary", "robust", "std", "std_device", "align", "bias", "solver.starts"}
     assert out.why["std"] == {"value": "cluster", "why": out.why["std"]["why"]} and "photographs" in out.why["std"]["why"]
     assert out.why["solver.starts"]["value"] == "auto"          # decided per parameter block by the solve
-    fixed = resolved(_options(boundary=0, robust="none", std="sandwich", align="none", bias="none",
-                              solver={**method_config("symbolic")["solver"], "starts": 2}), PHOTOGRAPHS)
-    assert fixed.why == {} and fixed.options == _options(boundary=0, robust="none", std="sandwich", align="none",
-                                                         bias="none", solver={**method_config("symbolic")["solver"],
-                                                                              "starts": 2})
+    fixed = resolved(_options(boundary=0, robust="none", std="sandwich", std_device="host", align="none",
+                              bias="none", solver={**method_config("symbolic")["solver"], "starts": 2}), PHOTOGRAPHS)
+    assert fixed.why == {} and fixed.options == _options(boundary=0, robust="none", std="sandwich", std_device="host",
+                                                         align="none", bias="none",
+                                                         solver={**method_config("symbolic")["solver"], "starts": 2})
 
 
 def test_a_run_records_its_decisions(tmp_path):
-    """results.json ``options_resolved`` of a run on the tiny rendered scene: sandwich, no
-    alignment, no correction, each with its reason."""
+    """results.json ``options_resolved`` of a run on the tiny rendered scene: sandwich, its
+    products on the host (the tests' llvm_ad_rgb), no alignment, no correction, each with its reason."""
     from factory import make_problem, make_tiny_scene, run_symbolic
     root = make_tiny_scene(tmp_path / "s", size=8)
     out = run_symbolic(make_problem(root, None, "render.spp=8"), refine=0).extras["options_resolved"]
     assert {k: v["value"] for k, v in out.items()} == {"boundary": 0, "robust": "none", "std": "sandwich",
-                                                      "align": "none", "bias": "none", "solver.starts": "auto"}
+                                                      "std_device": "host", "align": "none", "bias": "none",
+                                                      "solver.starts": "auto"}
     assert "rendered by the run" in out["std"]["why"]
+
+
+@pytest.mark.parametrize("backend, given, value", [
+    ("cuda", "auto", "device"), ("llvm", "auto", "host"),          # the GPU's kernels, the CPU's scipy
+    ("cuda", "host", "host"), ("llvm", "device", "device"),        # explicit values stay
+])
+def test_std_device(backend, given, value):
+    out = resolved(_options(std_device=given), dataclasses.replace(RENDERED, backend=backend))
+    assert out.options.std_device == value
+    assert ("std_device" in out.why) == (given == "auto")

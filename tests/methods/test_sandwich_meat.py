@@ -71,10 +71,3 @@ def test_device_and_host_products_give_the_same_meat(options):
     assert np.abs(host).max() > 0
     np.testing.assert_allclose(device, host, rtol=0, atol=1e-12 * np.abs(host).max())
 
-
-def test_scores_on_device_follows_the_variant():
-    """``method.std_device``: ``auto`` forms the products on the host under the tests' ``llvm_ad_rgb``
-    (on a ``cuda_*`` variant on the device), ``device`` and ``host`` as they say."""
-    from methods.symbolic.uncertainty.sandwich_meat import scores_on_device
-
-    assert [scores_on_device(s) for s in ("auto", "device", "host")] == [False, True, False]

@@ -21,7 +21,7 @@ from methods.symbolic.misfit.alignment import pose_terms
 from methods.symbolic.misfit.clusters import view_clusters
 from methods.symbolic.options import SymbolicOptions
 from methods.symbolic.uncertainty.observability import observable_parameters, restrict_system
-from methods.symbolic.uncertainty.sandwich_meat import score_meat, scores_on_device
+from methods.symbolic.uncertainty.sandwich_meat import score_meat
 from methods.symbolic.uncertainty.standard_errors import correlation_extra, parameter_uncertainty
 
 
@@ -88,7 +88,7 @@ def fit_joint(system, basis, params, x0: np.ndarray, problem, options: SymbolicO
         if method == "cluster":
             clusters, about = view_clusters(problem, views(), basis, np.nan_to_num(estimate))
         meat = (score_meat(sub_basis, sol.estimate, views(), columns, basis.codes, clusters=clusters,
-                           poses=pose_terms(problem, views()), device=scores_on_device(options.std_device))
+                           poses=pose_terms(problem, views()), device=options.std_device == "device")
                 if method in ("sandwich", "cluster") else None)
         unc = parameter_uncertainty(sub_system, sub_basis, sol.estimate, meat=meat, hessians=sol.hessians)
         return point.replace(std=full(observable, unc.std), correlation=correlation_extra(params, observable, unc),

@@ -33,7 +33,6 @@ from methods.symbolic.misfit.alignment import Alignment
 from methods.symbolic.options import SymbolicOptions
 from methods.symbolic.system.basis import MonomialBasis
 from methods.symbolic.system.polynomial_pass import polynomial_pass
-from methods.symbolic.uncertainty.sandwich_meat import scores_on_device
 
 
 @dataclasses.dataclass
@@ -174,7 +173,7 @@ def solve_system(system, basis, params, x0: np.ndarray, problem, options: Symbol
         if options.cost == "per_segment":
             return fit_per_segment(system, basis, params, x0, problem, views=views, groups=groups,
                                    xtol=options.solver.xtol_rel, psd=options.psd,
-                                   std_device=scores_on_device(options.std_device))
+                                   std_device=options.std_device == "device")
         return fit_joint(system, basis, params, x0, problem, options, views=views, groups=groups,
                          defer_std=defer_std)
     return fit_with_known(solve, system, basis, params, x0, problem, views=views, groups=groups,

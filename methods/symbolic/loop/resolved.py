@@ -28,6 +28,10 @@ Rules, in the order they depend on each other:
 ``align``
     ``rotation`` for photographs with ``refine`` >= 1 (a surveyed pose is a fraction of a pixel
     off); ``none`` for rendered observations (exact poses) or without a further pass.
+``std_device``
+    ``device`` on a ``cuda_*`` variant (the std's products as kernels on the GPU), ``host`` on an
+    ``llvm_*`` one, where the std with scipy's products took 0.36-0.73 of its time through Dr.Jit
+    (the two give the same values; docs/design-notes.md).
 ``bias``
     ``richardson`` on the field path (pixel weights, gains, robust rounds, a lens, unknown light:
     a solve non-linear in the pass's noisy coefficients) when ``spp`` is a multiple of 4 and
@@ -38,6 +42,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from framework.render.backend import jit_backend
 from methods.symbolic.fit.field import field_path_reasons
 from methods.symbolic.fit.solve import AUTO_STARTS, AUTO_STARTS_MAX_PARAMS
 from methods.symbolic.misfit.consistency import MIN_OTHERS
@@ -58,6 +63,7 @@ class Facts:
     scales: int            #: emitters of unknown scale
     spp: int               #: ``render.spp``
     views: int             #: views fitted
+    backend: str = "llvm"  #: the run's Dr.Jit backend (``cuda`` or ``llvm``)
 
     @classmethod
     def of(cls, options: SymbolicOptions, problem) -> "Facts":
@@ -71,7 +77,7 @@ class Facts:
                    distorted=any(getattr(c, "distortion", None) is not None for c in problem.cameras),
                    vignetting=photometry.vignetting if photometry is not None else "none",
                    scales=len(unknown_emitters(scene)), spp=int(problem.settings.spp),
-                   views=len(problem.cameras))
+                   views=len(problem.cameras), backend=jit_backend(problem.settings.variant))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,6 +121,10 @@ def resolved(options: SymbolicOptions, facts: Facts) -> Resolved:
                                                    if facts.photographs and options.refine >= 1
                                                    else "no further pass to register before" if facts.photographs
                                                    else "the run's own poses are exact"))
+    gpu = facts.backend == "cuda"
+    decide("std_device", "device" if gpu else "host",
+           "a cuda_* variant: the scores' products on the GPU, where the coefficients' sums are kernels" if gpu
+           else "an llvm_* variant: scipy's products on the host are faster than Dr.Jit's on the CPU")
     compare = robust != "none" and facts.views > MIN_OTHERS
     decide("consistency", "auto" if compare else "none",
            f"robust reweighting over {facts.views} views: a pixel two other views see is weighed by their "

@@ -16,7 +16,6 @@ import functools
 import numpy as np
 import scipy.sparse as sp
 
-from framework.render.backend import jit_backend
 from framework.threads import run_threads, two_at_a_time
 from methods.symbolic.misfit.clusters import cr1_factor
 from methods.symbolic.system.basis import MonomialBasis
@@ -30,12 +29,6 @@ from methods.symbolic.system.view_systems import row_blocks
 #: a time on two threads the run peaked at 1,345 MiB, on one thread 854 MiB, in chunks on two
 #: threads 841 MiB
 SCORE_CHUNK_NNZ = 1 << 20
-
-
-def scores_on_device(std_device: str) -> bool:
-    """Whether ``method.std_device`` (``auto``, ``device``, ``host``) forms the scores' products on
-    the run's device: ``auto`` where the active variant is a ``cuda_*`` one."""
-    return std_device == "device" or (std_device == "auto" and jit_backend() == "cuda")
 
 
 def score_meat(basis: MonomialBasis, rho: np.ndarray, views, columns: np.ndarray, codes: np.ndarray, *,
