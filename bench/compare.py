@@ -57,8 +57,7 @@ def run_one(sizes, root: Path, label: str, scene: str, n_views: int, overrides: 
     finished) is read instead of run again; its ``wall_s`` is then the run's own total.
     """
     vtag = "single" if n_views == 1 else "all"
-    slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", label.replace("=", "-")).strip("_")
-    run_dir, cache = root / scene / vtag / slug, root / "cache" / scene / vtag / slug
+    run_dir, cache = _folders(root, label, scene, vtag)
     image = _image(sizes, n_views)
     row = {"label": label, "scene": scene, "views": vtag, "budget": budget, "run_dir": str(run_dir),
            "image": image}
@@ -77,6 +76,36 @@ def run_one(sizes, root: Path, label: str, scene: str, n_views: int, overrides: 
     wall = time.perf_counter() - t
     log(f"[compare] {scene} {vtag} {label}: {res['timings_s']['total']:.1f} s, {res['renders']} renders")
     return {**row, "n_views": len(res["settings"]["views"]), "wall_s": wall, "results": res}
+
+
+def _folders(root: Path, label: str, scene: str, vtag: str) -> tuple[Path, Path]:
+    """The run folder and the pass cache of the run ``label``."""
+    slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", label.replace("=", "-")).strip("_")
+    return root / scene / vtag / slug, root / "cache" / scene / vtag / slug
+
+
+#: renders of each method's warm-up run (:func:`warm_kernels`)
+WARM_BUDGET = 2
+
+
+def warm_kernels(sizes, root: Path, scene: str, n_views: int, log=print) -> float:
+    """One run of every method of :data:`METHODS` at :data:`WARM_BUDGET` renders, not recorded, so
+    that each timed run finds its Dr.Jit kernels compiled (in this process and in Dr.Jit's disk
+    cache) whatever the machine ran before: on a fresh machine, the kernel cache empty, the first
+    symbolic run paid 0.18 s of compilation in its 0.53 s (2026-12-06), 0.003 s where the cache
+    was warm, which moved the iterative / symbolic ratios from 89-101 to 57-63. The warm-up runs'
+    folders are removed; a warm-up that fails is logged and the timed run meets the failure
+    itself. Seconds spent."""
+    t = time.perf_counter()
+    vtag = "single" if n_views == 1 else "all"
+    for label, overrides, _ in METHODS:
+        try:
+            run_one(sizes, root, f"warm-up {label}", scene, n_views, overrides, WARM_BUDGET, log=log)
+        except Exception as exc:  # noqa: BLE001 - the timed run reports it
+            log(f"[compare] warm-up of {label} failed: {exc!r}"[:300])
+        for folder in _folders(root, f"warm-up {label}", scene, vtag):
+            shutil.rmtree(folder, ignore_errors=True)
+    return time.perf_counter() - t
 
 
 def _image(sizes, n_views: int) -> int | None:
@@ -148,6 +177,7 @@ def run(sizes, root: Path, log=print, resume: bool = False) -> list[dict]:
     rows = []
     for n_views in (1, 0):
         warm_observations(sizes, root, "urban_canyon", n_views)
+        warm_kernels(sizes, root, "urban_canyon", n_views, log=log)
         for label, overrides, reduced in METHODS:
             budget = sizes.cmp_budget_all if (reduced and n_views != 1) else sizes.cmp_budget
             if label == "differentiable" and n_views != 1:
@@ -174,7 +204,10 @@ def markdown(rows: list[dict], sizes, report_path, *, path: dict | None = None) 
                 "one (the floors below say whether each curve had levelled off within its budget)")
              + _sizes_line(sizes)
              + ". Every run is in this process, by "
-             "`run_experiment`. Observations come from a shared observation cache (rendered once per "
+             "`run_experiment`, after a warm-up run of every method at "
+             f"{WARM_BUDGET} renders (not recorded), so that no timed run compiles the kernels another "
+             "machine would have found in Dr.Jit's disk cache (`compile` stays apart in each run's "
+             "results.json). Observations come from a shared observation cache (rendered once per "
              "view set, copied into each run's otherwise empty cache), so totals exclude them. Errors: "
              "over the parameters and channels the symbolic run on the same views reports observable. "
              "Times are wall-clock seconds on a machine that may have been shared (other sections or tests "

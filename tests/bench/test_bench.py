@@ -227,3 +227,24 @@ def test_gpu_sections_render_after_the_cpus(tmp_path):
     assert "_Measured today at commit g (quick sizes, 1.0 min)._" in text
     assert "| NVIDIA H200 | Xeon | 16 | cuda_ad_rgb (rgb scenes) |" in text
     assert "pass / render | <= 1.3 |" in text[:gpu_at] and "pass / render | <= 1.5 |" in text[gpu_at:]
+
+
+def test_warm_kernels_runs_every_method_once_and_keeps_nothing(tmp_path, monkeypatch):
+    """The comparison's warm-up: every method at WARM_BUDGET renders, in order; its run folder and
+    pass cache removed; a warm-up that raises is logged and the others still run."""
+    from bench import compare
+    calls, logged = [], []
+
+    def fake_run_one(sizes, root, label, scene, n_views, overrides, budget, log=print, resume=False):
+        calls.append((label, budget))
+        for folder in compare._folders(root, label, scene, "single"):
+            folder.mkdir(parents=True)
+        if "differentiable" in label:
+            raise RuntimeError("no AD here")
+
+    monkeypatch.setattr(compare, "run_one", fake_run_one)
+    compare.warm_kernels(QUICK, tmp_path, "urban_canyon", 1, log=logged.append)
+    assert calls == [(f"warm-up {label}", compare.WARM_BUDGET) for label, _, _ in compare.METHODS]
+    assert not list((tmp_path / "urban_canyon" / "single").iterdir())
+    assert not list((tmp_path / "cache" / "urban_canyon" / "single").iterdir())
+    assert len(logged) == 1 and "warm-up of differentiable failed" in logged[0]
