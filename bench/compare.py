@@ -84,8 +84,9 @@ def _folders(root: Path, label: str, scene: str, vtag: str) -> tuple[Path, Path]
     return root / scene / vtag / slug, root / "cache" / scene / vtag / slug
 
 
-#: renders of each method's warm-up run (:func:`warm_kernels`)
-WARM_BUDGET = 2
+#: renders of each method's warm-up run (:func:`warm_kernels`): the default symbolic run's first
+#: pass and its three refinement passes (with fewer it stops before its first solve)
+WARM_BUDGET = 4
 
 
 def warm_kernels(sizes, root: Path, scene: str, n_views: int, log=print) -> float:
