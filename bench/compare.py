@@ -91,12 +91,15 @@ WARM_BUDGET = 4
 
 def warm_kernels(sizes, root: Path, scene: str, n_views: int, log=print) -> float:
     """One run of every method of :data:`METHODS` at :data:`WARM_BUDGET` renders, not recorded, so
-    that each timed run finds its Dr.Jit kernels compiled (in this process and in Dr.Jit's disk
-    cache) whatever the machine ran before: on a fresh machine, the kernel cache empty, the first
-    symbolic run paid 0.18 s of compilation in its 0.53 s (2026-12-06), 0.003 s where the cache
-    was warm, which moved the iterative / symbolic ratios from 89-101 to 57-63. The warm-up runs'
-    folders are removed; a warm-up that fails is logged and the timed run meets the failure
-    itself. Seconds spent."""
+    that the timed runs find most of their Dr.Jit kernels compiled whatever the machine ran
+    before. On a fresh machine (Dr.Jit's kernel cache empty, 2026-12-06) the timed runs without it
+    compiled 0.18-0.92 s each (the symbolic run 0.18 of its 0.53 s, 0.003 s where the cache was
+    warm); after it, 0 s for the iterative (noise fresh), differentiable and default symbolic
+    runs, but still 0.16-0.17 s for the symbolic and Lambertian-prior runs (and the iterative
+    (noise fixed) one on a single view, symbolic+init on all views), where a second run of the same
+    configuration in one process compiled 0.003 s: what the warm-up run differs in is not found.
+    The warm-up runs' folders are removed; a warm-up that fails is logged
+    and the timed run meets the failure itself. Seconds spent."""
     t = time.perf_counter()
     vtag = "single" if n_views == 1 else "all"
     for label, overrides, _ in METHODS:
@@ -206,9 +209,9 @@ def markdown(rows: list[dict], sizes, report_path, *, path: dict | None = None) 
              + _sizes_line(sizes)
              + ". Every run is in this process, by "
              "`run_experiment`, after a warm-up run of every method at "
-             f"{WARM_BUDGET} renders (not recorded), so that no timed run compiles the kernels another "
-             "machine would have found in Dr.Jit's disk cache (`compile` stays apart in each run's "
-             "results.json). Observations come from a shared observation cache (rendered once per "
+             f"{WARM_BUDGET} renders (not recorded), so that the timed runs find most of their kernels "
+             "compiled whatever the machine ran before; each run's compilation stays apart in its "
+             "results.json (`timings_s.compile`) and is part of its total. Observations come from a shared observation cache (rendered once per "
              "view set, copied into each run's otherwise empty cache), so totals exclude them. Errors: "
              "over the parameters and channels the symbolic run on the same views reports observable. "
              "Times are wall-clock seconds on a machine that may have been shared (other sections or tests "
