@@ -96,8 +96,9 @@ def warm_kernels(sizes, root: Path, scene: str, n_views: int, log=print) -> floa
     compiled 0.18-0.92 s each (the symbolic run 0.18 of its 0.53 s, 0.003 s where the cache was
     warm); after it, 0 s for the iterative (noise fresh), differentiable and default symbolic
     runs, but still 0.16-0.17 s for the symbolic and Lambertian-prior runs (and the iterative
-    (noise fixed) one on a single view, symbolic+init on all views), where a second run of the same
-    configuration in one process compiled 0.003 s: what the warm-up run differs in is not found.
+    (noise fixed) one on a single view, symbolic+init on all views): each run loads its own Mitsuba
+    scene, whose objects enter some kernels as constants (docs/design-notes.md, "Kernels a later
+    run compiles again").
     The warm-up runs' folders are removed; a warm-up that fails is logged
     and the timed run meets the failure itself. Seconds spent."""
     t = time.perf_counter()
