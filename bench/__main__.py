@@ -141,7 +141,7 @@ def main(argv=None) -> int:
     root = Path(args.runs) if args.runs else ROOT / "bench" / "runs" / f"{stamp}{'_quick' if args.quick else ''}"
     root.mkdir(parents=True, exist_ok=True)
     on_gpu = sizes.variant.startswith("cuda")
-    store = (root / "results" if args.quick else RESULTS) / ("gpu" if on_gpu else "")
+    store = results_store(root, quick=args.quick, gpu=on_gpu)
     store.mkdir(parents=True, exist_ok=True)
     machine = describe(sizes.variant)
     log(f"bench ({sizes.name}) into {root}")
@@ -156,8 +156,8 @@ def main(argv=None) -> int:
         in_processes(shared, args, root)
     if args.store_only:
         return 0
-    cpu_store = store.parent if on_gpu else store
-    stored, gpu = read_stored(cpu_store), read_stored(cpu_store / "gpu")
+    stored = read_stored(results_store(root, quick=args.quick, gpu=False))
+    gpu = read_stored(results_store(root, quick=args.quick, gpu=True))
     if on_gpu:          # the machine table is the CPU sections' machine, as they recorded it
         machine = next((rec["machine"] for rec in stored.values() if "machine" in rec), machine)
     command = "python -m bench" + (" --quick" if args.quick else "")
@@ -170,6 +170,13 @@ def main(argv=None) -> int:
         readme.write_text(with_readme_block(readme.read_text(encoding="utf-8"), block), encoding="utf-8")
         log(f"wrote {readme}'s results table")
     return 0
+
+
+def results_store(root: Path, *, quick: bool, gpu: bool) -> Path:
+    """Where a run stores its sections: ``bench/results`` (``--quick``: the run folder ``root``'s
+    ``results``), and a CUDA run's in its ``gpu/``."""
+    store = root / "results" if quick else RESULTS
+    return store / "gpu" if gpu else store
 
 
 def read_stored(store: Path) -> dict:

@@ -120,8 +120,8 @@ def summary(out: Path, done: list[dict]) -> str:
 def keep(out: Path, backend: str, quick: bool) -> None:
     """Copy the stored bench sections into ``OUT/bench-results`` and pack logs, summary, stored
     sections and results.json files into ``OUT/checks.tar.gz``."""
-    store = (out / "bench-runs" / "results" if quick else ROOT / "bench" / "results") / (
-        "gpu" if backend.startswith("cuda") else "")
+    from bench.__main__ import results_store     # the bench's own rule; its sections' imports only here
+    store = results_store(out / "bench-runs", quick=quick, gpu=backend.startswith("cuda"))
     if store.is_dir():
         shutil.copytree(store, out / "bench-results", dirs_exist_ok=True,
                         ignore=shutil.ignore_patterns("gpu"))
