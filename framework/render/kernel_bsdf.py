@@ -27,16 +27,21 @@ def _put(callback, name, value):
     put(name, value, mi.ParamFlags.Differentiable)
 
 
-_UNITS: dict[tuple[str, str], object] = {}
+_UNITS: dict[tuple[str, str, bool], object] = {}
 
 
-def _unit(name: str):
-    """The unit-weight BSDF of kernel ``name`` for the current variant, loaded once and shared by
-    every kernel sum (it has no state; loading one per segment cost 4 ms each)."""
+def unit_bsdf(name: str, *, two_sided: bool = False):
+    """The unit-weight BSDF of kernel ``name`` (``twosided`` around it with ``two_sided``) for the
+    current variant, loaded once per process and shared by every user.
+
+    Shared, because it has no state, loading one per segment cost 4 ms each, and a BSDF the
+    polynomial pass calls directly is an instance in its kernel: one loaded anew by each run would
+    make every later run of a process compile that kernel again.
+    """
     kernel = K.get(name)
-    key = (mi.variant(), kernel.name)           # canonical: glossy(0.150) is glossy(0.15)
+    key = (mi.variant(), kernel.name, bool(two_sided))     # canonical: glossy(0.150) is glossy(0.15)
     if key not in _UNITS:
-        _UNITS[key] = mi.load_dict(kernel.weighted_bsdf(1.0))
+        _UNITS[key] = mi.load_dict(kernel.unit_bsdf() if two_sided else kernel.weighted_bsdf(1.0))
     return _UNITS[key]
 
 
@@ -68,7 +73,7 @@ class KernelSumMixin:
         mi.BSDF.__init__(self, props)     # no super(): see framework.render.plugin
         names = [k for k in str(props["kernels"]).split(",") if k]
         self.names = names
-        self.units = [_unit(k) for k in names]
+        self.units = [unit_bsdf(k) for k in names]
         self.delta = [K.get(k).delta for k in names]
         for i in range(len(names)):
             setattr(self, f"rho_{i}", dr.zeros(mi.UnpolarizedSpectrum))

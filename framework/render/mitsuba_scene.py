@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from framework import brdf_kernels as K
+from framework.render.arrays import device_array
 from framework.render.envmap import TO_WORLD
 from framework.render.kernel_bsdf import forward_bsdf, weight_keys
 from framework.scene import Camera, Scene
@@ -141,7 +142,10 @@ class MitsubaScene:
                 d[f"emitter_{j}"] = ed
         for i in range(len(scene.meshes)):
             d[f"mesh_{i}"] = _mesh_shape(scene, i)
-        self.scene = mi.load_dict(d, optimize=False)
+        # one thread: objects get Dr.Jit registry ids in creation order, and Mitsuba's ``path``
+        # writes the environment's id into its kernel as a literal; loaded in parallel, the id
+        # (and so the kernel) varied from run to run of a process, each compiling it again
+        self.scene = mi.load_dict(d, optimize=False, parallel=False)
         self.params = mi.traverse(self.scene)
         by_id = {s.id(): s for s in self.scene.shapes()}
         #: (mi.Shape, segment index or -1) for every mesh, in scene.meshes order
@@ -228,7 +232,8 @@ class MitsubaScene:
         if pixels is None:
             pixels = np.arange(cam.width * cam.height)
         y, x = np.divmod(np.asarray(pixels), cam.width)
-        pos = mi.Point2f(((x + 0.5) / cam.width).astype(np.float32), ((y + 0.5) / cam.height).astype(np.float32))
+        pos = mi.Point2f(device_array(mi.Float, ((x + 0.5) / cam.width).astype(np.float32)),
+                         device_array(mi.Float, ((y + 0.5) / cam.height).astype(np.float32)))
         ray, _ = self.scene.sensors()[view].sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
         return ray
 

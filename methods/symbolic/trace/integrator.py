@@ -140,7 +140,7 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
         self._configured = False
         self.n_scales = 0
         self._env_parts: list = []
-        self._shape_tables: dict[int, mi.Int32] = {}
+        self._tables_of: tuple | None = None       # (id of a scene, its segment table, its environment)
 
     # -- the path loop    # -- the path loop ---------------------------------------------------------------------------
     @dr.syntax
@@ -153,7 +153,7 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
         from the camera, slot d + 1 for the contributions of path vertex d.
         """
         D, N_max = self.n_params, self.max_bounces
-        seg_table = self._segment_table(scene)
+        seg_table, env = self._scene_tables(scene)
         ctx = mi.BSDFContext()
         track = store is None                # the radiance at the guesses is wanted (sample())
         store = store or _no_store
@@ -168,14 +168,14 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
 
         # Camera ray: directly visible emitters, the constant monomial
         si = scene.ray_intersect(ray, mi.RayFlags.All, coherent=True, active=active)
-        L = dr.select(active, β * si.emitter(scene, active).eval(si, active), 0.0)
+        L = dr.select(active, β * _emitter_at(si, env, active).eval(si, active), 0.0)
 
         while dr.hint(active, max_iterations=N_max + self.tail_bounces, label="Polynomial path"):
             # slot 0 (the camera ray's emitter) is stored in the first iteration, not before the
             # loop: a scatter before it makes Dr.Jit launch the camera rays as a kernel of their
             # own, writing and reading back the first hit (11 % of a 256-spp pass)
             first = active & (depth == 0)
-            emitter0 = si.emitter(scene, first)
+            emitter0 = _emitter_at(si, env, first)
             self._store_site(store, mi.UInt32(0), mi.UInt32(0), β * emitter0.eval(si, first), emitter0, ray.d, first)
             # One kernel k of the hit segment; up to N_max its parameter joins the monomial (eq. 7)
             active, q, p, kt, is_delta = self._choose_kernel(seg_table, si, sampler, active)
@@ -204,7 +204,7 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
 
             # Emitter hit by the BSDF-sampled ray, with the complementary MIS weight
             si = scene.ray_intersect(ray, mi.RayFlags.All, coherent=False, active=active)
-            Le, mis_bsdf, hit_emitter = _emission_hit(scene, si, prev_si, bs.pdf, prev_delta, active)
+            Le, mis_bsdf, hit_emitter = _emission_hit(scene, env, si, prev_si, bs.pdf, prev_delta, active)
             contrib_hit = dr.select(active, β * Le * mis_bsdf, 0.0)
 
             # Both contributions belong to the monomial of the path up to this vertex
@@ -223,10 +223,7 @@ class PolynomialPathMixin(KernelTables, CoefficientTiles):
         Returns ``(active, q, p, kt, is_delta)``: the lanes still on a path, and per lane the
         chosen kernel's probability, parameter index, kernel type and Dirac flag.
         """
-        n_tab = dr.width(seg_table)
-        sid = dr.reinterpret_array(mi.UInt32, si.shape)
-        valid = active & si.is_valid() & (sid < n_tab)
-        seg = dr.gather(mi.Int32, seg_table, dr.minimum(sid, n_tab - 1), valid)
+        seg, valid = seg_table.lookup(dr.reinterpret_array(mi.UInt32, si.shape), active & si.is_valid())
         active = valid & (seg >= 0)
         segu = mi.UInt32(dr.maximum(seg, 0)) * self._K_max
         u = sampler.next_1d(active)
@@ -348,12 +345,23 @@ def _no_store(slot, mono, value, active):
     """The ``store`` of :meth:`PolynomialPathMixin._trace` when only the radiance is wanted."""
 
 
-def _emission_hit(scene, si, prev_si, prev_pdf, prev_delta, active):
+def _emitter_at(si, environment, active):
+    """The emitter a ray found at ``si``: the hit shape's area light, or on a miss ``environment``
+    (an opaque pointer, or None). Mitsuba's ``si.emitter(scene)``, with the environment opaque
+    (:meth:`~methods.symbolic.trace.integrator_tables.KernelTables._scene_tables` says why)."""
+    emitter = si.shape.emitter()
+    if environment is not None:
+        emitter = dr.select(si.is_valid(), emitter, environment)
+    return dr.select(active, emitter, dr.zeros(mi.EmitterPtr))
+
+
+def _emission_hit(scene, environment, si, prev_si, prev_pdf, prev_delta, active):
     """``(Le, mis, emitter)``: radiance of the emitter hit at ``si`` by a ray sampled from the kernel at
     ``prev_si`` with pdf ``prev_pdf``, and its MIS weight against emitter sampling (1 after a
     Dirac kernel, which emitter sampling cannot reach), as Mitsuba's ``path``."""
-    emitter = si.emitter(scene, active)
+    emitter = _emitter_at(si, environment, active)
     ds = mi.DirectionSample3f(scene, si, prev_si)
+    ds.emitter = emitter                 # the constructor's own is si.emitter(scene): a literal
     em_pdf = scene.pdf_emitter_direction(prev_si, ds, active & ~prev_delta)
     em_pdf = dr.select(prev_delta, 0.0, em_pdf)
     mis = mis_weight(prev_pdf, em_pdf)

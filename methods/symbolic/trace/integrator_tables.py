@@ -12,6 +12,8 @@ import numpy as np
 
 from framework import brdf_kernels as kernel_registry
 from framework.errors import ConfigError
+from framework.render.arrays import device_array
+from framework.render.kernel_bsdf import unit_bsdf
 from methods.symbolic.options import SymbolicOptions
 from methods.symbolic.trace.monomial_codes import check_key_range
 
@@ -118,10 +120,10 @@ class KernelTables:
         self.segment_kernels = [[(str(n), int(p)) for n, p in kl] for kl in segment_kernels]
         self._build_kernel_tables()
         self._shape_segment = _shape_ids(shape_segments, len(self.segment_kernels))
-        self._shape_tables = {}
+        self._tables_of = None
         self._emitter_group = _emitter_table(emitter_groups)
         self._env_parts = parts
-        self._env_id = mi.UInt32(_emitter_id(environment) if parts else 0)
+        self._env_id = dr.opaque(mi.UInt32, _emitter_id(environment) if parts else 0)   # see _environment
         self._configured = True
 
     def _checked_guesses(self, segment_kernels, D: int, guesses) -> np.ndarray:
@@ -151,7 +153,7 @@ class KernelTables:
         cdf, ``q``, parameter and kernel type; the unit BSDF and Dirac flag of each kernel type;
         and the guesses (index ``p·C + c``)."""
         names = sorted({n for kl in self.segment_kernels for n, _ in kl})
-        self._unit_bsdfs = [mi.load_dict(kernel_registry.get(n).unit_bsdf()) for n in names]
+        self._unit_bsdfs = [unit_bsdf(n, two_sided=True) for n in names]      # shared: see unit_bsdf
         n_seg = len(self.segment_kernels)
         K_max = max(len(kl) for kl in self.segment_kernels)
         q = selection_probabilities(self.guesses, self.segment_kernels, self.prob_floor)
@@ -169,36 +171,60 @@ class KernelTables:
                 param[s, j] = p
                 ktype[s, j] = names.index(n)
         self._K_max = K_max
-        self._cdf = mi.Float(cdf.ravel())
-        self._prob = mi.Float(prob.ravel())
-        self._param = mi.UInt32(param.ravel())
-        self._ktype = mi.UInt32(ktype.ravel())
-        self._delta = mi.UInt32([int(kernel_registry.get(n).delta) for n in names])
-        self._guess_flat = mi.Float(self.guesses.ravel())
+        self._cdf = device_array(mi.Float, cdf.ravel())
+        self._prob = device_array(mi.Float, prob.ravel())
+        self._param = device_array(mi.UInt32, param.ravel())
+        self._ktype = device_array(mi.UInt32, ktype.ravel())
+        self._delta = device_array(mi.UInt32, np.array([kernel_registry.get(n).delta for n in names], np.uint32))
+        self._guess_flat = device_array(mi.Float, self.guesses.ravel())
 
-    def _segment_table(self, scene: mi.Scene) -> mi.Int32:
-        """Registry id -> segment table covering every shape of ``scene`` (unlisted: -1)."""
-        key = id(scene)
-        if key not in self._shape_tables:
+    def _scene_tables(self, scene: mi.Scene) -> tuple:
+        """``(segments, environment)`` of ``scene``, built once for the latest scene:
+
+        * ``segments``: registry id -> segment of every shape of ``scene`` (unlisted: -1);
+        * ``environment``: ``scene``'s environment emitter as an opaque ``mi.EmitterPtr``, or None.
+          Opaque, because Mitsuba's ``si.emitter(scene)`` writes the environment's registry id into
+          the kernel as a literal, and the id depends on which objects earlier runs of the process
+          left alive: a later run would compile the pass again.
+
+        Kept by ``id(scene)``, not holding ``scene``: the scene holds this integrator, and a
+        reference back would keep both alive for ever (with their emitters' registry ids).
+        """
+        if self._tables_of is None or self._tables_of[0] != id(scene):
             ids = [_shape_id(s) for s in scene.shapes()]
-            n = max(ids + list(self._shape_segment) + [0]) + 1
-            tab = np.full(n, -1, np.int32)
+            tab = np.full(max(ids + list(self._shape_segment) + [0]) + 1, -1, np.int32)
             for sid, seg in self._shape_segment.items():
                 tab[sid] = seg
-            self._shape_tables = {key: mi.Int32(tab)}   # keep only the latest scene
-        return self._shape_tables[key]
+            env = scene.environment()
+            self._tables_of = (id(scene), IdTable(mi.Int32, tab), None if env is None else dr.opaque(mi.EmitterPtr, env))
+        return self._tables_of[1:]
 
     def _group(self, emitter, active):
         """Group of the emitter each lane's ``emitter`` pointer names (0: known, or no emitter)."""
-        eid = dr.reinterpret_array(mi.UInt32, emitter)
-        n = dr.width(self._emitter_group)
-        inside = active & (eid < n)
-        return dr.gather(mi.UInt32, self._emitter_group, dr.minimum(eid, n - 1), inside)
+        group, _ = self._emitter_group.lookup(dr.reinterpret_array(mi.UInt32, emitter), active)
+        return group
 
     def _check(self):
         if not self._configured:
             raise ConfigError("PolynomialPathIntegrator used before configure(): call "
                               "configure(shape_segments, segment_kernels, n_params, guesses)")
+
+class IdTable:
+    """A table read on the device by Mitsuba registry id (of a shape or an emitter).
+
+    Its size is opaque: registry ids depend on which objects a process holds, so a size written
+    into the kernel as a literal would make a later run compile the pass again."""
+
+    def __init__(self, kind, values: np.ndarray):
+        self.kind, self.values = kind, device_array(kind, values)
+        self.size = dr.opaque(mi.UInt32, len(values))
+
+    def lookup(self, ids, active):
+        """``(value, inside)``: the entry of each lane's registry id ``ids`` where ``active`` and
+        the id is inside the table (elsewhere 0, and ``inside`` False)."""
+        inside = active & (ids < self.size)
+        return dr.gather(self.kind, self.values, dr.minimum(ids, self.size - 1), inside), inside
+
 
 def _shape_id(shape) -> int:
     """Mitsuba's registry id of ``shape``: the value ``si.shape`` holds for it on the device."""
@@ -221,7 +247,7 @@ def _emitter_id(emitter) -> int:
     return int(dr.reinterpret_array(mi.UInt32, mi.EmitterPtr(emitter))[0])
 
 
-def _emitter_table(emitter_groups) -> mi.UInt32:
+def _emitter_table(emitter_groups) -> IdTable:
     """Registry id -> group of the listed emitters (every other id: 0), groups checked ``>= 1``."""
     ids = {}
     for emitter, g in emitter_groups:
@@ -231,4 +257,4 @@ def _emitter_table(emitter_groups) -> mi.UInt32:
     tab = np.zeros(max(ids, default=0) + 1, np.uint32)
     for eid, g in ids.items():
         tab[eid] = g
-    return mi.UInt32(tab)
+    return IdTable(mi.UInt32, tab)
