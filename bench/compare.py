@@ -91,14 +91,11 @@ WARM_BUDGET = 4
 
 def warm_kernels(sizes, root: Path, scene: str, n_views: int, log=print) -> float:
     """One run of every method of :data:`METHODS` at :data:`WARM_BUDGET` renders, not recorded, so
-    that the timed runs find most of their Dr.Jit kernels compiled whatever the machine ran
-    before. On a fresh machine (Dr.Jit's kernel cache empty, 2026-12-06) the timed runs without it
-    compiled 0.18-0.92 s each (the symbolic run 0.18 of its 0.53 s, 0.003 s where the cache was
-    warm); after it, 0 s for the iterative (noise fresh), differentiable and default symbolic
-    runs, but still 0.16-0.17 s for the symbolic and Lambertian-prior runs (and the iterative
-    (noise fixed) one on a single view, symbolic+init on all views): each run loads its own Mitsuba
-    scene, whose objects enter some kernels as constants (docs/design-notes.md, "Kernels a later
-    run compiles again").
+    that the timed runs find their Dr.Jit kernels compiled whatever the machine ran before. On a
+    fresh machine (Dr.Jit's kernel cache empty, 2026-12-06) the timed runs without it compiled
+    0.18-0.92 s each (the symbolic run 0.18 of its 0.53 s). With it, and since a later run of a
+    process compiles nothing (docs/design-notes.md, "Kernels a later run would compile again"),
+    every timed run but the differentiable one compiled 0 s (0.02 s) at f2e5fea.
     The warm-up runs' folders are removed; a warm-up that fails is logged
     and the timed run meets the failure itself. Seconds spent."""
     t = time.perf_counter()
@@ -210,7 +207,7 @@ def markdown(rows: list[dict], sizes, report_path, *, path: dict | None = None) 
              + _sizes_line(sizes)
              + ". Every run is in this process, by "
              "`run_experiment`, after a warm-up run of every method at "
-             f"{WARM_BUDGET} renders (not recorded), so that the timed runs find most of their kernels "
+             f"{WARM_BUDGET} renders (not recorded), so that the timed runs find their kernels "
              "compiled whatever the machine ran before; each run's compilation stays apart in its "
              "results.json (`timings_s.compile`) and is part of its total. Observations come from a shared observation cache (rendered once per "
              "view set, copied into each run's otherwise empty cache), so totals exclude them. Errors: "
