@@ -12,6 +12,7 @@ framework.render.backend.set_variant("llvm_ad_rgb")
 import drjit as dr  # noqa: E402
 import mitsuba as mi  # noqa: E402
 import numpy as np  # noqa: E402
+import pytest  # noqa: E402
 
 from framework.render.arrays import ALIGNMENT, device_array  # noqa: E402
 from framework.render.kernel_bsdf import unit_bsdf  # noqa: E402
@@ -92,7 +93,6 @@ def test_device_array_kernel_does_not_depend_on_the_address():
 
 
 def test_device_array_errors():
-    import pytest
     with pytest.raises(TypeError, match="flat"):
         device_array(mi.Point2f, np.zeros((2, 3)))
     with pytest.raises(TypeError, match="element type"):

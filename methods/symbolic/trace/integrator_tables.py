@@ -123,7 +123,7 @@ class KernelTables:
         self._tables_of = None
         self._emitter_group = _emitter_table(emitter_groups)
         self._env_parts = parts
-        self._env_id = dr.opaque(mi.UInt32, _emitter_id(environment) if parts else 0)   # see _environment
+        self._env_id = dr.opaque(mi.UInt32, _emitter_id(environment) if parts else 0)   # see _scene_tables
         self._configured = True
 
     def _checked_guesses(self, segment_kernels, D: int, guesses) -> np.ndarray:
@@ -208,6 +208,7 @@ class KernelTables:
         if not self._configured:
             raise ConfigError("PolynomialPathIntegrator used before configure(): call "
                               "configure(shape_segments, segment_kernels, n_params, guesses)")
+
 
 class IdTable:
     """A table read on the device by Mitsuba registry id (of a shape or an emitter).
