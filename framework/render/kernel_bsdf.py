@@ -27,7 +27,7 @@ def _put(callback, name, value):
     put(name, value, mi.ParamFlags.Differentiable)
 
 
-_UNITS: dict[tuple[str, str, bool], object] = {}
+_UNITS: dict[tuple[str, str], tuple] = {}     # (variant, kernel) -> (one-sided, two-sided)
 
 
 def unit_bsdf(name: str, *, two_sided: bool = False):
@@ -36,13 +36,16 @@ def unit_bsdf(name: str, *, two_sided: bool = False):
 
     Shared, because it has no state, loading one per segment cost 4 ms each, and a BSDF the
     polynomial pass calls directly is an instance in its kernel: one loaded anew by each run would
-    make every later run of a process compile that kernel again.
+    make every later run of a process compile that kernel again. Both forms are loaded at the first
+    call for a kernel: every virtual call on BSDFs compiles a case for each instance alive, so a
+    form first loaded by a later run (the pass's two-sided one, after the first run's view check)
+    changed the check's kernel in the second run of a sweep (0.16 s of compilation on the CPU).
     """
     kernel = K.get(name)
-    key = (mi.variant(), kernel.name, bool(two_sided))     # canonical: glossy(0.150) is glossy(0.15)
+    key = (mi.variant(), kernel.name)            # canonical: glossy(0.150) is glossy(0.15)
     if key not in _UNITS:
-        _UNITS[key] = mi.load_dict(kernel.unit_bsdf() if two_sided else kernel.weighted_bsdf(1.0))
-    return _UNITS[key]
+        _UNITS[key] = (mi.load_dict(kernel.weighted_bsdf(1.0)), mi.load_dict(kernel.unit_bsdf()))
+    return _UNITS[key][bool(two_sided)]
 
 
 #: The reflection lobe types a kernel's flags can have, in the order they are looked for.

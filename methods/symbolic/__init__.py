@@ -32,6 +32,7 @@ from methods.symbolic.options import SolverOptions, SymbolicOptions
 from methods.symbolic.survey.illumination import check_gauge, nominal, pass_basis
 from methods.symbolic.survey.known import known_guess, warn_unseen
 from methods.symbolic.system.emitter_groups import unknown_emitters
+from methods.symbolic.system.polynomial_pass import release_pass_scene
 
 
 @register("symbolic")
@@ -128,7 +129,10 @@ class SymbolicMethod(Method):
         params, sub, x0, renders = self._start(problem)
         trace = Trace(t0)
         trace.record(renders, x0)
-        passes = run_passes(sub, params, x0, self.options, renders=renders, trace=trace)
+        try:
+            passes = run_passes(sub, params, x0, self.options, renders=renders, trace=trace)
+        finally:
+            release_pass_scene()            # the next run starts with the same objects alive
         return method_result(passes, sub, params, x0, self.options, started=t0, trace=trace)
 
     def render_at(self, problem, rho: np.ndarray, *, seed: int = 0) -> dict[str, np.ndarray]:

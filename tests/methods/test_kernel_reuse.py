@@ -15,6 +15,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from framework.render.arrays import ALIGNMENT, device_array  # noqa: E402
+from framework.render import kernel_bsdf as KB  # noqa: E402
 from framework.render.kernel_bsdf import unit_bsdf  # noqa: E402
 from methods.symbolic.trace.integrator import PolynomialPathIntegrator  # noqa: E402
 
@@ -74,8 +75,12 @@ def test_a_second_pass_compiles_nothing():
 
 
 def test_unit_bsdf_is_loaded_once():
+    """Each form once per process, and both at the first call for a kernel (a form loaded later
+    adds a BSDF instance, and so a case, to every virtual call on BSDFs compiled after it)."""
     assert unit_bsdf("diffuse", two_sided=True) is unit_bsdf("diffuse", two_sided=True)
     assert unit_bsdf("diffuse") is not unit_bsdf("diffuse", two_sided=True)
+    one_sided = unit_bsdf("glossy(0.35)")
+    assert KB._UNITS[(mi.variant(), "glossy(0.35)")] == (one_sided, unit_bsdf("glossy(0.35)", two_sided=True))
 
 
 def test_device_array_kernel_does_not_depend_on_the_address():
