@@ -140,7 +140,10 @@ class SymbolicMethod(Method):
         kernels): the images the solve compares with the observations."""
         index = {(p.segment, p.kernel): p.index for p in problem.parameters}
         params, sub, x0, _ = self._start(problem)
-        result = render_pass(sub, params, x0, self.options, seed=seed)
+        try:
+            result = render_pass(sub, params, x0, self.options, seed=seed)
+        finally:
+            release_pass_scene()            # as run(): the next run starts with the same objects alive
         basis = pass_basis(len(params), problem.settings.max_bounces, problem.scene, result.codes)
         own = rho[[index[(p.segment, p.kernel)] for p in params]]
         return images_at(result, basis, nominal(own, problem.scene), problem.cameras)   # the declared light
