@@ -27,11 +27,12 @@ def device_array(kind, values):
     name = dr.type_v(kind).name
     if name not in _NUMPY:
         raise TypeError(f"device_array: kind {kind.__name__} has element type {name}; use one of {', '.join(_NUMPY)}")
-    dtype = _NUMPY[name]
-    a = np.asarray(values, dtype=dtype)
-    buf = np.empty(a.nbytes + ALIGNMENT, np.uint8)
+    dtype = np.dtype(_NUMPY[name])
+    a = np.asarray(values)
+    nbytes = a.size * dtype.itemsize
+    buf = np.empty(nbytes + ALIGNMENT, np.uint8)
     start = -buf.ctypes.data % ALIGNMENT
-    out = buf[start:start + a.nbytes].view(dtype).reshape(a.shape)
-    out[...] = a
+    out = buf[start:start + nbytes].view(dtype).reshape(a.shape)
+    out[...] = a                        # the one copy, converting to kind's element type (as astype)
     return kind(out)
 

@@ -232,8 +232,8 @@ class MitsubaScene:
         if pixels is None:
             pixels = np.arange(cam.width * cam.height)
         y, x = np.divmod(np.asarray(pixels), cam.width)
-        pos = mi.Point2f(device_array(mi.Float, ((x + 0.5) / cam.width).astype(np.float32)),
-                         device_array(mi.Float, ((y + 0.5) / cam.height).astype(np.float32)))
+        pos = mi.Point2f(device_array(mi.Float, (x + 0.5) / cam.width),
+                         device_array(mi.Float, (y + 0.5) / cam.height))
         ray, _ = self.scene.sensors()[view].sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
         return ray
 

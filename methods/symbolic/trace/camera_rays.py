@@ -79,12 +79,11 @@ class TileFootprint:
         cum = np.cumsum(np.abs(w), axis=1) / total
         cum[:, -1] = 1.0                                  # round-off must not leave u above the last
         self.start = int(start)
-        self.cum = device_array(mi.Float, cum.ravel().astype(np.float32))
-        self.scale = device_array(mi.Float, (np.sign(w) * total).ravel().astype(np.float32))
+        self.cum = device_array(mi.Float, cum.ravel())
+        self.scale = device_array(mi.Float, (np.sign(w) * total).ravel())
         p, j = np.asarray(footprint.position), np.asarray(footprint.jacobian)
-        self.position = [device_array(mi.Float, p[..., a].ravel().astype(np.float32)) for a in range(2)]
-        self.jacobian = [device_array(mi.Float, j[..., a, b].ravel().astype(np.float32))
-                         for a in range(2) for b in range(2)]
+        self.position = [device_array(mi.Float, p[..., a].ravel()) for a in range(2)]
+        self.jacobian = [device_array(mi.Float, j[..., a, b].ravel()) for a in range(2) for b in range(2)]
 
     def sample(self, local, u, box):
         """``(film position, weight)`` of lanes of the tile's pixels ``local`` (from 0), ``u`` and

@@ -175,7 +175,7 @@ class KernelTables:
         self._prob = device_array(mi.Float, prob.ravel())
         self._param = device_array(mi.UInt32, param.ravel())
         self._ktype = device_array(mi.UInt32, ktype.ravel())
-        self._delta = device_array(mi.UInt32, np.array([kernel_registry.get(n).delta for n in names], np.uint32))
+        self._delta = device_array(mi.UInt32, [kernel_registry.get(n).delta for n in names])
         self._guess_flat = device_array(mi.Float, self.guesses.ravel())
 
     def _scene_tables(self, scene: mi.Scene) -> tuple:

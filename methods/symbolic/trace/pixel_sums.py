@@ -130,7 +130,7 @@ def _key_table(mono, span: int, columns) -> tuple[np.ndarray, object]:
     distinct = dr.compress(seen != 0)              # sorted: the keys that occur
     codes, cols = columns(distinct.numpy().astype(np.int64))
     table = dr.zeros(mi.UInt32, span)
-    dr.scatter(table, device_array(mi.UInt32, cols.astype(np.uint32)), distinct)
+    dr.scatter(table, device_array(mi.UInt32, cols), distinct)
     return np.asarray(codes, np.int64), table
 
 
